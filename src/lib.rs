@@ -1,0 +1,17 @@
+//! # pinc — a physics-informed neural network with control for a BlueROV2
+//!
+//! The vehicle is the simplified 4-DOF Fossen model (see [`vehicle`]) with the state in the
+//! network form `x = [x, y, z, cos psi, sin psi, u, v, w, r]` and the input
+//! `u = [X, Y, Z, Mz]` held over each sample period. A PINC predicts
+//! `x_hat(t) = x(0) + N([x(0), u(0), t])`; fed back on itself it rolls out long horizons.
+//!
+//! The embeddable core (`vehicle`, `model`, `runtime`) builds with
+//! `--no-default-features`; the `tools` feature adds dataset generation and the CLI.
+
+pub mod types;
+pub mod vehicle;
+
+#[cfg(feature = "tools")]
+pub mod dataset;
+
+pub use types::*;
