@@ -13,5 +13,7 @@ pub mod vehicle;
 
 #[cfg(feature = "tools")]
 pub mod dataset;
+#[cfg(feature = "tools")]
+pub mod trajectory_csv;
 
 pub use types::*;

@@ -1,1 +1,16 @@
-//! tmp
+//! The paper's datasets (SPEC section 2) and an MPC operating-envelope preset: seeded
+//! generation with the analytic vehicle, and `.npy` + JSON storage numpy can read.
+
+mod error;
+mod excitation;
+mod generate;
+mod preset;
+mod storage;
+
+pub use error::DatasetError;
+pub use excitation::{apply_paper_scaling, sample_inputs};
+pub use generate::{Dataset, TrajectorySet, generate, generate_set};
+pub use preset::{
+    DatasetPreset, Excitation, InitialRanges, SetSpec, TRAJECTORY_POINTS, VelocityBox, reachable_velocities,
+};
+pub use storage::{ArrayEntry, MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, SetEntry, load, save};

@@ -23,12 +23,7 @@ struct Inertia {
 
 impl Inertia {
     fn of(p: &VehicleParams) -> Self {
-        Self {
-            mu: p.m - p.x_ud,
-            mv: p.m - p.y_vd,
-            mw: p.m - p.z_wd,
-            mr: p.izz - p.n_rd,
-        }
+        Self { mu: p.m - p.x_ud, mv: p.m - p.y_vd, mw: p.m - p.z_wd, mr: p.izz - p.n_rd }
     }
 }
 

@@ -2,8 +2,8 @@
 //! sample period, the input held constant, in both state forms, with the exact Jacobian
 //! of the discrete map.
 
-use super::dynamics::{rhs, rhs_jacobians, rhs_sim, wrap_angle};
 use super::VehicleParams;
+use super::dynamics::{rhs, rhs_jacobians, rhs_sim, wrap_angle};
 use crate::types::{DEFAULT_DT, Input, InputMatrix, NU, NX, SimState, State, StateMatrix};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};

@@ -6,8 +6,7 @@ mod integrator;
 mod params;
 
 pub use dynamics::{
-    RhsInputJacobian, RhsStateJacobian, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator,
-    wrap_angle,
+    RhsInputJacobian, RhsStateJacobian, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator, wrap_angle,
 };
 pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
 pub use params::{VehicleParams, terminal_speed};

@@ -7,7 +7,12 @@ use approx::assert_relative_eq;
 fn manoeuvre(k: usize) -> Input {
     // Smooth, non-trivial excitation on every channel, keeping u, w, r of one sign.
     let t = k as f64 * 0.08;
-    Input::new(4.0 + 2.0 * (0.7 * t).sin(), 0.3 * (1.1 * t).cos(), 8.0 + 3.0 * (0.5 * t).sin(), 0.4 + 0.2 * (0.9 * t).cos())
+    Input::new(
+        4.0 + 2.0 * (0.7 * t).sin(),
+        0.3 * (1.1 * t).cos(),
+        8.0 + 3.0 * (0.5 * t).sin(),
+        0.4 + 0.2 * (0.9 * t).cos(),
+    )
 }
 
 fn start() -> SimState {

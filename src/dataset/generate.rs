@@ -1,0 +1,124 @@
+//! Seeded, bit-for-bit reproducible generation of a preset's trajectory sets.
+
+use super::excitation::{apply_paper_scaling, sample_inputs};
+use super::{DatasetPreset, SetSpec};
+use crate::types::{Input, NS, SimState, State};
+use crate::vehicle::{Rk4Vehicle, to_network};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// One set of equally long trajectories, stored flat in trajectory-major order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrajectorySet {
+    /// Set name.
+    pub name: String,
+    /// Sample period (s).
+    pub dt: f64,
+    /// Number of trajectories.
+    pub count: usize,
+    /// Points per trajectory (intervals + 1).
+    pub points: usize,
+    /// Collocation times per interval (0 if none).
+    pub collocation_points: usize,
+    /// `count * points` network-form states.
+    pub states: Vec<State>,
+    /// `count * (points - 1)` held inputs.
+    pub inputs: Vec<Input>,
+    /// `count * (points - 1) * collocation_points` times in `[0, dt]`.
+    pub collocation: Vec<f64>,
+}
+
+impl TrajectorySet {
+    /// States and inputs of trajectory `i`.
+    ///
+    /// # Panics
+    /// If `i >= count`.
+    pub fn trajectory(&self, i: usize) -> (&[State], &[Input]) {
+        let n = self.points - 1;
+        (&self.states[i * self.points..(i + 1) * self.points], &self.inputs[i * n..(i + 1) * n])
+    }
+}
+
+/// All sets of a preset, generated from one seed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset {
+    /// What was generated.
+    pub preset: DatasetPreset,
+    /// The seed it was generated from.
+    pub seed: u64,
+    /// The sets, in the preset's order.
+    pub sets: Vec<TrajectorySet>,
+}
+
+impl Dataset {
+    /// The set named `name`.
+    pub fn set(&self, name: &str) -> Option<&TrajectorySet> {
+        self.sets.iter().find(|s| s.name == name)
+    }
+}
+
+/// Each set draws from its own ChaCha stream keyed by its name, so adding or resizing one
+/// set never changes another.
+fn set_rng(seed: u64, name: &str) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(u64::from(crc32fast::hash(name.as_bytes())));
+    rng
+}
+
+/// Generates one set; `on_trajectory` is called after each trajectory (for progress).
+pub fn generate_set(spec: &SetSpec, seed: u64, mut on_trajectory: impl FnMut()) -> TrajectorySet {
+    let mut rng = set_rng(seed, &spec.name);
+    let vehicle = Rk4Vehicle::with_dt(spec.dt);
+    let n = spec.points.saturating_sub(1);
+    let mut set = TrajectorySet {
+        name: spec.name.clone(),
+        dt: spec.dt,
+        count: spec.count,
+        points: spec.points,
+        collocation_points: spec.collocation_points,
+        states: Vec::with_capacity(spec.count * spec.points),
+        inputs: Vec::with_capacity(spec.count * n),
+        collocation: Vec::with_capacity(spec.count * n * spec.collocation_points),
+    };
+    for _ in 0..spec.count {
+        let mut s0 = SimState::zeros();
+        for i in 0..NS {
+            let (lo, hi) = (spec.initial.lo[i], spec.initial.hi[i]);
+            s0[i] = if hi > lo { rng.random_range(lo..hi) } else { lo };
+        }
+        let mut inputs = sample_inputs(&spec.excitation, &mut rng, n, spec.dt);
+        if spec.paper_scaling {
+            apply_paper_scaling(&mut inputs);
+        }
+        set.states.extend(vehicle.simulate(&s0, &inputs).iter().map(to_network));
+        set.inputs.extend_from_slice(&inputs);
+        for _ in 0..n {
+            latin_hypercube(&mut rng, spec.collocation_points, spec.dt, &mut set.collocation);
+        }
+        on_trajectory();
+    }
+    set
+}
+
+/// Appends `m` collocation times in `[0, dt]`: one at `dt` when `m == 1`, otherwise a
+/// Latin-hypercube sample (one uniform point in each of `m` equal strata, shuffled).
+fn latin_hypercube(rng: &mut impl Rng, m: usize, dt: f64, out: &mut Vec<f64>) {
+    if m == 1 {
+        out.push(dt);
+        return;
+    }
+    let start = out.len();
+    out.extend((0..m).map(|j| dt * (j as f64 + rng.random::<f64>()) / m as f64));
+    // Fisher–Yates, so strata are not in time order.
+    for i in (1..m).rev() {
+        let j = rng.random_range(0..=i);
+        out.swap(start + i, start + j);
+    }
+}
+
+/// Generates every set of `preset` from `seed`; `on_trajectory` is called after each
+/// trajectory of every set.
+pub fn generate(preset: &DatasetPreset, seed: u64, mut on_trajectory: impl FnMut()) -> Dataset {
+    let sets = preset.sets.iter().map(|spec| generate_set(spec, seed, &mut on_trajectory)).collect();
+    Dataset { preset: preset.clone(), seed, sets }
+}
