@@ -227,7 +227,7 @@ fn check_entry(manifest_path: &Path, set: &SetEntry, spec: Option<&super::SetSpe
     {
         return fail("count, points, dt or collocation points differ from the preset".into());
     }
-    if set.points < 2 || !(set.dt > 0.0) {
+    if set.points < 2 || !set.dt.is_finite() || set.dt <= 0.0 {
         return fail(format!("needs at least 2 points and dt > 0, has {} points, dt {}", set.points, set.dt));
     }
     let (c, p, m) = (set.count as u64, set.points as u64, set.collocation_points as u64);

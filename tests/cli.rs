@@ -1,0 +1,113 @@
+//! The `pinc` command line: CSV contracts, exit codes and one-line errors.
+
+use pinc::trajectory_csv::read_inputs;
+use pinc::vehicle::Rk4Vehicle;
+use pinc::{Input, SimState};
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn pinc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pinc")).args(args).output().expect("run pinc")
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+#[test]
+fn simulate_reproduces_the_library_trajectory_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut csv = String::from("X,Y,Z,Mz\n");
+    let inputs: Vec<Input> =
+        (0..40).map(|k| Input::new(5.0, 0.1 * k as f64, 2.5, if k < 20 { 0.5 } else { -0.25 })).collect();
+    for u in &inputs {
+        csv += &format!("{},{},{},{}\n", u[0], u[1], u[2], u[3]);
+    }
+    let path = write(dir.path(), "in.csv", &csv);
+    let out = pinc(&["simulate", "--x0", "0.5,-1,2,3.0,0.1,0,-0.05,0.2", "--inputs", &path, "--dt", "0.1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("t,x,y,z,psi,u,v,w,r"));
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), inputs.len() + 1);
+    let s0 = SimState::from([0.5, -1.0, 2.0, 3.0, 0.1, 0.0, -0.05, 0.2]);
+    let expected = Rk4Vehicle::with_dt(0.1).simulate(&s0, &inputs);
+    for (k, (row, s)) in rows.iter().zip(&expected).enumerate() {
+        assert_eq!(row[0], k as f64 * 0.1);
+        assert_eq!(&row[1..], s.as_slice(), "row {k} must round-trip exactly");
+    }
+    // Yaw is wrapped to (-pi, pi]: starting at 3.0 rad with positive r it wraps negative.
+    assert!(rows.iter().any(|r| r[4] < 0.0) && rows.iter().all(|r| r[4] > -std::f64::consts::PI));
+}
+
+#[test]
+fn simulate_constant_surge_matches_hand_computed_first_step() {
+    // From rest with Z balancing buoyancy and only X: u(t) obeys (m - Xud) u' = X + Xu u + Xuu u|u|,
+    // so over one small step u ~ X dt / (m - Xud).
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(dir.path(), "in.csv", "Mz,Z,Y,X\n0,-3.9126,0,2\n");
+    let out = pinc(&["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", &path, "--dt", "0.001"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let last: Vec<f64> = text.lines().last().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    let u = last[5];
+    assert!((u - 2.0 * 0.001 / 14.0).abs() < 1e-8, "u after 1 ms = {u}");
+}
+
+fn assert_csv_error(csv: &str, needle: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(dir.path(), "bad.csv", csv);
+    let out = pinc(&["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", &path]);
+    assert_eq!(out.status.code(), Some(1), "csv {csv:?}");
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "one-line error, got {err:?}");
+    assert!(err.contains(needle), "error {err:?} should mention {needle:?}");
+    assert!(!err.contains("panicked"));
+    assert!(out.stdout.is_empty(), "no partial output");
+}
+
+#[test]
+fn malformed_csv_gives_one_line_errors_naming_the_line() {
+    assert_csv_error("", "empty");
+    assert_csv_error("X,Y,Z\n1,2,3\n", "missing column \"Mz\"");
+    assert_csv_error("X,Y,Z,Mz\n1,2,3,4\n1,2,abc,4\n", "line 3: column Z: \"abc\" is not a number");
+    assert_csv_error("X,Y,Z,Mz\n1,2,3,4\n1,2,3,4\nNaN,0,0,0\n", "line 4: column X: NaN is not finite");
+    assert_csv_error("X,Y,Z,Mz\n1,2,3\n", "line 2: 3 fields, header has 4");
+    assert_csv_error("X,Y,Z,Mz\n", "no input rows");
+    assert_csv_error("X,Y,Z,Mz\n1,2,3,inf\n", "line 2: column Mz: inf is not finite");
+}
+
+#[test]
+fn bad_arguments_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(dir.path(), "in.csv", "X,Y,Z,Mz\n1,2,3,4\n");
+    assert_eq!(pinc(&["simulate", "--inputs", &path]).status.code(), Some(2), "missing --x0");
+    assert_eq!(pinc(&["frobnicate"]).status.code(), Some(2));
+    let out = pinc(&["simulate", "--x0", "1,2,3", "--inputs", &path]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("expected 8"));
+    let out = pinc(&["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", "/nonexistent/in.csv"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/in.csv"));
+}
+
+#[test]
+fn gen_data_writes_a_loadable_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("paper");
+    let out = pinc(&["gen-data", "--preset", "paper", "--out", out_dir.to_str().unwrap(), "--seed", "4"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let data = pinc::dataset::load(&out_dir).unwrap();
+    assert_eq!(data.seed, 4);
+    assert_eq!(data, pinc::dataset::generate(&pinc::dataset::DatasetPreset::paper(), 4, || {}));
+    assert_eq!(pinc(&["gen-data", "--preset", "nope", "--out", "x"]).status.code(), Some(2));
+}
+
+#[test]
+fn read_inputs_accepts_reordered_and_extra_columns() {
+    let u = read_inputs("t, Mz ,X,Z,Y\n0,4,1,3,2\n".as_bytes()).unwrap();
+    assert_eq!(u, vec![Input::new(1.0, 2.0, 3.0, 4.0)]);
+}
