@@ -8,6 +8,9 @@
 //! The embeddable core (`vehicle`, `model`, `runtime`) builds with
 //! `--no-default-features`; the `tools` feature adds dataset generation and the CLI.
 
+pub mod model;
+pub mod runtime;
+pub mod traits;
 pub mod types;
 pub mod vehicle;
 

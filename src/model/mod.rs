@@ -1,0 +1,18 @@
+//! The frozen `.pinc` weight file: format, validation, encoding, and (with the `tools`
+//! feature) import of PyTorch state dicts in the layout of the paper's implementation.
+
+mod codec;
+mod error;
+mod format;
+#[cfg(feature = "tools")]
+mod import_torch;
+mod validate;
+
+pub use error::ModelError;
+pub use format::{
+    Activation, Affine, Architecture, Envelope, FORMAT_VERSION, HEADER_SIZE, HiddenLayer, LayerNormWeights, Linear,
+    MAGIC, MAX_FILE_BYTES, MAX_LAYERS, MAX_WIDTH, PincModel, Provenance, Weights,
+};
+#[cfg(feature = "tools")]
+pub use import_torch::import_state_dict;
+pub use validate::validate;

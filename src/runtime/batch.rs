@@ -1,0 +1,236 @@
+//! Batch rollout: many trajectories at once, vectorised across trajectories (each layer
+//! is an axpy over a block of lanes), for evaluators and sampling-based planners.
+
+use super::RuntimeError;
+use super::activation::activate_value;
+use super::envelope::EnvelopeStatus;
+#[cfg(target_arch = "x86_64")]
+use super::kernels::Fused;
+use super::kernels::{MulAdd, Portable, axpy};
+use super::predictor::Predictor;
+use crate::types::{Input, NU, NX, State};
+
+/// Trajectories advanced together; 32 keeps a 32-wide layer block in L1.
+pub const LANES: usize = 32;
+
+/// Scratch memory for [`Predictor::rollout_batch`], component-major over [`LANES`] lanes.
+///
+/// # Memory allocation
+/// `BatchWorkspace::new` allocates `(inputs + 2 width + 2 * 9 + 2) * 32` floats; rollouts
+/// allocate nothing.
+#[derive(Debug, Clone)]
+pub struct BatchWorkspace {
+    z: Vec<f64>,
+    ha: Vec<f64>,
+    hb: Vec<f64>,
+    x: Vec<f64>,
+    o: Vec<f64>,
+    mean: Vec<f64>,
+    var: Vec<f64>,
+    envelope: EnvelopeStatus,
+}
+
+impl BatchWorkspace {
+    /// Sizes every buffer for `p`.
+    pub fn new(p: &Predictor) -> Self {
+        Self {
+            z: vec![0.0; p.n_in * LANES],
+            ha: vec![0.0; p.width * LANES],
+            hb: vec![0.0; p.width * LANES],
+            x: vec![0.0; NX * LANES],
+            o: vec![0.0; NX * LANES],
+            mean: vec![0.0; LANES],
+            var: vec![0.0; LANES],
+            envelope: EnvelopeStatus::default(),
+        }
+    }
+
+    /// Envelope exits (one per trajectory step outside) of the last batch rollout.
+    pub fn envelope_status(&self) -> EnvelopeStatus {
+        self.envelope
+    }
+}
+
+impl Predictor {
+    /// Rolls out `x0.len()` trajectories of `N = inputs.len() / x0.len()` steps each.
+    /// `inputs` holds trajectory `i`'s inputs at `[i N, (i + 1) N)`; `out` receives its
+    /// `N + 1` states at `[i (N + 1), (i + 1)(N + 1))`, the first being `x0[i]`.
+    ///
+    /// # Errors
+    /// Lengths that do not fit, non-finite initial states or inputs (checked before
+    /// anything runs), or a non-finite prediction.
+    pub fn rollout_batch(
+        &self,
+        ws: &mut BatchWorkspace,
+        x0: &[State],
+        inputs: &[Input],
+        out: &mut [State],
+    ) -> Result<(), RuntimeError> {
+        let n = x0.len();
+        if n == 0 {
+            return if inputs.is_empty() && out.is_empty() {
+                Ok(())
+            } else {
+                Err(RuntimeError::LengthMismatch { what: "batch inputs", expected: 0, found: inputs.len() })
+            };
+        }
+        let steps = inputs.len() / n;
+        if steps * n != inputs.len() {
+            return Err(RuntimeError::LengthMismatch {
+                what: "batch inputs",
+                expected: n * steps,
+                found: inputs.len(),
+            });
+        }
+        if out.len() != n * (steps + 1) {
+            return Err(RuntimeError::LengthMismatch {
+                what: "batch output",
+                expected: n * (steps + 1),
+                found: out.len(),
+            });
+        }
+        for (i, x) in x0.iter().enumerate() {
+            if let Some(index) = x.iter().position(|v| !v.is_finite()) {
+                let _ = i;
+                return Err(RuntimeError::NonFiniteState { step: 0, index, value: x[index] });
+            }
+        }
+        for (j, u) in inputs.iter().enumerate() {
+            if let Some(index) = u.iter().position(|v| !v.is_finite()) {
+                return Err(RuntimeError::NonFiniteInput { step: j % steps, index, value: u[index] });
+            }
+        }
+        ws.envelope = EnvelopeStatus::default();
+        #[cfg(target_arch = "x86_64")]
+        if self.fused {
+            // SAFETY: `fused` is only set when the CPU reports AVX2 and FMA.
+            return unsafe { self.batch_fused(ws, x0, inputs, steps, out) };
+        }
+        self.batch_generic::<Portable>(ws, x0, inputs, steps, out)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn batch_fused(
+        &self,
+        ws: &mut BatchWorkspace,
+        x0: &[State],
+        inputs: &[Input],
+        steps: usize,
+        out: &mut [State],
+    ) -> Result<(), RuntimeError> {
+        self.batch_generic::<Fused>(ws, x0, inputs, steps, out)
+    }
+
+    #[inline(always)]
+    fn batch_generic<F: MulAdd>(
+        &self,
+        ws: &mut BatchWorkspace,
+        x0: &[State],
+        inputs: &[Input],
+        steps: usize,
+        out: &mut [State],
+    ) -> Result<(), RuntimeError> {
+        const L: usize = LANES;
+        let ns = self.seen.len();
+        let w = self.width;
+        for start in (0..x0.len()).step_by(L) {
+            let m = L.min(x0.len() - start);
+            for b in 0..m {
+                for c in 0..NX {
+                    ws.x[c * L + b] = x0[start + b][c];
+                }
+                out[(start + b) * (steps + 1)] = x0[start + b];
+            }
+            for k in 0..steps {
+                let u_of = |b: usize| &inputs[(start + b) * steps + k];
+                // Network input, component-major.
+                for (q, &i) in self.seen.iter().enumerate() {
+                    for b in 0..m {
+                        ws.z[q * L + b] = (ws.x[i * L + b] - self.in_mean[q]) * self.in_inv_std[q];
+                    }
+                }
+                for c in 0..NU {
+                    let q = ns + c;
+                    for b in 0..m {
+                        ws.z[q * L + b] = (u_of(b)[c] - self.in_mean[q]) * self.in_inv_std[q];
+                    }
+                }
+                let q = self.n_in - 1;
+                ws.z[q * L..q * L + m].fill((self.dt - self.in_mean[q]) * self.in_inv_std[q]);
+
+                for (l, layer) in self.layers.iter().enumerate() {
+                    let (input, h) = if l == 0 {
+                        (&ws.z[..], &mut ws.ha)
+                    } else if l % 2 == 1 {
+                        (&ws.ha[..], &mut ws.hb)
+                    } else {
+                        (&ws.hb[..], &mut ws.ha)
+                    };
+                    for j in 0..w {
+                        let hj = &mut h[j * L..j * L + m];
+                        hj.fill(layer.bias[j]);
+                        for i in 0..layer.cols {
+                            axpy::<F>(hj, layer.w_row[j * layer.cols + i], &input[i * L..i * L + m]);
+                        }
+                        for v in hj.iter_mut() {
+                            *v = activate_value(self.activation, layer.beta, layer.inv_beta, *v);
+                        }
+                    }
+                    if let Some(norm) = &layer.norm {
+                        let (mean, var) = (&mut ws.mean[..m], &mut ws.var[..m]);
+                        mean.fill(0.0);
+                        var.fill(0.0);
+                        for j in 0..w {
+                            for (s, v) in mean.iter_mut().zip(&h[j * L..j * L + m]) {
+                                *s += v;
+                            }
+                        }
+                        mean.iter_mut().for_each(|s| *s /= w as f64);
+                        for j in 0..w {
+                            for ((s, v), mu) in var.iter_mut().zip(&h[j * L..j * L + m]).zip(mean.iter()) {
+                                *s += (v - mu) * (v - mu);
+                            }
+                        }
+                        var.iter_mut().for_each(|s| *s = 1.0 / (*s / w as f64 + norm.eps).sqrt());
+                        for j in 0..w {
+                            let (g, beta) = (norm.gain[j], norm.bias[j]);
+                            for ((v, mu), is) in h[j * L..j * L + m].iter_mut().zip(mean.iter()).zip(var.iter()) {
+                                *v = F::mul_add(g, (*v - mu) * is, beta);
+                            }
+                        }
+                    }
+                }
+                let y = if self.layers.len() % 2 == 1 { &ws.ha } else { &ws.hb };
+                for kk in 0..NX {
+                    let ok = &mut ws.o[kk * L..kk * L + m];
+                    ok.fill(self.output.bias[kk]);
+                    for i in 0..w {
+                        axpy::<F>(ok, self.output.w_row[kk * w + i], &y[i * L..i * L + m]);
+                    }
+                    for v in ok.iter_mut() {
+                        *v = F::mul_add(*v, self.out_std[kk], self.out_mean[kk]);
+                    }
+                }
+                for b in 0..m {
+                    let mut x = State::zeros();
+                    let mut o = [0.0; NX];
+                    for c in 0..NX {
+                        x[c] = ws.x[c * L + b];
+                        o[c] = ws.o[c * L + b];
+                    }
+                    self.envelope.check(&mut ws.envelope, k, &x, u_of(b));
+                    let next = self.compose(&x, &o);
+                    if next.iter().any(|v| !v.is_finite()) {
+                        return Err(RuntimeError::NonFiniteOutput { step: k });
+                    }
+                    for c in 0..NX {
+                        ws.x[c * L + b] = next[c];
+                    }
+                    out[(start + b) * (steps + 1) + k + 1] = next;
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,17 @@
+//! The allocation-free inference core: a frozen PINC steps, rolls out (one trajectory or a
+//! batch) and linearises exactly along a horizon. Knows nothing of burn.
+
+mod activation;
+mod batch;
+mod calls;
+mod envelope;
+mod error;
+mod kernels;
+mod network;
+mod predictor;
+
+pub use activation::SOFTPLUS_THRESHOLD;
+pub use batch::BatchWorkspace;
+pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
+pub use error::RuntimeError;
+pub use predictor::{Predictor, Workspace};

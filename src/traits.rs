@@ -1,0 +1,137 @@
+//! The discrete-time interface shared by the frozen PINC and the analytic vehicle, so a
+//! controller can run either (learned-model MPC and true-model "oracle" MPC are the same
+//! code).
+
+use crate::runtime::{Predictor, RuntimeError, Workspace};
+use crate::types::{Input, InputMatrix, State, StateMatrix};
+use crate::vehicle::Rk4Vehicle;
+
+/// A model of the 9-state over one held-input sample period.
+pub trait DiscreteModel {
+    /// Scratch memory the model computes in (one per thread).
+    type Workspace;
+
+    /// A fresh workspace; the only allocation the hot calls need.
+    fn workspace(&self) -> Self::Workspace;
+
+    /// The sample period (s).
+    fn dt(&self) -> f64;
+
+    /// Input bounds `(min, max)` the model is valid for, if it knows them.
+    fn input_bounds(&self) -> Option<(Input, Input)>;
+
+    /// `out = x_{k+1}` from `x` under `u`.
+    ///
+    /// # Errors
+    /// Non-finite arguments or prediction.
+    fn step(&self, ws: &mut Self::Workspace, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError>;
+
+    /// Rolls out from `x0` under `inputs` and linearises along the trajectory: `traj` gets
+    /// `N + 1` states, `a[k] = d x_{k+1} / d x_k`, `b[k] = d x_{k+1} / d u_k`.
+    ///
+    /// # Errors
+    /// Buffer lengths that do not match, non-finite arguments or predictions.
+    fn linearise_horizon(
+        &self,
+        ws: &mut Self::Workspace,
+        x0: &State,
+        inputs: &[Input],
+        traj: &mut [State],
+        a: &mut [StateMatrix],
+        b: &mut [InputMatrix],
+    ) -> Result<(), RuntimeError>;
+}
+
+impl DiscreteModel for Predictor {
+    type Workspace = Workspace;
+
+    fn workspace(&self) -> Workspace {
+        Workspace::new(self)
+    }
+
+    fn dt(&self) -> f64 {
+        self.dt()
+    }
+
+    fn input_bounds(&self) -> Option<(Input, Input)> {
+        self.envelope().map(|e| (Input::from(e.input_min), Input::from(e.input_max)))
+    }
+
+    fn step(&self, ws: &mut Workspace, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
+        Predictor::step(self, ws, x, u, out)
+    }
+
+    fn linearise_horizon(
+        &self,
+        ws: &mut Workspace,
+        x0: &State,
+        inputs: &[Input],
+        traj: &mut [State],
+        a: &mut [StateMatrix],
+        b: &mut [InputMatrix],
+    ) -> Result<(), RuntimeError> {
+        Predictor::linearise_horizon(self, ws, x0, inputs, traj, a, b)
+    }
+}
+
+fn check_finite(step: usize, x: &State, u: &Input) -> Result<(), RuntimeError> {
+    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
+        return Err(RuntimeError::NonFiniteState { step, index, value: x[index] });
+    }
+    if let Some(index) = u.iter().position(|v| !v.is_finite()) {
+        return Err(RuntimeError::NonFiniteInput { step, index, value: u[index] });
+    }
+    Ok(())
+}
+
+impl DiscreteModel for Rk4Vehicle {
+    type Workspace = ();
+
+    fn workspace(&self) {}
+
+    fn dt(&self) -> f64 {
+        self.dt
+    }
+
+    fn input_bounds(&self) -> Option<(Input, Input)> {
+        None
+    }
+
+    fn step(&self, _: &mut (), x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
+        check_finite(0, x, u)?;
+        *out = self.step_network(x, u);
+        if out.iter().any(|v| !v.is_finite()) {
+            return Err(RuntimeError::NonFiniteOutput { step: 0 });
+        }
+        Ok(())
+    }
+
+    fn linearise_horizon(
+        &self,
+        _: &mut (),
+        x0: &State,
+        inputs: &[Input],
+        traj: &mut [State],
+        a: &mut [StateMatrix],
+        b: &mut [InputMatrix],
+    ) -> Result<(), RuntimeError> {
+        let n = inputs.len();
+        for (what, expected, found) in
+            [("trajectory", n + 1, traj.len()), ("A matrices", n, a.len()), ("B matrices", n, b.len())]
+        {
+            if expected != found {
+                return Err(RuntimeError::LengthMismatch { what, expected, found });
+            }
+        }
+        traj[0] = *x0;
+        for (k, u) in inputs.iter().enumerate() {
+            check_finite(k, &traj[k], u)?;
+            let (next, ak, bk) = self.step_with_jacobians(&traj[k], u);
+            if next.iter().any(|v| !v.is_finite()) {
+                return Err(RuntimeError::NonFiniteOutput { step: k });
+            }
+            (traj[k + 1], a[k], b[k]) = (next, ak, bk);
+        }
+        Ok(())
+    }
+}
