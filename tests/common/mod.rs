@@ -1,0 +1,113 @@
+//! Builders shared by the integration tests.
+#![allow(dead_code)]
+
+use pinc::model::{
+    Activation, Affine, Architecture, Envelope, HiddenLayer, LayerNormWeights, Linear, PincModel, Provenance, Weights,
+};
+
+/// A small deterministic generator (SplitMix64), so tests need no RNG crate.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [-1, 1).
+    pub fn sym(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+}
+
+fn linear(rng: &mut Rng, rows: usize, cols: usize) -> Linear {
+    let limit = (6.0 / (rows + cols) as f64).sqrt();
+    Linear {
+        rows,
+        cols,
+        weight: (0..rows * cols).map(|_| (rng.sym() * limit) as f32).collect(),
+        bias: (0..rows).map(|_| (rng.sym() * 0.1) as f32).collect(),
+    }
+}
+
+/// A model with random Xavier-scaled weights for `arch`, betas cycling through
+/// 1.0, -0.9, 1.7, 0.5 (negative betas occur in trained checkpoints).
+pub fn random_model(arch: Architecture, seed: u64) -> PincModel {
+    let mut rng = Rng(seed);
+    let betas = [1.0, -0.9, 1.7, 0.5];
+    let hidden = (0..arch.hidden_layers)
+        .map(|l| {
+            let cols = if l == 0 { arch.input_size() } else { arch.width };
+            HiddenLayer {
+                linear: linear(&mut rng, arch.width, cols),
+                beta: betas[l % 4],
+                layer_norm: arch.layer_norm[l].then(|| LayerNormWeights {
+                    gain: (0..arch.width).map(|_| (1.0 + 0.1 * rng.sym()) as f32).collect(),
+                    bias: (0..arch.width).map(|_| (0.1 * rng.sym()) as f32).collect(),
+                    eps: 1e-5,
+                }),
+            }
+        })
+        .collect();
+    // Trained networks predict small increments; small output weights keep random ones
+    // from diverging over a horizon.
+    let mut output = linear(&mut rng, 9, arch.width);
+    output.weight.iter_mut().for_each(|w| *w *= 0.1);
+    PincModel {
+        dt: 0.08,
+        input_scaling: None,
+        output_scaling: None,
+        envelope: None,
+        provenance: Provenance { source: "test".into(), ..Provenance::default() },
+        weights: Weights { hidden, output },
+        architecture: arch,
+    }
+}
+
+/// The paper's 4 x 32 architecture with random weights.
+pub fn paper_4x32(seed: u64) -> PincModel {
+    random_model(Architecture::paper(4, 32), seed)
+}
+
+/// Scalings and an envelope, to exercise every code path.
+pub fn with_extras(mut m: PincModel) -> PincModel {
+    let n = m.architecture.input_size();
+    m.input_scaling = Some(Affine {
+        mean: (0..n).map(|i| 0.01 * i as f64).collect(),
+        std: (0..n).map(|i| 0.5 + 0.1 * i as f64).collect(),
+    });
+    m.output_scaling = Some(Affine { mean: vec![0.001; 9], std: (0..9).map(|i| 0.05 + 0.01 * i as f64).collect() });
+    m.envelope = Some(Envelope {
+        state_min: [-1.0, -1.0, -1.0, -1.5, -1.5, -1.0, -1.0, -1.0, -1.0],
+        state_max: [1.0, 1.0, 2.0, 1.5, 1.5, 1.0, 1.0, 1.0, 1.0],
+        input_min: [-10.0, -5.0, -5.0, -1.0],
+        input_max: [10.0, 5.0, 20.0, 1.0],
+    });
+    m
+}
+
+/// Every architecture variant the runtime supports.
+pub fn variants() -> Vec<(&'static str, PincModel)> {
+    let paper = Architecture::paper(4, 32);
+    let mut no_res = paper.clone();
+    no_res.residual = false;
+    let mut no_rot = paper.clone();
+    no_rot.rotate_xy = false;
+    let mut tanh = Architecture::paper(3, 16);
+    tanh.activation = Activation::Tanh;
+    let mut no_pos = Architecture::paper(2, 24);
+    no_pos.state_inputs = vec![3, 4, 5, 6, 7, 8];
+    let mut no_ln = Architecture::paper(3, 20);
+    no_ln.layer_norm = vec![false; 3];
+    vec![
+        ("paper 4x32", random_model(paper, 1)),
+        ("paper 4x32 scaled", with_extras(random_model(Architecture::paper(4, 32), 2))),
+        ("no residual", random_model(no_res, 3)),
+        ("no rotation", random_model(no_rot, 4)),
+        ("tanh 3x16", random_model(tanh, 5)),
+        ("position-free 2x24", with_extras(random_model(no_pos, 6))),
+        ("no LayerNorm 3x20", random_model(no_ln, 7)),
+    ]
+}

@@ -1,0 +1,108 @@
+//! Exact Jacobians of the runtime against central finite differences in f64.
+
+mod common;
+
+use pinc::runtime::Predictor;
+use pinc::{Input, InputMatrix, State, StateMatrix};
+
+fn x0() -> State {
+    let psi: f64 = 0.7;
+    State::from([0.3, -0.2, 0.5, psi.cos(), psi.sin(), 0.2, -0.05, 0.1, 0.15])
+}
+
+fn inputs(n: usize) -> Vec<Input> {
+    (0..n)
+        .map(|k| Input::new(2.0 * (0.3 * k as f64).sin(), 0.5, 4.0 + 0.2 * k as f64, 0.1 * (0.2 * k as f64).cos()))
+        .collect()
+}
+
+fn step(p: &Predictor, x: &State, u: &Input) -> State {
+    let mut ws = p.workspace();
+    let mut out = State::zeros();
+    p.step(&mut ws, x, u, &mut out).unwrap();
+    out
+}
+
+/// Central differences of one step; returns (A, B).
+fn finite_differences(p: &Predictor, x: &State, u: &Input) -> (StateMatrix, InputMatrix) {
+    let h = 1e-6;
+    let mut a = StateMatrix::zeros();
+    let mut b = InputMatrix::zeros();
+    for j in 0..9 {
+        let mut e = State::zeros();
+        e[j] = h;
+        a.set_column(j, &((step(p, &(x + e), u) - step(p, &(x - e), u)) / (2.0 * h)));
+    }
+    for j in 0..4 {
+        let mut e = Input::zeros();
+        e[j] = h;
+        b.set_column(j, &((step(p, x, &(u + e)) - step(p, x, &(u - e))) / (2.0 * h)));
+    }
+    (a, b)
+}
+
+#[test]
+fn horizon_jacobians_match_central_differences_for_every_variant() {
+    let mut worst_all = 0.0_f64;
+    for (name, model) in common::variants() {
+        for (renorm, portable) in [(false, false), (true, false), (false, true)] {
+            let mut p = Predictor::new(&model).with_yaw_renormalisation(renorm);
+            if portable {
+                p = p.with_portable_kernels();
+            }
+            let n = 20;
+            let u = inputs(n);
+            let mut ws = p.workspace();
+            let mut traj = vec![State::zeros(); n + 1];
+            let mut a = vec![StateMatrix::zeros(); n];
+            let mut b = vec![InputMatrix::zeros(); n];
+            p.linearise_horizon(&mut ws, &x0(), &u, &mut traj, &mut a, &mut b)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            // The nominal trajectory is the rollout.
+            let mut roll = vec![State::zeros(); n + 1];
+            p.rollout(&mut ws, &x0(), &u, &mut roll).unwrap();
+            for (t, r) in traj.iter().zip(&roll) {
+                assert!((t - r).amax() < 1e-14, "{name}: nominal trajectory differs from the rollout");
+            }
+            for k in 0..n {
+                let (fa, fb) = finite_differences(&p, &traj[k], &u[k]);
+                let scale = fa.amax().max(fb.amax()).max(1.0);
+                let err = (a[k] - fa).amax().max((b[k] - fb).amax()) / scale;
+                worst_all = worst_all.max(err);
+                assert!(err < 1e-7, "{name} (renorm {renorm}, portable {portable}) step {k}: Jacobian error {err:e}");
+            }
+        }
+    }
+    println!("worst relative Jacobian error vs central differences: {worst_all:e}");
+}
+
+#[test]
+fn single_linearise_agrees_with_horizon_and_step() {
+    let model = common::paper_4x32(11);
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let (x, u) = (x0(), inputs(1)[0]);
+    let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
+    p.linearise(&mut ws, &x, &u, &mut next, &mut a, &mut b).unwrap();
+    assert_eq!(next, step(&p, &x, &u));
+    let (fa, fb) = finite_differences(&p, &x, &u);
+    assert!((a - fa).amax() < 1e-7 && (b - fb).amax() < 1e-7);
+}
+
+#[test]
+fn position_free_network_has_identity_position_columns() {
+    let (_, model) = common::variants().into_iter().find(|(n, _)| *n == "position-free 2x24").unwrap();
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let (x, u) = (x0(), inputs(1)[0]);
+    let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
+    p.linearise(&mut ws, &x, &u, &mut next, &mut a, &mut b).unwrap();
+    // Position does not enter the network: translating x, y, z translates the prediction.
+    for j in 0..3 {
+        for i in 0..9 {
+            assert_eq!(a[(i, j)], if i == j { 1.0 } else { 0.0 });
+        }
+    }
+    let shift = State::from([5.0, -3.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    assert!((step(&p, &(x + shift), &u) - next - shift).amax() < 1e-12);
+}

@@ -1,0 +1,126 @@
+//! Batch rollout against single rollouts, bad input, and the envelope flag.
+
+mod common;
+
+use pinc::runtime::{BatchWorkspace, Predictor, Quantity, RuntimeError};
+use pinc::{Input, State};
+
+/// Random networks drift; 30 steps keep every variant finite.
+const STEPS: usize = 30;
+
+fn case(i: usize) -> (State, Vec<Input>) {
+    let psi = 0.37 * i as f64;
+    let x0 = State::from([0.01 * i as f64, -0.2, 0.3, psi.cos(), psi.sin(), 0.1, 0.0, 0.05, 0.02 * i as f64]);
+    let inputs =
+        (0..STEPS).map(|k| Input::new((0.1 * (k + i) as f64).sin(), 0.2, 3.0 + 0.01 * k as f64, 0.05)).collect();
+    (x0, inputs)
+}
+
+#[test]
+fn batch_rollout_equals_single_rollouts() {
+    for (name, model) in common::variants() {
+        for portable in [false, true] {
+            let mut p = Predictor::new(&model);
+            if portable {
+                p = p.with_portable_kernels();
+            }
+            let n = 70; // more than two blocks of lanes, the last one partial
+            let (x0, inputs): (Vec<State>, Vec<Vec<Input>>) = (0..n).map(case).unzip();
+            let flat: Vec<Input> = inputs.concat();
+            let mut out = vec![State::zeros(); n * (STEPS + 1)];
+            p.rollout_batch(&mut BatchWorkspace::new(&p), &x0, &flat, &mut out)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            let mut ws = p.workspace();
+            let mut single = vec![State::zeros(); STEPS + 1];
+            for i in 0..n {
+                p.rollout(&mut ws, &x0[i], &inputs[i], &mut single).unwrap();
+                for k in 0..=STEPS {
+                    let err = (out[i * (STEPS + 1) + k] - single[k]).amax();
+                    assert!(err < 1e-12, "{name} (portable {portable}) trajectory {i} step {k}: {err:e}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn fused_and_portable_kernels_agree() {
+    let model = common::paper_4x32(3);
+    let (x0, inputs) = case(5);
+    let mut a = vec![State::zeros(); STEPS + 1];
+    let mut b = vec![State::zeros(); STEPS + 1];
+    let fused = Predictor::new(&model);
+    let portable = Predictor::new(&model).with_portable_kernels();
+    fused.rollout(&mut fused.workspace(), &x0, &inputs, &mut a).unwrap();
+    portable.rollout(&mut portable.workspace(), &x0, &inputs, &mut b).unwrap();
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).amax() < 1e-12);
+    }
+}
+
+#[test]
+fn non_finite_arguments_are_errors_naming_the_component() {
+    let p = Predictor::new(&common::paper_4x32(1));
+    let mut ws = p.workspace();
+    let (x0, mut inputs) = case(0);
+    let mut out = State::zeros();
+    let mut bad = x0;
+    bad[6] = f64::NAN;
+    let err = p.step(&mut ws, &bad, &inputs[0], &mut out).unwrap_err();
+    assert!(matches!(err, RuntimeError::NonFiniteState { step: 0, index: 6, value } if value.is_nan()), "{err}");
+    inputs[20][2] = f64::INFINITY;
+    let mut traj = vec![State::zeros(); STEPS + 1];
+    assert_eq!(
+        p.rollout(&mut ws, &x0, &inputs, &mut traj).unwrap_err(),
+        RuntimeError::NonFiniteInput { step: 20, index: 2, value: f64::INFINITY }
+    );
+    assert!(matches!(p.step_dt(&mut ws, &x0, &inputs[0], 0.0, &mut out), Err(RuntimeError::BadTimeStep(_))));
+    assert!(matches!(
+        p.rollout(&mut ws, &x0, &inputs[..3], &mut traj),
+        Err(RuntimeError::LengthMismatch { expected: 4, found: 31, .. })
+    ));
+    let mut bws = BatchWorkspace::new(&p);
+    let mut bout = vec![State::zeros(); 2 * (STEPS + 1)];
+    assert!(matches!(
+        p.rollout_batch(&mut bws, &[x0, x0], &[inputs.clone(), inputs].concat(), &mut bout),
+        Err(RuntimeError::NonFiniteInput { step: 20, index: 2, .. })
+    ));
+}
+
+#[test]
+fn leaving_the_training_envelope_is_flagged_not_refused() {
+    let model = common::with_extras(common::paper_4x32(2));
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let (x0, mut inputs) = case(0);
+    let mut traj = vec![State::zeros(); STEPS + 1];
+    p.rollout(&mut ws, &x0, &inputs[..10], &mut traj[..11]).unwrap();
+    assert!(ws.envelope_status().inside(), "{:?}", ws.envelope_status());
+    inputs[4][3] = 1.5; // Mz above the 1 N m seen in training
+    inputs[7][0] = -11.0;
+    p.rollout(&mut ws, &x0, &inputs[..10], &mut traj[..11]).unwrap();
+    let status = ws.envelope_status();
+    assert_eq!(status.exits, 2);
+    let first = status.first.unwrap();
+    assert_eq!((first.step, first.quantity, first.value, first.max), (4, Quantity::Input(3), 1.5, 1.0));
+    // The status is per call: a clean call clears it.
+    inputs[4][3] = 0.0;
+    inputs[7][0] = 0.0;
+    p.rollout(&mut ws, &x0, &inputs[..10], &mut traj[..11]).unwrap();
+    assert!(ws.envelope_status().inside());
+}
+
+#[test]
+fn envelope_covers_only_what_the_network_sees() {
+    let (_, model) = common::variants().into_iter().find(|(n, _)| *n == "position-free 2x24").unwrap();
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let (mut x0, inputs) = case(0);
+    x0[0] = 50.0; // far outside the position range, but position is not a network input
+    let mut out = State::zeros();
+    p.step(&mut ws, &x0, &inputs[0], &mut out).unwrap();
+    assert!(ws.envelope_status().inside());
+    x0[5] = 3.0; // surge speed is seen
+    p.step(&mut ws, &x0, &inputs[0], &mut out).unwrap();
+    assert_eq!(ws.envelope_status().first.unwrap().quantity, Quantity::State(5));
+}

@@ -1,0 +1,101 @@
+//! After construction, the hot calls perform zero heap allocations: proved with a counting
+//! global allocator (per thread, so parallel tests do not interfere).
+
+mod common;
+
+use pinc::runtime::{BatchWorkspace, Predictor};
+use pinc::traits::DiscreteModel;
+use pinc::vehicle::Rk4Vehicle;
+use pinc::{Input, InputMatrix, State, StateMatrix};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_during(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+#[test]
+fn the_counter_sees_allocations() {
+    // Guard against a counter that can never fail.
+    assert!(allocations_during(|| drop(std::hint::black_box(vec![1u8; 64]))) >= 1);
+}
+
+#[test]
+fn predictor_hot_calls_do_not_allocate() {
+    for (name, model) in common::variants() {
+        for portable in [false, true] {
+            let mut p = Predictor::new(&model).with_yaw_renormalisation(true);
+            if portable {
+                p = p.with_portable_kernels();
+            }
+            let mut ws = p.workspace();
+            let mut bws = BatchWorkspace::new(&p);
+            let n = 20;
+            let x0 = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
+            let inputs = vec![Input::new(2.0, 0.1, 5.0, 0.05); n];
+            let mut traj = vec![State::zeros(); n + 1];
+            let mut a = vec![StateMatrix::zeros(); n];
+            let mut b = vec![InputMatrix::zeros(); n];
+            let batch_x0 = vec![x0; 37];
+            let batch_inputs = vec![Input::new(1.0, 0.0, 3.0, 0.0); 37 * n];
+            let mut batch_out = vec![State::zeros(); 37 * (n + 1)];
+            let (mut next, mut a1, mut b1) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
+            let count = allocations_during(|| {
+                p.step(&mut ws, &x0, &inputs[0], &mut next).unwrap();
+                p.step_dt(&mut ws, &x0, &inputs[0], 0.06, &mut next).unwrap();
+                p.rollout(&mut ws, &x0, &inputs, &mut traj).unwrap();
+                p.linearise(&mut ws, &x0, &inputs[0], &mut next, &mut a1, &mut b1).unwrap();
+                p.linearise_horizon(&mut ws, &x0, &inputs, &mut traj, &mut a, &mut b).unwrap();
+                p.rollout_batch(&mut bws, &batch_x0, &batch_inputs, &mut batch_out).unwrap();
+                // Errors are returned without allocating too.
+                let bad = State::from_element(f64::NAN);
+                assert!(p.step(&mut ws, &bad, &inputs[0], &mut next).is_err());
+                std::hint::black_box(ws.envelope_status());
+            });
+            assert_eq!(count, 0, "{name} (portable {portable}) allocated {count} times");
+        }
+    }
+}
+
+#[test]
+fn analytic_vehicle_hot_calls_do_not_allocate() {
+    let v = Rk4Vehicle::default();
+    let mut ws = DiscreteModel::workspace(&v);
+    let n = 20;
+    let x0 = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
+    let inputs = vec![Input::new(2.0, 0.1, 5.0, 0.05); n];
+    let mut traj = vec![State::zeros(); n + 1];
+    let mut a = vec![StateMatrix::zeros(); n];
+    let mut b = vec![InputMatrix::zeros(); n];
+    let mut next = State::zeros();
+    let count = allocations_during(|| {
+        DiscreteModel::step(&v, &mut ws, &x0, &inputs[0], &mut next).unwrap();
+        v.linearise_horizon(&mut ws, &x0, &inputs, &mut traj, &mut a, &mut b).unwrap();
+    });
+    assert_eq!(count, 0);
+}
