@@ -1,0 +1,31 @@
+//! Save -> load is exact, files stay small, and a loaded model predicts as the original.
+
+mod common;
+
+use pinc::model::PincModel;
+use pinc::runtime::Predictor;
+use pinc::{Input, State};
+
+#[test]
+fn round_trip_is_exact_and_small() {
+    for (name, model) in common::variants() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.pinc");
+        model.save(&path).unwrap();
+        let loaded = PincModel::load(&path).unwrap();
+        assert_eq!(loaded, model, "{name}");
+        let size = std::fs::metadata(&path).unwrap().len();
+        if name == "paper 4x32" {
+            // 3,795 parameters as f32 plus header: about 15 KB.
+            assert_eq!(model.parameter_count(), 14 * 32 + 32 + 3 * (32 * 32 + 32) + 4 + 2 * 64 + 9 * 32 + 9);
+            assert!(size < 20_000, "4x32 file is {size} bytes");
+        }
+        let x = State::from([0.1, 0.2, 0.3, 0.6, 0.8, 0.1, 0.0, 0.05, 0.1]);
+        let u = Input::new(1.0, 0.1, 3.0, 0.02);
+        let (p, q) = (Predictor::new(&model), Predictor::new(&loaded));
+        let (mut a, mut b) = (State::zeros(), State::zeros());
+        p.step(&mut p.workspace(), &x, &u, &mut a).unwrap();
+        q.step(&mut q.workspace(), &x, &u, &mut b).unwrap();
+        assert_eq!(a, b);
+    }
+}
