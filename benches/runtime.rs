@@ -1,14 +1,73 @@
-//! Latency of the models a controller steps: the analytic vehicle (`rk4_step`, one 0.08 s
-//! sample period at the default sub-steps).
+//! Latency of the models a controller steps, on the 4 x 32 network of
+//! `tests/fixtures/random_4x32.safetensors` (the paper's architecture, PyTorch layout):
+//!
+//! - `step`: one prediction; `rollout_65`: 65 autoregressive steps (one paper trajectory);
+//! - `linearise_h20`: a 20-step horizon with every exact A_k, B_k;
+//! - `batch_rollout_1000x65`: 1000 trajectories of 65 steps, one thread;
+//! - `*_portable`: the same with the portable kernels (no AVX2/FMA), for comparison;
+//! - `rk4_step`: one 0.08 s sample period of the analytic vehicle (16 RK4 sub-steps), and
+//!   `rk4_linearise`: the same with the exact Jacobians of the discrete map.
 //!
 //! Run with `cargo bench --bench runtime`; criterion reports the median of each ID.
-
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use pinc::model::{Activation, import_state_dict};
+use pinc::runtime::{BatchWorkspace, Predictor};
 use pinc::vehicle::{Rk4Vehicle, to_network};
-use pinc::{Input, SimState};
+use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
 use std::hint::black_box;
+
+fn predictor() -> Predictor {
+    let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
+    Predictor::new(&import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap())
+}
+
+fn x0() -> State {
+    to_network(&SimState::from([0.1, -0.2, 0.5, 0.3, 0.2, 0.01, 0.05, 0.1]))
+}
+
+fn inputs(n: usize) -> Vec<Input> {
+    (0..n).map(|k| Input::new(2.0 * (0.1 * k as f64).sin(), 0.1, 5.0, 0.05 * (0.2 * k as f64).cos())).collect()
+}
+
+fn network(c: &mut Criterion) {
+    for (suffix, p) in [("", predictor()), ("_portable", predictor().with_portable_kernels())] {
+        let mut ws = p.workspace();
+        let (x, u) = (x0(), inputs(65));
+        let mut out = State::zeros();
+        c.bench_function(&format!("step{suffix}"), |b| {
+            b.iter(|| p.step(&mut ws, black_box(&x), black_box(&u[0]), &mut out).unwrap())
+        });
+        let mut traj = vec![State::zeros(); 66];
+        c.bench_function(&format!("rollout_65{suffix}"), |b| {
+            b.iter(|| p.rollout(&mut ws, black_box(&x), black_box(&u), &mut traj).unwrap())
+        });
+        let (mut t20, mut a, mut bm) =
+            (vec![State::zeros(); 21], vec![StateMatrix::zeros(); 20], vec![InputMatrix::zeros(); 20]);
+        c.bench_function(&format!("linearise_h20{suffix}"), |b| {
+            b.iter(|| {
+                p.linearise_horizon(&mut ws, black_box(&x), black_box(&u[..20]), &mut t20, &mut a, &mut bm).unwrap()
+            })
+        });
+        let mut bws = BatchWorkspace::new(&p);
+        let x0s: Vec<State> = (0..1000)
+            .map(|i| {
+                let mut x = x0();
+                x[2] += 0.001 * i as f64;
+                x
+            })
+            .collect();
+        let batch_inputs: Vec<Input> = (0..1000).flat_map(|_| inputs(65)).collect();
+        let mut batch_out = vec![State::zeros(); 1000 * 66];
+        let mut group = c.benchmark_group("batch");
+        group.sample_size(20);
+        group.bench_function(format!("batch_rollout_1000x65{suffix}"), |b| {
+            b.iter(|| p.rollout_batch(&mut bws, black_box(&x0s), black_box(&batch_inputs), &mut batch_out).unwrap())
+        });
+        group.finish();
+    }
+}
 
 fn rk4_step(c: &mut Criterion) {
     let vehicle = Rk4Vehicle::default();
@@ -16,8 +75,8 @@ fn rk4_step(c: &mut Criterion) {
     let u = Input::new(4.0, 0.3, 8.0, 0.4);
     c.bench_function("rk4_step", |b| b.iter(|| vehicle.step_sim(black_box(&s), black_box(&u))));
     let x = to_network(&s);
-    c.bench_function("rk4_step_jacobians", |b| b.iter(|| vehicle.step_with_jacobians(black_box(&x), black_box(&u))));
+    c.bench_function("rk4_linearise", |b| b.iter(|| vehicle.step_with_jacobians(black_box(&x), black_box(&u))));
 }
 
-criterion_group!(benches, rk4_step);
+criterion_group!(benches, network, rk4_step);
 criterion_main!(benches);

@@ -85,6 +85,7 @@ fn predictor_hot_calls_do_not_allocate() {
 #[test]
 fn analytic_vehicle_hot_calls_do_not_allocate() {
     let v = Rk4Vehicle::default();
+    #[allow(clippy::let_unit_value)] // the analytic model's workspace is ()
     let mut ws = DiscreteModel::workspace(&v);
     let n = 20;
     let x0 = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);

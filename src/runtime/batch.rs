@@ -2,11 +2,11 @@
 //! is an axpy over a block of lanes), for evaluators and sampling-based planners.
 
 use super::RuntimeError;
-use super::activation::activate_value;
+use super::activation::activate_slice;
 use super::envelope::EnvelopeStatus;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
-use super::kernels::{MulAdd, Portable, axpy};
+use super::kernels::{MulAdd, Portable, accumulate};
 use super::predictor::Predictor;
 use crate::types::{Input, NU, NX, State};
 
@@ -170,12 +170,8 @@ impl Predictor {
                     for j in 0..w {
                         let hj = &mut h[j * L..j * L + m];
                         hj.fill(layer.bias[j]);
-                        for i in 0..layer.cols {
-                            axpy::<F>(hj, layer.w_row[j * layer.cols + i], &input[i * L..i * L + m]);
-                        }
-                        for v in hj.iter_mut() {
-                            *v = activate_value(self.activation, layer.beta, layer.inv_beta, *v);
-                        }
+                        accumulate::<F>(hj, &layer.w_row[j * layer.cols..(j + 1) * layer.cols], input, L);
+                        activate_slice::<F>(self.activation, layer.beta, layer.inv_beta, hj, None);
                     }
                     if let Some(norm) = &layer.norm {
                         let (mean, var) = (&mut ws.mean[..m], &mut ws.var[..m]);
@@ -205,9 +201,7 @@ impl Predictor {
                 for kk in 0..NX {
                     let ok = &mut ws.o[kk * L..kk * L + m];
                     ok.fill(self.output.bias[kk]);
-                    for i in 0..w {
-                        axpy::<F>(ok, self.output.w_row[kk * w + i], &y[i * L..i * L + m]);
-                    }
+                    accumulate::<F>(ok, &self.output.w_row[kk * w..(kk + 1) * w], y, L);
                     for v in ok.iter_mut() {
                         *v = F::mul_add(*v, self.out_std[kk], self.out_mean[kk]);
                     }

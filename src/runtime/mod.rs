@@ -11,7 +11,7 @@ mod network;
 mod predictor;
 
 pub use activation::SOFTPLUS_THRESHOLD;
-pub use batch::BatchWorkspace;
+pub use batch::{BatchWorkspace, LANES};
 pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
 pub use error::RuntimeError;
 pub use predictor::{Predictor, Workspace};

@@ -1,8 +1,8 @@
 //! One evaluation of the network (forward, optionally keeping what the reverse pass
 //! needs), its exact Jacobian by reverse mode, and the residual / yaw-rotation output map.
 
-use super::activation::{activate, activate_value};
-use super::kernels::{MulAdd, axpy};
+use super::activation::activate_slice;
+use super::kernels::{MulAdd, accumulate};
 use super::predictor::{Predictor, Workspace};
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 
@@ -30,19 +30,9 @@ impl Predictor {
             let input: &[f64] = if l == 0 { &ws.z } else { &done[(l - 1) * w..] };
             let out = &mut rest[..w];
             out.copy_from_slice(&layer.bias);
-            for (i, &v) in input.iter().enumerate() {
-                axpy::<F>(out, v, &layer.w_col[i * w..(i + 1) * w]);
-            }
-            if keep {
-                let d = &mut ws.d[l * w..(l + 1) * w];
-                for (o, d) in out.iter_mut().zip(d.iter_mut()) {
-                    (*o, *d) = activate(self.activation, layer.beta, layer.inv_beta, *o);
-                }
-            } else {
-                for o in out.iter_mut() {
-                    *o = activate_value(self.activation, layer.beta, layer.inv_beta, *o);
-                }
-            }
+            accumulate::<F>(out, input, &layer.w_col, w);
+            let d = if keep { Some(&mut ws.d[l * w..(l + 1) * w]) } else { None };
+            activate_slice::<F>(self.activation, layer.beta, layer.inv_beta, out, d);
             if let Some(norm) = &layer.norm {
                 let mean = out.iter().sum::<f64>() / w as f64;
                 let var = out.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / w as f64;
@@ -58,9 +48,7 @@ impl Predictor {
         let y = &ws.y[(self.layers.len() - 1) * w..];
         let mut o = [0.0; NX];
         o.copy_from_slice(&self.output.bias);
-        for (i, &v) in y.iter().enumerate() {
-            axpy::<F>(&mut o, v, &self.output.w_col[i * NX..(i + 1) * NX]);
-        }
+        accumulate::<F>(&mut o, y, &self.output.w_col, NX);
         for k in 0..NX {
             o[k] = F::mul_add(o[k], self.out_std[k], self.out_mean[k]);
         }
@@ -108,9 +96,7 @@ impl Predictor {
             for k in 0..NX {
                 let g2 = &mut ws.g2[k * cols..(k + 1) * cols];
                 g2.fill(0.0);
-                for j in 0..w {
-                    axpy::<F>(g2, ws.g[k * w + j], &layer.w_row[j * cols..(j + 1) * cols]);
-                }
+                accumulate::<F>(g2, &ws.g[k * w..(k + 1) * w], &layer.w_row, cols);
             }
             // The next (earlier) layer reads rows of length `cols` (= w, or n_in at the end).
             for k in 0..NX {
