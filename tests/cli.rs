@@ -111,3 +111,65 @@ fn read_inputs_accepts_reordered_and_extra_columns() {
     let u = read_inputs("t, Mz ,X,Z,Y\n0,4,1,3,2\n".as_bytes()).unwrap();
     assert_eq!(u, vec![Input::new(1.0, 2.0, 3.0, 4.0)]);
 }
+
+fn fixture_path(name: &str) -> String {
+    format!("{}/tests/fixtures/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn import_inspect_predict_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let model_path = dir.path().join("m.pinc");
+    let model = model_path.to_str().unwrap();
+    let out = pinc(&["import-torch", "--weights", &fixture_path("random_4x32.safetensors"), "--out", model]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let size = std::fs::metadata(&model_path).unwrap().len();
+    assert!(size < 20_000, "4x32 model file is {size} bytes");
+
+    let out = pinc(&["inspect", model, "--json"]);
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["hidden_layers"], 4);
+    assert_eq!(v["width"], 32);
+    assert_eq!(v["layer_norm_after"], serde_json::json!([1, 3]));
+    assert_eq!(v["file_bytes"], size);
+    assert_eq!(v["betas"][1].as_f64().unwrap() as f32, -0.9_f32); // a negative beta survives import
+    let text = String::from_utf8(pinc(&["inspect", model]).stdout).unwrap();
+    assert!(text.contains("4 x 32 softplus") && text.contains("envelope        none recorded"));
+
+    // predict = the library's rollout, converted to the simulator form.
+    let inputs = write(dir.path(), "in.csv", "X,Y,Z,Mz\n1,0.1,2,0.05\n0.5,0,3,-0.05\n0,0,1,0\n");
+    let out = pinc(&["predict", "--model", model, "--x0", "0.1,-0.2,0.3,2.5,0.1,0,0.05,0.1", "--inputs", &inputs]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let rows: Vec<Vec<f64>> =
+        text.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    let m = pinc::model::PincModel::load(&model_path).unwrap();
+    let p = pinc::runtime::Predictor::new(&m);
+    let x0 = pinc::vehicle::to_network(&SimState::from([0.1, -0.2, 0.3, 2.5, 0.1, 0.0, 0.05, 0.1]));
+    let us = read_inputs(std::fs::read(&inputs).unwrap().as_slice()).unwrap();
+    let mut traj = vec![pinc::State::zeros(); 4];
+    p.rollout(&mut p.workspace(), &x0, &us, &mut traj).unwrap();
+    for (row, x) in rows.iter().zip(&traj) {
+        assert_eq!(&row[1..], pinc::vehicle::to_simulator(x).as_slice());
+    }
+}
+
+#[test]
+fn bad_model_files_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let inputs = write(dir.path(), "in.csv", "X,Y,Z,Mz\n1,0,2,0\n");
+    let garbage = write(dir.path(), "garbage.pinc", "this is not a model");
+    for args in [
+        vec!["inspect", garbage.as_str()],
+        vec!["predict", "--model", garbage.as_str(), "--x0", "0,0,0,0,0,0,0,0", "--inputs", inputs.as_str()],
+        vec!["inspect", "/nonexistent/m.pinc"],
+        vec!["import-torch", "--weights", garbage.as_str(), "--out", "/tmp/never.pinc"],
+    ] {
+        let out = pinc(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(err.lines().count(), 1, "{err:?}");
+        assert!(err.contains(".pinc") || err.contains("garbage"), "{err:?} names the file");
+    }
+}

@@ -1,12 +1,14 @@
-//! `pinc`: simulate the vehicle, generate datasets, and (with later subcommands) train,
-//! evaluate, inspect and run frozen models. Thin: argument parsing, calls into the library,
+//! `pinc`: simulate the vehicle, generate datasets, import, inspect and run frozen models. Thin: argument parsing, calls into the library,
 //! one-line errors with exit code 1 (runtime) or 2 (usage).
 
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{self, DatasetPreset};
+use pinc::model::{Activation, ModelError, ModelSummary, PincModel, import_state_dict};
+use pinc::runtime::Predictor;
 use pinc::trajectory_csv::{parse_sim_state, read_inputs, write_trajectory};
-use pinc::vehicle::Rk4Vehicle;
+use pinc::vehicle::{Rk4Vehicle, to_network, to_simulator};
+use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -44,6 +46,53 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+    /// Roll a frozen model out autoregressively; prints CSV t,x,y,z,psi,u,v,w,r.
+    Predict {
+        /// The .pinc model.
+        #[arg(long)]
+        model: PathBuf,
+        /// Initial state x,y,z,psi,u,v,w,r (m, rad, m/s, rad/s).
+        #[arg(long, allow_hyphen_values = true)]
+        x0: String,
+        /// CSV with header X,Y,Z,Mz, one row per sample interval.
+        #[arg(long)]
+        inputs: PathBuf,
+        /// Time step (s); default: the model's sample period.
+        #[arg(long)]
+        dt: Option<f64>,
+        /// Renormalise (cos psi, sin psi) after every step.
+        #[arg(long)]
+        renormalise_yaw: bool,
+    },
+    /// Print a model's header: architecture, envelope, provenance.
+    Inspect {
+        /// The .pinc model.
+        model: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Convert a PyTorch state dict (safetensors, layout of the paper's code) to .pinc.
+    ImportTorch {
+        /// The safetensors state dict.
+        #[arg(long)]
+        weights: PathBuf,
+        /// Output .pinc file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Sample period the network was trained for (s).
+        #[arg(long, default_value_t = pinc::DEFAULT_DT)]
+        dt: f64,
+        /// Hidden-layer activation of the checkpoint.
+        #[arg(long, value_enum, default_value = "softplus")]
+        activation: ActivationName,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ActivationName {
+    Softplus,
+    Tanh,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -66,6 +115,11 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate { x0, inputs, dt } => run_simulate(&x0, &inputs, dt),
         Command::GenData { preset, out, seed } => run_gen_data(preset.preset(), &out, seed),
+        Command::Predict { model, x0, inputs, dt, renormalise_yaw } => {
+            run_predict(&model, &x0, &inputs, dt, renormalise_yaw)
+        }
+        Command::Inspect { model, json } => run_inspect(&model, json),
+        Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -76,15 +130,90 @@ fn main() -> ExitCode {
     }
 }
 
-fn run_simulate(x0: &str, inputs: &Path, dt: f64) -> Result<(), String> {
+/// The shared arguments of `simulate` and `predict`, checked.
+fn initial_and_inputs(x0: &str, inputs: &Path, dt: f64) -> Result<(SimState, Vec<Input>), String> {
     let s0 = parse_sim_state(x0).map_err(|e| format!("--x0: {e}"))?;
     if !(dt.is_finite() && dt > 0.0) {
         return Err(format!("--dt must be a positive number of seconds, got {dt}"));
     }
     let file = std::fs::File::open(inputs).map_err(|e| format!("{}: {e}", inputs.display()))?;
     let inputs_seq = read_inputs(file).map_err(|e| format!("{}: {e}", inputs.display()))?;
+    Ok((s0, inputs_seq))
+}
+
+fn run_simulate(x0: &str, inputs: &Path, dt: f64) -> Result<(), String> {
+    let (s0, inputs_seq) = initial_and_inputs(x0, inputs, dt)?;
     let traj = Rk4Vehicle::with_dt(dt).simulate(&s0, &inputs_seq);
     write_trajectory(std::io::stdout().lock(), dt, &traj).map_err(|e| format!("writing output: {e}"))
+}
+
+fn load_model(path: &Path) -> Result<PincModel, String> {
+    PincModel::load(path).map_err(|e| match e {
+        ModelError::Io { .. } => e.to_string(),
+        other => format!("{}: {other}", path.display()),
+    })
+}
+
+fn run_predict(model: &Path, x0: &str, inputs: &Path, dt: Option<f64>, renormalise: bool) -> Result<(), String> {
+    let m = load_model(model)?;
+    let dt = dt.unwrap_or(m.dt);
+    let (s0, inputs_seq) = initial_and_inputs(x0, inputs, dt)?;
+    let p = Predictor::new(&m).with_yaw_renormalisation(renormalise);
+    let mut ws = p.workspace();
+    let mut traj = vec![State::zeros(); inputs_seq.len() + 1];
+    p.rollout_dt(&mut ws, &to_network(&s0), &inputs_seq, dt, &mut traj)
+        .map_err(|e| format!("prediction failed: {e}"))?;
+    let status = ws.envelope_status();
+    if let Some(first) = status.first {
+        eprintln!(
+            "warning: {} of {} steps outside the training envelope; first at step {}: {:?} = {} not in [{}, {}]",
+            status.exits,
+            inputs_seq.len(),
+            first.step,
+            first.quantity,
+            first.value,
+            first.min,
+            first.max
+        );
+    }
+    let sim: Vec<SimState> = traj.iter().map(to_simulator).collect();
+    write_trajectory(std::io::stdout().lock(), dt, &sim).map_err(|e| format!("writing output: {e}"))
+}
+
+fn run_inspect(path: &Path, json: bool) -> Result<(), String> {
+    let m = load_model(path)?;
+    let size = std::fs::metadata(path).map(|md| md.len() as usize).ok();
+    let summary = ModelSummary::new(&m, size);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?);
+    } else {
+        print!("{summary}");
+    }
+    Ok(())
+}
+
+fn run_import_torch(weights: &Path, out: &Path, dt: f64, activation: ActivationName) -> Result<(), String> {
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(format!("--dt must be a positive number of seconds, got {dt}"));
+    }
+    let bytes = std::fs::read(weights).map_err(|e| format!("{}: {e}", weights.display()))?;
+    let activation = match activation {
+        ActivationName::Softplus => Activation::Softplus,
+        ActivationName::Tanh => Activation::Tanh,
+    };
+    let model = import_state_dict(&bytes, dt, activation).map_err(|e| format!("{}: {e}", weights.display()))?;
+    model.save(out).map_err(|e| e.to_string())?;
+    let a = &model.architecture;
+    println!(
+        "{} -> {}: {} x {} network, {} parameters, LayerNorm after hidden layers {:?}",
+        weights.display(),
+        out.display(),
+        a.hidden_layers,
+        a.width,
+        model.parameter_count(),
+        ModelSummary::new(&model, None).layer_norm_after
+    );
+    Ok(())
 }
 
 fn run_gen_data(preset: DatasetPreset, out: &Path, seed: u64) -> Result<(), String> {

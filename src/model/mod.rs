@@ -6,6 +6,7 @@ mod error;
 mod format;
 #[cfg(feature = "tools")]
 mod import_torch;
+mod summary;
 mod validate;
 
 pub use error::ModelError;
@@ -15,4 +16,5 @@ pub use format::{
 };
 #[cfg(feature = "tools")]
 pub use import_torch::import_state_dict;
+pub use summary::ModelSummary;
 pub use validate::validate;

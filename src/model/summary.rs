@@ -1,0 +1,112 @@
+//! What `pinc inspect` shows: the header of a model without its weights.
+
+use super::{Activation, Envelope, FORMAT_VERSION, PincModel, Provenance};
+use crate::types::STATE_NAMES;
+use serde::Serialize;
+
+/// A model's header: architecture, sample period, envelope, provenance, sizes.
+#[derive(Debug, Clone, Serialize)]
+pub struct ModelSummary {
+    /// File format version.
+    pub format_version: u32,
+    /// File size in bytes, when read from a file.
+    pub file_bytes: Option<usize>,
+    /// Learned scalars.
+    pub parameters: usize,
+    /// Hidden layers.
+    pub hidden_layers: usize,
+    /// Units per hidden layer.
+    pub width: usize,
+    /// `softplus` or `tanh`.
+    pub activation: &'static str,
+    /// Learned betas, one per hidden layer.
+    pub betas: Vec<f32>,
+    /// 1-based hidden layers followed by a LayerNorm.
+    pub layer_norm_after: Vec<usize>,
+    /// Residual output.
+    pub residual: bool,
+    /// Planar increments rotated by the predicted yaw.
+    pub rotate_xy: bool,
+    /// Names of the state components the network sees.
+    pub state_inputs: Vec<&'static str>,
+    /// Sample period (s).
+    pub dt: f64,
+    /// Input normalisation present.
+    pub input_scaling: bool,
+    /// Output de-normalisation present.
+    pub output_scaling: bool,
+    /// Training envelope, if recorded.
+    pub envelope: Option<Envelope>,
+    /// Provenance and metrics.
+    pub provenance: Provenance,
+}
+
+impl ModelSummary {
+    /// Summarises `m`; `file_bytes` is the size of the file it came from, if any.
+    pub fn new(m: &PincModel, file_bytes: Option<usize>) -> Self {
+        let a = &m.architecture;
+        Self {
+            format_version: FORMAT_VERSION,
+            file_bytes,
+            parameters: m.parameter_count(),
+            hidden_layers: a.hidden_layers,
+            width: a.width,
+            activation: match a.activation {
+                Activation::Softplus => "softplus",
+                Activation::Tanh => "tanh",
+            },
+            betas: m.weights.hidden.iter().map(|h| h.beta).collect(),
+            layer_norm_after: a.layer_norm.iter().enumerate().filter(|(_, on)| **on).map(|(l, _)| l + 1).collect(),
+            residual: a.residual,
+            rotate_xy: a.rotate_xy,
+            state_inputs: a.state_inputs.iter().map(|&i| STATE_NAMES[i as usize]).collect(),
+            dt: m.dt,
+            input_scaling: m.input_scaling.is_some(),
+            output_scaling: m.output_scaling.is_some(),
+            envelope: m.envelope.clone(),
+            provenance: m.provenance.clone(),
+        }
+    }
+}
+
+impl std::fmt::Display for ModelSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "format version  {}", self.format_version)?;
+        if let Some(b) = self.file_bytes {
+            writeln!(f, "file size       {b} bytes")?;
+        }
+        writeln!(
+            f,
+            "network         {} x {} {}, {} parameters",
+            self.hidden_layers, self.width, self.activation, self.parameters
+        )?;
+        writeln!(f, "betas           {:?}", self.betas)?;
+        writeln!(f, "LayerNorm after hidden layers {:?}", self.layer_norm_after)?;
+        writeln!(f, "residual        {}, yaw rotation {}", self.residual, self.rotate_xy)?;
+        writeln!(f, "sees states     {}", self.state_inputs.join(", "))?;
+        writeln!(f, "sample period   {} s", self.dt)?;
+        writeln!(f, "scaling         input {}, output {}", self.input_scaling, self.output_scaling)?;
+        match &self.envelope {
+            Some(e) => {
+                writeln!(f, "envelope        (training min .. max)")?;
+                for (i, name) in STATE_NAMES.iter().enumerate() {
+                    writeln!(f, "  {name:<8} {:>10.4} .. {:<10.4}", e.state_min[i], e.state_max[i])?;
+                }
+                for (i, name) in crate::types::INPUT_NAMES.iter().enumerate() {
+                    writeln!(f, "  {name:<8} {:>10.4} .. {:<10.4}", e.input_min[i], e.input_max[i])?;
+                }
+            }
+            None => writeln!(f, "envelope        none recorded")?,
+        }
+        let p = &self.provenance;
+        writeln!(
+            f,
+            "source          {} (seed {}, {} epochs), written by {}",
+            p.source, p.seed, p.epochs, p.created_by
+        )?;
+        for (k, v) in &p.metrics {
+            writeln!(f, "  {k:<8} {v}")?;
+        }
+        Ok(())
+    }
+}
