@@ -4,7 +4,9 @@
 //! - `step`: one prediction; `rollout_65`: 65 autoregressive steps (one paper trajectory);
 //! - `linearise_h20`: a 20-step horizon with every exact A_k, B_k;
 //! - `batch_rollout_1000x65`: 1000 trajectories of 65 steps, one thread;
-//! - `*_portable`: the same with the portable kernels (no AVX2/FMA), for comparison;
+//! - unsuffixed IDs use the default `f32` predictor with the AVX2 + FMA kernels (where the
+//!   CPU has them); `*_f64` the `f64` reference predictor; `*_portable` the portable kernels
+//!   (no FMA, baseline x86-64 SIMD) in `f32`;
 //! - `rk4_step`: one 0.08 s sample period of the analytic vehicle (16 RK4 sub-steps), and
 //!   `rk4_linearise`: the same with the exact Jacobians of the discrete map.
 //!
@@ -13,14 +15,14 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use pinc::model::{Activation, import_state_dict};
-use pinc::runtime::{BatchWorkspace, Predictor};
+use pinc::runtime::{BatchWorkspace, Predictor, Real};
 use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
 use std::hint::black_box;
 
-fn predictor() -> Predictor {
+fn predictor<T: Real>() -> Predictor<T> {
     let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
-    Predictor::new(&import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap())
+    Predictor::with_precision(&import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap())
 }
 
 fn x0() -> State {
@@ -32,7 +34,13 @@ fn inputs(n: usize) -> Vec<Input> {
 }
 
 fn network(c: &mut Criterion) {
-    for (suffix, p) in [("", predictor()), ("_portable", predictor().with_portable_kernels())] {
+    bench_predictor(c, "", predictor::<f32>());
+    bench_predictor(c, "_f64", predictor::<f64>());
+    bench_predictor(c, "_portable", predictor::<f32>().with_portable_kernels());
+}
+
+fn bench_predictor<T: Real>(c: &mut Criterion, suffix: &str, p: Predictor<T>) {
+    {
         let mut ws = p.workspace();
         let (x, u) = (x0(), inputs(65));
         let mut out = State::zeros();

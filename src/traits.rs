@@ -2,7 +2,7 @@
 //! controller can run either (learned-model MPC and true-model "oracle" MPC are the same
 //! code).
 
-use crate::runtime::{Predictor, RuntimeError, Workspace};
+use crate::runtime::{Predictor, Real, RuntimeError, Workspace};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 use crate::vehicle::Rk4Vehicle;
 
@@ -42,10 +42,10 @@ pub trait DiscreteModel {
     ) -> Result<(), RuntimeError>;
 }
 
-impl DiscreteModel for Predictor {
-    type Workspace = Workspace;
+impl<T: Real> DiscreteModel for Predictor<T> {
+    type Workspace = Workspace<T>;
 
-    fn workspace(&self) -> Workspace {
+    fn workspace(&self) -> Workspace<T> {
         Workspace::new(self)
     }
 
@@ -57,13 +57,13 @@ impl DiscreteModel for Predictor {
         self.envelope().map(|e| (Input::from(e.input_min), Input::from(e.input_max)))
     }
 
-    fn step(&self, ws: &mut Workspace, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
+    fn step(&self, ws: &mut Workspace<T>, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
         Predictor::step(self, ws, x, u, out)
     }
 
     fn linearise_horizon(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         traj: &mut [State],

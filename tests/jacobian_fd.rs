@@ -16,7 +16,7 @@ fn inputs(n: usize) -> Vec<Input> {
         .collect()
 }
 
-fn step(p: &Predictor, x: &State, u: &Input) -> State {
+fn step(p: &Predictor<f64>, x: &State, u: &Input) -> State {
     let mut ws = p.workspace();
     let mut out = State::zeros();
     p.step(&mut ws, x, u, &mut out).unwrap();
@@ -24,7 +24,7 @@ fn step(p: &Predictor, x: &State, u: &Input) -> State {
 }
 
 /// Central differences of one step; returns (A, B).
-fn finite_differences(p: &Predictor, x: &State, u: &Input) -> (StateMatrix, InputMatrix) {
+fn finite_differences(p: &Predictor<f64>, x: &State, u: &Input) -> (StateMatrix, InputMatrix) {
     let h = 1e-6;
     let mut a = StateMatrix::zeros();
     let mut b = InputMatrix::zeros();
@@ -46,7 +46,7 @@ fn horizon_jacobians_match_central_differences_for_every_variant() {
     let mut worst_all = 0.0_f64;
     for (name, model) in common::variants() {
         for (renorm, portable) in [(false, false), (true, false), (false, true)] {
-            let mut p = Predictor::new(&model).with_yaw_renormalisation(renorm);
+            let mut p = Predictor::<f64>::with_precision(&model).with_yaw_renormalisation(renorm);
             if portable {
                 p = p.with_portable_kernels();
             }
@@ -79,7 +79,7 @@ fn horizon_jacobians_match_central_differences_for_every_variant() {
 #[test]
 fn single_linearise_agrees_with_horizon_and_step() {
     let model = common::paper_4x32(11);
-    let p = Predictor::new(&model);
+    let p = Predictor::<f64>::with_precision(&model);
     let mut ws = p.workspace();
     let (x, u) = (x0(), inputs(1)[0]);
     let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
@@ -92,7 +92,7 @@ fn single_linearise_agrees_with_horizon_and_step() {
 #[test]
 fn position_free_network_has_identity_position_columns() {
     let (_, model) = common::variants().into_iter().find(|(n, _)| *n == "position-free 2x24").unwrap();
-    let p = Predictor::new(&model);
+    let p = Predictor::<f64>::with_precision(&model);
     let mut ws = p.workspace();
     let (x, u) = (x0(), inputs(1)[0]);
     let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
@@ -105,4 +105,25 @@ fn position_free_network_has_identity_position_columns() {
     }
     let shift = State::from([5.0, -3.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
     assert!((step(&p, &(x + shift), &u) - next - shift).amax() < 1e-12);
+}
+
+#[test]
+fn f32_jacobians_agree_with_the_f64_reference() {
+    for (name, model) in common::variants() {
+        let p64 = Predictor::<f64>::with_precision(&model);
+        let p32 = Predictor::new(&model);
+        let n = 20;
+        let u = inputs(n);
+        let (mut t64, mut a64, mut b64) =
+            (vec![State::zeros(); n + 1], vec![StateMatrix::zeros(); n], vec![InputMatrix::zeros(); n]);
+        let (mut t32, mut a32, mut b32) = (t64.clone(), a64.clone(), b64.clone());
+        p64.linearise_horizon(&mut p64.workspace(), &x0(), &u, &mut t64, &mut a64, &mut b64).unwrap();
+        p32.linearise_horizon(&mut p32.workspace(), &x0(), &u, &mut t32, &mut a32, &mut b32).unwrap();
+        for k in 0..n {
+            let scale = a64[k].amax().max(b64[k].amax()).max(1.0);
+            let err = (a32[k] - a64[k]).amax().max((b32[k] - b64[k]).amax()) / scale;
+            assert!(err < 1e-4, "{name} step {k}: f32 Jacobian differs by {err:e}");
+            assert!((t32[k + 1] - t64[k + 1]).amax() < 1e-4, "{name} step {k}: trajectories diverge");
+        }
+    }
 }

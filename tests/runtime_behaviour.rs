@@ -2,7 +2,7 @@
 
 mod common;
 
-use pinc::runtime::{BatchWorkspace, Predictor, Quantity, RuntimeError};
+use pinc::runtime::{BatchWorkspace, Predictor, Quantity, Real, RuntimeError};
 use pinc::{Input, State};
 
 /// Random networks drift; 30 steps keep every variant finite.
@@ -18,9 +18,14 @@ fn case(i: usize) -> (State, Vec<Input>) {
 
 #[test]
 fn batch_rollout_equals_single_rollouts() {
+    batch_equals_single::<f32>(1e-5);
+    batch_equals_single::<f64>(1e-12);
+}
+
+fn batch_equals_single<T: Real>(tol: f64) {
     for (name, model) in common::variants() {
         for portable in [false, true] {
-            let mut p = Predictor::new(&model);
+            let mut p = Predictor::<T>::with_precision(&model);
             if portable {
                 p = p.with_portable_kernels();
             }
@@ -36,7 +41,7 @@ fn batch_rollout_equals_single_rollouts() {
                 p.rollout(&mut ws, &x0[i], &inputs[i], &mut single).unwrap();
                 for k in 0..=STEPS {
                     let err = (out[i * (STEPS + 1) + k] - single[k]).amax();
-                    assert!(err < 1e-12, "{name} (portable {portable}) trajectory {i} step {k}: {err:e}");
+                    assert!(err < tol, "{name} (portable {portable}) trajectory {i} step {k}: {err:e}");
                 }
             }
         }
@@ -49,8 +54,8 @@ fn fused_and_portable_kernels_agree() {
     let (x0, inputs) = case(5);
     let mut a = vec![State::zeros(); STEPS + 1];
     let mut b = vec![State::zeros(); STEPS + 1];
-    let fused = Predictor::new(&model);
-    let portable = Predictor::new(&model).with_portable_kernels();
+    let fused = Predictor::<f64>::with_precision(&model);
+    let portable = Predictor::<f64>::with_precision(&model).with_portable_kernels();
     fused.rollout(&mut fused.workspace(), &x0, &inputs, &mut a).unwrap();
     portable.rollout(&mut portable.workspace(), &x0, &inputs, &mut b).unwrap();
     for (x, y) in a.iter().zip(&b) {

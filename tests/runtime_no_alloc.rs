@@ -3,7 +3,7 @@
 
 mod common;
 
-use pinc::runtime::{BatchWorkspace, Predictor};
+use pinc::runtime::{BatchWorkspace, Predictor, Real};
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::Rk4Vehicle;
 use pinc::{Input, InputMatrix, State, StateMatrix};
@@ -47,9 +47,14 @@ fn the_counter_sees_allocations() {
 
 #[test]
 fn predictor_hot_calls_do_not_allocate() {
+    hot_calls_do_not_allocate::<f32>();
+    hot_calls_do_not_allocate::<f64>();
+}
+
+fn hot_calls_do_not_allocate<T: Real>() {
     for (name, model) in common::variants() {
         for portable in [false, true] {
-            let mut p = Predictor::new(&model).with_yaw_renormalisation(true);
+            let mut p = Predictor::<T>::with_precision(&model).with_yaw_renormalisation(true);
             if portable {
                 p = p.with_portable_kernels();
             }

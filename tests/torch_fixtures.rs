@@ -2,7 +2,7 @@
 //! (tests/fixtures, made outside this project: float32 on CPU, layout of the paper's code).
 
 use pinc::model::{Activation, import_state_dict};
-use pinc::runtime::Predictor;
+use pinc::runtime::{Predictor, Real};
 use pinc::{Input, State};
 use serde_json::Value;
 
@@ -24,6 +24,12 @@ fn vec_of(v: &Value) -> Vec<f64> {
 }
 
 fn check_fixture(name: &str, layers: usize, width: usize) {
+    check_fixture_in::<f32>(name, layers, width);
+    check_fixture_in::<f64>(name, layers, width);
+}
+
+fn check_fixture_in<T: Real>(name: &str, layers: usize, width: usize) {
+    let precision = std::any::type_name::<T>();
     let f = fixture(name);
     let arch = &f.model.architecture;
     assert_eq!((arch.hidden_layers, arch.width), (layers, width));
@@ -33,7 +39,7 @@ fn check_fixture(name: &str, layers: usize, width: usize) {
         "LayerNorm after hidden layers 1, 3, .."
     );
     for portable in [false, true] {
-        let mut p = Predictor::new(&f.model);
+        let mut p = Predictor::<T>::with_precision(&f.model);
         if portable {
             p = p.with_portable_kernels();
         }
@@ -51,7 +57,10 @@ fn check_fixture(name: &str, layers: usize, width: usize) {
                 worst_step = worst_step.max((a - b).abs());
             }
         }
-        assert!(worst_step < 1e-5, "{name}: single-step max abs error {worst_step:e} (portable {portable})");
+        assert!(
+            worst_step < 1e-5,
+            "{name} {precision}: single-step max abs error {worst_step:e} (portable {portable})"
+        );
         // 65-step rollout.
         let r = &f.expected["rollout"];
         let x0 = State::from_column_slice(&vec_of(&r["x0"]));
@@ -66,8 +75,13 @@ fn check_fixture(name: &str, layers: usize, width: usize) {
                 worst_roll = worst_roll.max((a - b).abs() / b.abs().max(1.0));
             }
         }
-        assert!(worst_roll < 1e-4, "{name}: rollout max relative error {worst_roll:e} (portable {portable})");
-        println!("{name} portable={portable}: single step {worst_step:.2e} abs, rollout {worst_roll:.2e} rel");
+        assert!(
+            worst_roll < 1e-4,
+            "{name} {precision}: rollout max relative error {worst_roll:e} (portable {portable})"
+        );
+        println!(
+            "{name} {precision} portable={portable}: single step {worst_step:.2e} abs, rollout {worst_roll:.2e} rel"
+        );
     }
 }
 

@@ -8,6 +8,7 @@ use super::envelope::EnvelopeStatus;
 use super::kernels::Fused;
 use super::kernels::{MulAdd, Portable, accumulate};
 use super::predictor::Predictor;
+use super::real::Real;
 use crate::types::{Input, NU, NX, State};
 
 /// Trajectories advanced together; 32 keeps a 32-wide layer block in L1.
@@ -19,28 +20,28 @@ pub const LANES: usize = 32;
 /// `BatchWorkspace::new` allocates `(inputs + 2 width + 2 * 9 + 2) * 32` floats; rollouts
 /// allocate nothing.
 #[derive(Debug, Clone)]
-pub struct BatchWorkspace {
-    z: Vec<f64>,
-    ha: Vec<f64>,
-    hb: Vec<f64>,
+pub struct BatchWorkspace<T: Real = f32> {
+    z: Vec<T>,
+    ha: Vec<T>,
+    hb: Vec<T>,
     x: Vec<f64>,
-    o: Vec<f64>,
-    mean: Vec<f64>,
-    var: Vec<f64>,
+    o: Vec<T>,
+    mean: Vec<T>,
+    var: Vec<T>,
     envelope: EnvelopeStatus,
 }
 
-impl BatchWorkspace {
+impl<T: Real> BatchWorkspace<T> {
     /// Sizes every buffer for `p`.
-    pub fn new(p: &Predictor) -> Self {
+    pub fn new(p: &Predictor<T>) -> Self {
         Self {
-            z: vec![0.0; p.n_in * LANES],
-            ha: vec![0.0; p.width * LANES],
-            hb: vec![0.0; p.width * LANES],
+            z: vec![T::ZERO; p.n_in * LANES],
+            ha: vec![T::ZERO; p.width * LANES],
+            hb: vec![T::ZERO; p.width * LANES],
             x: vec![0.0; NX * LANES],
-            o: vec![0.0; NX * LANES],
-            mean: vec![0.0; LANES],
-            var: vec![0.0; LANES],
+            o: vec![T::ZERO; NX * LANES],
+            mean: vec![T::ZERO; LANES],
+            var: vec![T::ZERO; LANES],
             envelope: EnvelopeStatus::default(),
         }
     }
@@ -51,7 +52,7 @@ impl BatchWorkspace {
     }
 }
 
-impl Predictor {
+impl<T: Real> Predictor<T> {
     /// Rolls out `x0.len()` trajectories of `N = inputs.len() / x0.len()` steps each.
     /// `inputs` holds trajectory `i`'s inputs at `[i N, (i + 1) N)`; `out` receives its
     /// `N + 1` states at `[i (N + 1), (i + 1)(N + 1))`, the first being `x0[i]`.
@@ -61,7 +62,7 @@ impl Predictor {
     /// anything runs), or a non-finite prediction.
     pub fn rollout_batch(
         &self,
-        ws: &mut BatchWorkspace,
+        ws: &mut BatchWorkspace<T>,
         x0: &[State],
         inputs: &[Input],
         out: &mut [State],
@@ -113,7 +114,7 @@ impl Predictor {
     #[target_feature(enable = "avx2,fma")]
     fn batch_fused(
         &self,
-        ws: &mut BatchWorkspace,
+        ws: &mut BatchWorkspace<T>,
         x0: &[State],
         inputs: &[Input],
         steps: usize,
@@ -125,7 +126,7 @@ impl Predictor {
     #[inline(always)]
     fn batch_generic<F: MulAdd>(
         &self,
-        ws: &mut BatchWorkspace,
+        ws: &mut BatchWorkspace<T>,
         x0: &[State],
         inputs: &[Input],
         steps: usize,
@@ -147,17 +148,17 @@ impl Predictor {
                 // Network input, component-major.
                 for (q, &i) in self.seen.iter().enumerate() {
                     for b in 0..m {
-                        ws.z[q * L + b] = (ws.x[i * L + b] - self.in_mean[q]) * self.in_inv_std[q];
+                        ws.z[q * L + b] = (T::of(ws.x[i * L + b]) - self.in_mean[q]) * self.in_inv_std[q];
                     }
                 }
                 for c in 0..NU {
                     let q = ns + c;
                     for b in 0..m {
-                        ws.z[q * L + b] = (u_of(b)[c] - self.in_mean[q]) * self.in_inv_std[q];
+                        ws.z[q * L + b] = (T::of(u_of(b)[c]) - self.in_mean[q]) * self.in_inv_std[q];
                     }
                 }
                 let q = self.n_in - 1;
-                ws.z[q * L..q * L + m].fill((self.dt - self.in_mean[q]) * self.in_inv_std[q]);
+                ws.z[q * L..q * L + m].fill((T::of(self.dt) - self.in_mean[q]) * self.in_inv_std[q]);
 
                 for (l, layer) in self.layers.iter().enumerate() {
                     let (input, h) = if l == 0 {
@@ -170,28 +171,29 @@ impl Predictor {
                     for j in 0..w {
                         let hj = &mut h[j * L..j * L + m];
                         hj.fill(layer.bias[j]);
-                        accumulate::<F>(hj, &layer.w_row[j * layer.cols..(j + 1) * layer.cols], input, L);
-                        activate_slice::<F>(self.activation, layer.beta, layer.inv_beta, hj, None);
+                        accumulate::<F, T>(hj, &layer.w_row[j * layer.cols..(j + 1) * layer.cols], input, L);
+                        activate_slice::<F, T>(self.activation, layer.beta, layer.inv_beta, hj, None);
                     }
                     if let Some(norm) = &layer.norm {
                         let (mean, var) = (&mut ws.mean[..m], &mut ws.var[..m]);
-                        mean.fill(0.0);
-                        var.fill(0.0);
+                        mean.fill(T::ZERO);
+                        var.fill(T::ZERO);
                         for j in 0..w {
-                            for (s, v) in mean.iter_mut().zip(&h[j * L..j * L + m]) {
+                            for (s, &v) in mean.iter_mut().zip(&h[j * L..j * L + m]) {
                                 *s += v;
                             }
                         }
-                        mean.iter_mut().for_each(|s| *s /= w as f64);
+                        let inv_w = T::of(1.0 / w as f64);
+                        mean.iter_mut().for_each(|s| *s *= inv_w);
                         for j in 0..w {
-                            for ((s, v), mu) in var.iter_mut().zip(&h[j * L..j * L + m]).zip(mean.iter()) {
+                            for ((s, &v), &mu) in var.iter_mut().zip(&h[j * L..j * L + m]).zip(mean.iter()) {
                                 *s += (v - mu) * (v - mu);
                             }
                         }
-                        var.iter_mut().for_each(|s| *s = 1.0 / (*s / w as f64 + norm.eps).sqrt());
+                        var.iter_mut().for_each(|s| *s = T::ONE / (*s * inv_w + norm.eps).root());
                         for j in 0..w {
                             let (g, beta) = (norm.gain[j], norm.bias[j]);
-                            for ((v, mu), is) in h[j * L..j * L + m].iter_mut().zip(mean.iter()).zip(var.iter()) {
+                            for ((v, &mu), &is) in h[j * L..j * L + m].iter_mut().zip(mean.iter()).zip(var.iter()) {
                                 *v = F::mul_add(g, (*v - mu) * is, beta);
                             }
                         }
@@ -201,7 +203,7 @@ impl Predictor {
                 for kk in 0..NX {
                     let ok = &mut ws.o[kk * L..kk * L + m];
                     ok.fill(self.output.bias[kk]);
-                    accumulate::<F>(ok, &self.output.w_row[kk * w..(kk + 1) * w], y, L);
+                    accumulate::<F, T>(ok, &self.output.w_row[kk * w..(kk + 1) * w], y, L);
                     for v in ok.iter_mut() {
                         *v = F::mul_add(*v, self.out_std[kk], self.out_mean[kk]);
                     }
@@ -211,7 +213,7 @@ impl Predictor {
                     let mut o = [0.0; NX];
                     for c in 0..NX {
                         x[c] = ws.x[c * L + b];
-                        o[c] = ws.o[c * L + b];
+                        o[c] = ws.o[c * L + b].to_f64();
                     }
                     self.envelope.check(&mut ws.envelope, k, &x, u_of(b));
                     let next = self.compose(&x, &o);

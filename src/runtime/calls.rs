@@ -7,6 +7,7 @@ use super::RuntimeError;
 use super::kernels::Fused;
 use super::kernels::{MulAdd, Portable};
 use super::predictor::{Predictor, Workspace};
+use super::real::Real;
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 
 fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
@@ -30,13 +31,13 @@ macro_rules! dispatch {
     }};
 }
 
-impl Predictor {
+impl<T: Real> Predictor<T> {
     /// One step of the model's own sample period: `out = x_hat(dt)` from `x` under `u`.
     ///
     /// # Errors
     /// A non-finite `x` or `u` ([`RuntimeError::NonFiniteState`] / `NonFiniteInput`), or a
     /// non-finite prediction. Envelope exits are recorded in the workspace, not errors.
-    pub fn step(&self, ws: &mut Workspace, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
+    pub fn step(&self, ws: &mut Workspace<T>, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
         self.step_dt(ws, x, u, self.dt, out)
     }
 
@@ -46,7 +47,7 @@ impl Predictor {
     /// As [`Predictor::step`], plus [`RuntimeError::BadTimeStep`].
     pub fn step_dt(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x: &State,
         u: &Input,
         dt: f64,
@@ -64,7 +65,7 @@ impl Predictor {
     /// `out.len() != inputs.len() + 1`, or as [`Predictor::step`] at any step.
     pub fn rollout(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         out: &mut [State],
@@ -78,7 +79,7 @@ impl Predictor {
     /// As [`Predictor::rollout`], plus [`RuntimeError::BadTimeStep`].
     pub fn rollout_dt(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         dt: f64,
@@ -96,7 +97,7 @@ impl Predictor {
     /// As [`Predictor::step`].
     pub fn linearise(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x: &State,
         u: &Input,
         next: &mut State,
@@ -119,7 +120,7 @@ impl Predictor {
     /// [`Predictor::step`] at any step.
     pub fn linearise_horizon(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         traj: &mut [State],
@@ -136,7 +137,7 @@ impl Predictor {
     #[inline(always)]
     fn rollout_generic<F: MulAdd>(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         dt: f64,
@@ -158,7 +159,7 @@ impl Predictor {
     #[inline(always)]
     fn linearise_generic<F: MulAdd>(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         traj: &mut [State],
@@ -182,7 +183,7 @@ impl Predictor {
     #[target_feature(enable = "avx2,fma")]
     fn rollout_fused(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         dt: f64,
@@ -195,7 +196,7 @@ impl Predictor {
     #[target_feature(enable = "avx2,fma")]
     fn linearise_fused(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
         traj: &mut [State],

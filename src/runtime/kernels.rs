@@ -1,16 +1,18 @@
 //! The inner loops of the runtime, generic over how a multiply-add is done so the same
 //! code compiles once portably and once with AVX2 + FMA (selected at run time).
 
+use super::real::Real;
+
 /// How `a * b + c` is evaluated.
 pub(crate) trait MulAdd {
-    fn mul_add(a: f64, b: f64, c: f64) -> f64;
+    fn mul_add<T: Real>(a: T, b: T, c: T) -> T;
 }
 
 /// Separate multiply and add: any CPU.
 pub(crate) struct Portable;
 impl MulAdd for Portable {
     #[inline(always)]
-    fn mul_add(a: f64, b: f64, c: f64) -> f64 {
+    fn mul_add<T: Real>(a: T, b: T, c: T) -> T {
         a * b + c
     }
 }
@@ -19,8 +21,8 @@ impl MulAdd for Portable {
 pub(crate) struct Fused;
 impl MulAdd for Fused {
     #[inline(always)]
-    fn mul_add(a: f64, b: f64, c: f64) -> f64 {
-        a.mul_add(b, c)
+    fn mul_add<T: Real>(a: T, b: T, c: T) -> T {
+        a.fma(b, c)
     }
 }
 
@@ -37,36 +39,54 @@ pub(crate) fn fused_available() -> bool {
 }
 
 /// `out[r] += sum_i coef[i] * mat[i * stride + r]` for `r < out.len()`: a matrix-vector
-/// product whose matrix is stored one contiguous row per coefficient. Blocks of output
-/// are accumulated in registers across all coefficients, so `out` is loaded and stored once.
+/// product whose matrix is stored one contiguous row per coefficient. Blocks of output are
+/// accumulated in registers across all coefficients (two interleaved sets, even and odd
+/// coefficients, to hide the multiply-add latency), so `out` is loaded and stored once.
 #[inline(always)]
-pub(crate) fn accumulate<F: MulAdd>(out: &mut [f64], coef: &[f64], mat: &[f64], stride: usize) {
+pub(crate) fn accumulate<F: MulAdd, T: Real>(out: &mut [T], coef: &[T], mat: &[T], stride: usize) {
     let n = out.len();
     let mut r = 0;
-    r = block::<F, 16>(out, coef, mat, stride, r, n);
-    r = block::<F, 8>(out, coef, mat, stride, r, n);
-    r = block::<F, 4>(out, coef, mat, stride, r, n);
-    block::<F, 1>(out, coef, mat, stride, r, n);
+    if T::WIDE_BLOCK {
+        r = block::<F, T, 32>(out, coef, mat, stride, r, n);
+    }
+    r = block::<F, T, 16>(out, coef, mat, stride, r, n);
+    r = block::<F, T, 8>(out, coef, mat, stride, r, n);
+    r = block::<F, T, 4>(out, coef, mat, stride, r, n);
+    block::<F, T, 1>(out, coef, mat, stride, r, n);
 }
 
 #[inline(always)]
-fn block<F: MulAdd, const B: usize>(
-    out: &mut [f64],
-    coef: &[f64],
-    mat: &[f64],
+fn block<F: MulAdd, T: Real, const B: usize>(
+    out: &mut [T],
+    coef: &[T],
+    mat: &[T],
     stride: usize,
     mut r: usize,
     n: usize,
 ) -> usize {
     while r + B <= n {
-        let mut acc: [f64; B] = out[r..r + B].try_into().expect("block");
-        for (i, &c) in coef.iter().enumerate() {
-            let m: &[f64; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
+        let mut even: [T; B] = out[r..r + B].try_into().expect("block");
+        let mut odd = [T::ZERO; B];
+        let pairs = coef.len() / 2;
+        for p in 0..pairs {
+            let (i, c0, c1) = (2 * p, coef[2 * p], coef[2 * p + 1]);
+            let m0: &[T; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
+            let m1: &[T; B] = mat[(i + 1) * stride + r..(i + 1) * stride + r + B].try_into().expect("block");
             for t in 0..B {
-                acc[t] = F::mul_add(c, m[t], acc[t]);
+                even[t] = F::mul_add(c0, m0[t], even[t]);
+                odd[t] = F::mul_add(c1, m1[t], odd[t]);
             }
         }
-        out[r..r + B].copy_from_slice(&acc);
+        if coef.len() % 2 == 1 {
+            let i = coef.len() - 1;
+            let m: &[T; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
+            for t in 0..B {
+                even[t] = F::mul_add(coef[i], m[t], even[t]);
+            }
+        }
+        for t in 0..B {
+            out[r + t] = even[t] + odd[t];
+        }
         r += B;
     }
     r

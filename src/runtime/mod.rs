@@ -9,9 +9,11 @@ mod error;
 mod kernels;
 mod network;
 mod predictor;
+mod real;
 
 pub use activation::SOFTPLUS_THRESHOLD;
 pub use batch::{BatchWorkspace, LANES};
 pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
 pub use error::RuntimeError;
 pub use predictor::{Predictor, Workspace};
+pub use real::Real;

@@ -4,39 +4,42 @@
 use super::activation::activate_slice;
 use super::kernels::{MulAdd, accumulate};
 use super::predictor::{Predictor, Workspace};
+use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 
-/// Raw network output (after output scaling), before the residual and rotation.
+/// Raw network output (after output scaling, widened to f64), before the residual and
+/// rotation.
 pub(crate) type NetOut = [f64; NX];
 
-impl Predictor {
+impl<T: Real> Predictor<T> {
     /// Forward pass. With `keep`, stores activation derivatives and LayerNorm statistics
     /// in the workspace for [`Predictor::network_jacobian`].
     #[inline(always)]
-    pub(crate) fn network<F: MulAdd>(&self, ws: &mut Workspace, x: &State, u: &Input, t: f64, keep: bool) -> NetOut {
+    pub(crate) fn network<F: MulAdd>(&self, ws: &mut Workspace<T>, x: &State, u: &Input, t: f64, keep: bool) -> NetOut {
         let ns = self.seen.len();
         for (k, &i) in self.seen.iter().enumerate() {
-            ws.z[k] = (x[i] - self.in_mean[k]) * self.in_inv_std[k];
+            ws.z[k] = (T::of(x[i]) - self.in_mean[k]) * self.in_inv_std[k];
         }
         for c in 0..NU {
-            ws.z[ns + c] = (u[c] - self.in_mean[ns + c]) * self.in_inv_std[ns + c];
+            ws.z[ns + c] = (T::of(u[c]) - self.in_mean[ns + c]) * self.in_inv_std[ns + c];
         }
         let last = self.n_in - 1;
-        ws.z[last] = (t - self.in_mean[last]) * self.in_inv_std[last];
+        ws.z[last] = (T::of(t) - self.in_mean[last]) * self.in_inv_std[last];
 
         let w = self.width;
         for (l, layer) in self.layers.iter().enumerate() {
             let (done, rest) = ws.y.split_at_mut(l * w);
-            let input: &[f64] = if l == 0 { &ws.z } else { &done[(l - 1) * w..] };
+            let input: &[T] = if l == 0 { &ws.z } else { &done[(l - 1) * w..] };
             let out = &mut rest[..w];
             out.copy_from_slice(&layer.bias);
-            accumulate::<F>(out, input, &layer.w_col, w);
+            accumulate::<F, T>(out, input, &layer.w_col, w);
             let d = if keep { Some(&mut ws.d[l * w..(l + 1) * w]) } else { None };
-            activate_slice::<F>(self.activation, layer.beta, layer.inv_beta, out, d);
+            activate_slice::<F, T>(self.activation, layer.beta, layer.inv_beta, out, d);
             if let Some(norm) = &layer.norm {
-                let mean = out.iter().sum::<f64>() / w as f64;
-                let var = out.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / w as f64;
-                let inv_std = 1.0 / (var + norm.eps).sqrt();
+                let inv_w = T::of(1.0 / w as f64);
+                let mean = out.iter().copied().sum::<T>() * inv_w;
+                let var = out.iter().map(|&v| (v - mean) * (v - mean)).sum::<T>() * inv_w;
+                let inv_std = T::ONE / (var + norm.eps).root();
                 ws.inv_std[l] = inv_std;
                 let xhat = &mut ws.xhat[l * w..(l + 1) * w];
                 for j in 0..w {
@@ -46,19 +49,20 @@ impl Predictor {
             }
         }
         let y = &ws.y[(self.layers.len() - 1) * w..];
-        let mut o = [0.0; NX];
+        let mut o = [T::ZERO; NX];
         o.copy_from_slice(&self.output.bias);
-        accumulate::<F>(&mut o, y, &self.output.w_col, NX);
+        accumulate::<F, T>(&mut o, y, &self.output.w_col, NX);
+        let mut out = [0.0; NX];
         for k in 0..NX {
-            o[k] = F::mul_add(o[k], self.out_std[k], self.out_mean[k]);
+            out[k] = F::mul_add(o[k], self.out_std[k], self.out_mean[k]).to_f64();
         }
-        o
+        out
     }
 
     /// Reverse pass after `network(.., keep = true)`: leaves `d out / d z_raw` (9 rows of
     /// `n_in`, row-major, with both scalings applied) in `ws.g`.
     #[inline(always)]
-    pub(crate) fn network_jacobian<F: MulAdd>(&self, ws: &mut Workspace) {
+    pub(crate) fn network_jacobian<F: MulAdd>(&self, ws: &mut Workspace<T>) {
         let w = self.width;
         // Seed: rows of the output layer, scaled by the output de-normalisation.
         for k in 0..NX {
@@ -74,13 +78,14 @@ impl Predictor {
                 let inv_std = ws.inv_std[l];
                 for k in 0..NX {
                     let g = &mut ws.g[k * w..(k + 1) * w];
-                    let (mut m1, mut m2) = (0.0, 0.0);
+                    let (mut m1, mut m2) = (T::ZERO, T::ZERO);
                     for j in 0..w {
                         g[j] *= norm.gain[j];
                         m1 += g[j];
                         m2 += g[j] * xhat[j];
                     }
-                    let (m1, m2) = (m1 / w as f64, m2 / w as f64);
+                    let inv_w = T::of(1.0 / w as f64);
+                    let (m1, m2) = (m1 * inv_w, m2 * inv_w);
                     for j in 0..w {
                         g[j] = inv_std * (g[j] - m1 - xhat[j] * m2) * d[j];
                     }
@@ -95,8 +100,8 @@ impl Predictor {
             // g2 = g W: row k of g2 accumulates g[k, j] * (row j of W).
             for k in 0..NX {
                 let g2 = &mut ws.g2[k * cols..(k + 1) * cols];
-                g2.fill(0.0);
-                accumulate::<F>(g2, &ws.g[k * w..(k + 1) * w], &layer.w_row, cols);
+                g2.fill(T::ZERO);
+                accumulate::<F, T>(g2, &ws.g[k * w..(k + 1) * w], &layer.w_row, cols);
             }
             // The next (earlier) layer reads rows of length `cols` (= w, or n_in at the end).
             for k in 0..NX {
@@ -135,7 +140,7 @@ impl Predictor {
     #[inline(always)]
     pub(crate) fn compose_jacobians(
         &self,
-        ws: &Workspace,
+        ws: &Workspace<T>,
         x: &State,
         o: &NetOut,
         a: &mut StateMatrix,
@@ -149,10 +154,10 @@ impl Predictor {
         for k in 0..NX {
             let row = &ws.g[k * n..(k + 1) * n];
             for (m, &i) in self.seen.iter().enumerate() {
-                dx[(k, i)] = row[m];
+                dx[(k, i)] = row[m].to_f64();
             }
             for c in 0..NU {
-                du[(k, c)] = row[ns + c];
+                du[(k, c)] = row[ns + c].to_f64();
             }
         }
         *a = if self.residual { StateMatrix::identity() } else { StateMatrix::zeros() };
@@ -210,7 +215,7 @@ impl Predictor {
 
     /// One step, generic over the multiply-add.
     #[inline(always)]
-    pub(crate) fn step_kernel<F: MulAdd>(&self, ws: &mut Workspace, x: &State, u: &Input, dt: f64) -> State {
+    pub(crate) fn step_kernel<F: MulAdd>(&self, ws: &mut Workspace<T>, x: &State, u: &Input, dt: f64) -> State {
         let o = self.network::<F>(ws, x, u, dt, false);
         self.compose(x, &o)
     }
@@ -219,7 +224,7 @@ impl Predictor {
     #[inline(always)]
     pub(crate) fn linearise_kernel<F: MulAdd>(
         &self,
-        ws: &mut Workspace,
+        ws: &mut Workspace<T>,
         x: &State,
         u: &Input,
         dt: f64,

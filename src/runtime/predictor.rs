@@ -4,51 +4,48 @@
 use super::RuntimeError;
 use super::envelope::{EnvelopeCheck, EnvelopeStatus};
 use super::kernels::fused_available;
+use super::real::Real;
 use crate::model::{Activation, Envelope, Linear, PincModel};
 use crate::types::{Input, NX, State};
 
-/// One dense layer in f64, stored twice: column-major for the forward pass (an axpy per
-/// input) and row-major for the reverse pass (an axpy per output).
+/// One dense layer, stored twice: column-major for the forward pass (a matrix-vector
+/// product over inputs) and row-major for the reverse pass.
 #[derive(Debug, Clone)]
-pub(crate) struct Layer {
+pub(crate) struct Layer<T> {
     pub cols: usize,
     /// `w_col[i * rows + j] = W[j][i]`.
-    pub w_col: Vec<f64>,
+    pub w_col: Vec<T>,
     /// `w_row[j * cols + i] = W[j][i]`.
-    pub w_row: Vec<f64>,
-    pub bias: Vec<f64>,
-    pub beta: f64,
-    pub inv_beta: f64,
-    pub norm: Option<Norm>,
+    pub w_row: Vec<T>,
+    pub bias: Vec<T>,
+    pub beta: T,
+    pub inv_beta: T,
+    pub norm: Option<Norm<T>>,
 }
 
 #[derive(Debug, Clone)]
-pub(crate) struct Norm {
-    pub gain: Vec<f64>,
-    pub bias: Vec<f64>,
-    pub eps: f64,
+pub(crate) struct Norm<T> {
+    pub gain: Vec<T>,
+    pub bias: Vec<T>,
+    pub eps: T,
 }
 
-impl Layer {
-    fn new(l: &Linear, beta: f32, norm: Option<Norm>) -> Self {
+fn convert<T: Real>(v: &[f32]) -> Vec<T> {
+    v.iter().map(|&x| T::of(f64::from(x))).collect()
+}
+
+impl<T: Real> Layer<T> {
+    fn new(l: &Linear, beta: f32, norm: Option<Norm<T>>) -> Self {
         let (rows, cols) = (l.rows, l.cols);
-        let w_row: Vec<f64> = l.weight.iter().map(|&w| f64::from(w)).collect();
-        let mut w_col = vec![0.0; rows * cols];
+        let w_row: Vec<T> = convert(&l.weight);
+        let mut w_col = vec![T::ZERO; rows * cols];
         for j in 0..rows {
             for i in 0..cols {
                 w_col[i * rows + j] = w_row[j * cols + i];
             }
         }
         let beta = f64::from(beta);
-        Self {
-            cols,
-            w_col,
-            w_row,
-            bias: l.bias.iter().map(|&b| f64::from(b)).collect(),
-            beta,
-            inv_beta: 1.0 / beta,
-            norm,
-        }
+        Self { cols, w_col, w_row, bias: convert(&l.bias), beta: T::of(beta), inv_beta: T::of(1.0 / beta), norm }
     }
 }
 
@@ -57,18 +54,24 @@ impl Layer {
 ///
 /// Immutable after construction; every call takes a [`Workspace`] so that one predictor
 /// can serve many threads.
+///
+/// `T` is the precision of the network arithmetic: `f32` (the default, [`Predictor::new`])
+/// is the fast path and the precision the network was trained in; `f64`
+/// (`Predictor::<f64>::with_precision`) is the reference whose Jacobians are checked against
+/// finite differences. States, inputs and Jacobians are `f64` either way, and the residual
+/// and rotation are applied in `f64`.
 #[derive(Debug, Clone)]
-pub struct Predictor {
-    pub(crate) layers: Vec<Layer>,
-    pub(crate) output: Layer,
+pub struct Predictor<T: Real = f32> {
+    pub(crate) layers: Vec<Layer<T>>,
+    pub(crate) output: Layer<T>,
     pub(crate) activation: Activation,
     pub(crate) seen: Vec<usize>,
     pub(crate) n_in: usize,
     pub(crate) width: usize,
-    pub(crate) in_mean: Vec<f64>,
-    pub(crate) in_inv_std: Vec<f64>,
-    pub(crate) out_mean: [f64; NX],
-    pub(crate) out_std: [f64; NX],
+    pub(crate) in_mean: Vec<T>,
+    pub(crate) in_inv_std: Vec<T>,
+    pub(crate) out_mean: [T; NX],
+    pub(crate) out_std: [T; NX],
     pub(crate) residual: bool,
     pub(crate) rotate: bool,
     pub(crate) renormalise_yaw: bool,
@@ -78,11 +81,21 @@ pub struct Predictor {
 }
 
 impl Predictor {
-    /// Builds a predictor from a validated model (weights widened to f64).
+    /// Builds the default (`f32`) predictor from a validated model.
     ///
     /// # Memory allocation
-    /// Allocates the weights twice (two layouts), about `16 * parameters` bytes.
+    /// Allocates the weights twice (two layouts), about `8 * parameters` bytes.
     pub fn new(model: &PincModel) -> Self {
+        Self::with_precision(model)
+    }
+}
+
+impl<T: Real> Predictor<T> {
+    /// Builds a predictor computing in `T` from a validated model.
+    ///
+    /// # Memory allocation
+    /// Allocates the weights twice (two layouts), `2 * size_of::<T>() * parameters` bytes.
+    pub fn with_precision(model: &PincModel) -> Self {
         let a = &model.architecture;
         let layers = model
             .weights
@@ -90,22 +103,23 @@ impl Predictor {
             .iter()
             .map(|h| {
                 let norm = h.layer_norm.as_ref().map(|n| Norm {
-                    gain: n.gain.iter().map(|&v| f64::from(v)).collect(),
-                    bias: n.bias.iter().map(|&v| f64::from(v)).collect(),
-                    eps: f64::from(n.eps),
+                    gain: convert(&n.gain),
+                    bias: convert(&n.bias),
+                    eps: T::of(f64::from(n.eps)),
                 });
                 Layer::new(&h.linear, h.beta, norm)
             })
             .collect();
         let n_in = a.input_size();
         let (in_mean, in_inv_std) = match &model.input_scaling {
-            Some(s) => (s.mean.clone(), s.std.iter().map(|v| 1.0 / v).collect()),
-            None => (vec![0.0; n_in], vec![1.0; n_in]),
+            Some(s) => (s.mean.iter().map(|&v| T::of(v)).collect(), s.std.iter().map(|v| T::of(1.0 / v)).collect()),
+            None => (vec![T::ZERO; n_in], vec![T::ONE; n_in]),
         };
-        let (mut out_mean, mut out_std) = ([0.0; NX], [1.0; NX]);
+        let (mut out_mean, mut out_std) = ([T::ZERO; NX], [T::ONE; NX]);
         if let Some(s) = &model.output_scaling {
-            out_mean.copy_from_slice(&s.mean);
-            out_std.copy_from_slice(&s.std);
+            for k in 0..NX {
+                (out_mean[k], out_std[k]) = (T::of(s.mean[k]), T::of(s.std[k]));
+            }
         }
         let seen: Vec<usize> = a.state_inputs.iter().map(|&i| i as usize).collect();
         Self {
@@ -164,12 +178,18 @@ impl Predictor {
     }
 
     /// A workspace sized for this predictor.
-    pub fn workspace(&self) -> Workspace {
+    pub fn workspace(&self) -> Workspace<T> {
         Workspace::new(self)
     }
 
     /// Refuses non-finite arguments; records envelope exits.
-    pub(crate) fn check_args(&self, ws: &mut Workspace, step: usize, x: &State, u: &Input) -> Result<(), RuntimeError> {
+    pub(crate) fn check_args(
+        &self,
+        ws: &mut Workspace<T>,
+        step: usize,
+        x: &State,
+        u: &Input,
+    ) -> Result<(), RuntimeError> {
         if let Some(index) = x.iter().position(|v| !v.is_finite()) {
             return Err(RuntimeError::NonFiniteState { step, index, value: x[index] });
         }
@@ -187,38 +207,38 @@ impl Predictor {
 /// `Workspace::new` allocates `(4 L + 2 * 9) * width + 10 * inputs + L` floats for `L`
 /// hidden layers; no call that takes a workspace allocates afterwards.
 #[derive(Debug, Clone)]
-pub struct Workspace {
+pub struct Workspace<T: Real = f32> {
     /// Network input (after scaling).
-    pub(crate) z: Vec<f64>,
+    pub(crate) z: Vec<T>,
     /// Output of every hidden layer (after activation and LayerNorm), `L * width`.
-    pub(crate) y: Vec<f64>,
+    pub(crate) y: Vec<T>,
     /// Activation derivative of every hidden unit, `L * width`.
-    pub(crate) d: Vec<f64>,
+    pub(crate) d: Vec<T>,
     /// Normalised activations of LayerNorm layers, `L * width`.
-    pub(crate) xhat: Vec<f64>,
+    pub(crate) xhat: Vec<T>,
     /// `1 / sqrt(var + eps)` of each LayerNorm layer.
-    pub(crate) inv_std: Vec<f64>,
+    pub(crate) inv_std: Vec<T>,
     /// Reverse-mode row buffers, `9 * max(width, inputs)` each.
-    pub(crate) g: Vec<f64>,
-    pub(crate) g2: Vec<f64>,
+    pub(crate) g: Vec<T>,
+    pub(crate) g2: Vec<T>,
     /// Envelope exits of the last call.
     pub(crate) envelope: EnvelopeStatus,
 }
 
-impl Workspace {
+impl<T: Real> Workspace<T> {
     /// Sizes every buffer for `p`.
-    pub fn new(p: &Predictor) -> Self {
+    pub fn new(p: &Predictor<T>) -> Self {
         let l = p.layers.len();
         let w = p.width;
         let rows = w.max(p.n_in);
         Self {
-            z: vec![0.0; p.n_in],
-            y: vec![0.0; l * w],
-            d: vec![0.0; l * w],
-            xhat: vec![0.0; l * w],
-            inv_std: vec![0.0; l],
-            g: vec![0.0; NX * rows],
-            g2: vec![0.0; NX * rows],
+            z: vec![T::ZERO; p.n_in],
+            y: vec![T::ZERO; l * w],
+            d: vec![T::ZERO; l * w],
+            xhat: vec![T::ZERO; l * w],
+            inv_std: vec![T::ZERO; l],
+            g: vec![T::ZERO; NX * rows],
+            g2: vec![T::ZERO; NX * rows],
             envelope: EnvelopeStatus::default(),
         }
     }

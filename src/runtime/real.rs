@@ -1,0 +1,171 @@
+//! The two precisions the runtime computes in. `f32` is the fast path (eight lanes per AVX2
+//! register, the precision the network was trained in); `f64` is the reference path whose
+//! Jacobians are checked against finite differences.
+
+use std::fmt::Debug;
+use std::iter::Sum;
+use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub};
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for f32 {}
+    impl Sealed for f64 {}
+}
+
+/// A floating-point type the runtime can compute in: `f32` or `f64`.
+pub trait Real:
+    sealed::Sealed
+    + Copy
+    + Debug
+    + Default
+    + Send
+    + Sync
+    + PartialOrd
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + AddAssign
+    + MulAssign
+    + Sum
+    + 'static
+{
+    /// 0.
+    const ZERO: Self;
+    /// 1.
+    const ONE: Self;
+    /// Widest register block of the matrix kernels (elements).
+    #[doc(hidden)]
+    const WIDE_BLOCK: bool;
+    /// Rounds an `f64` to this type.
+    fn of(v: f64) -> Self;
+    /// Widens to `f64`.
+    fn to_f64(self) -> f64;
+    /// Fused `self * a + b`.
+    fn fma(self, a: Self, b: Self) -> Self;
+    /// IEEE maximum.
+    fn maximum(self, o: Self) -> Self;
+    /// Absolute value.
+    fn absolute(self) -> Self;
+    /// Square root.
+    fn root(self) -> Self;
+    /// Hyperbolic tangent.
+    fn hyperbolic_tangent(self) -> Self;
+    /// `exp(x)` for `x <= 0`, branch-free; `mul_add` says how multiply-adds are done.
+    #[doc(hidden)]
+    fn exp_nonpositive(x: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self;
+    /// `ln(1 + e)` for `e` in `[0, 1]`, branch-free.
+    #[doc(hidden)]
+    fn log1p_unit(e: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self;
+}
+
+/// Taylor coefficients `1/n!` for `n = 0..=13`.
+const INV_FACTORIAL: [f64; 14] = [
+    1.0,
+    1.0,
+    0.5,
+    1.0 / 6.0,
+    1.0 / 24.0,
+    1.0 / 120.0,
+    1.0 / 720.0,
+    1.0 / 5_040.0,
+    1.0 / 40_320.0,
+    1.0 / 362_880.0,
+    1.0 / 3_628_800.0,
+    1.0 / 39_916_800.0,
+    1.0 / 479_001_600.0,
+    1.0 / 6_227_020_800.0,
+];
+
+macro_rules! real_impl {
+    ($t:ty, $bits:ty, $mant:expr, $bias:expr, $min_x:expr, $degree:expr, $atanh_terms:expr, $ln2_hi:expr, $ln2_lo:expr, $wide:expr) => {
+        impl Real for $t {
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            const WIDE_BLOCK: bool = $wide;
+            #[inline(always)]
+            fn of(v: f64) -> Self {
+                v as $t
+            }
+            #[inline(always)]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn fma(self, a: Self, b: Self) -> Self {
+                self.mul_add(a, b)
+            }
+            #[inline(always)]
+            fn maximum(self, o: Self) -> Self {
+                self.max(o)
+            }
+            #[inline(always)]
+            fn absolute(self) -> Self {
+                self.abs()
+            }
+            #[inline(always)]
+            fn root(self) -> Self {
+                self.sqrt()
+            }
+            #[inline(always)]
+            fn hyperbolic_tangent(self) -> Self {
+                self.tanh()
+            }
+            #[inline(always)]
+            fn exp_nonpositive(x: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self {
+                // exp(x) = 2^k exp(r), k = round(x / ln 2), |r| <= ln2 / 2; rounding by adding
+                // 1.5 * 2^mantissa leaves k in the low bits. The clamp keeps 2^k normal.
+                let magic: $t = 1.5 * ((1 as $bits) << $mant) as $t;
+                let x = x.max($min_x);
+                let t = mul_add(x, std::f64::consts::LOG2_E as $t, magic);
+                let k = t - magic;
+                let r = mul_add(-k, $ln2_lo, mul_add(-k, $ln2_hi, x));
+                // Taylor polynomial as two Horner chains in r^2 (half the dependency depth).
+                let r2 = r * r;
+                let (mut pe, mut po): ($t, $t) = (0.0, 0.0);
+                let top = $degree;
+                let mut n = top;
+                loop {
+                    if n % 2 == 0 {
+                        pe = mul_add(pe, r2, INV_FACTORIAL[n] as $t);
+                    } else {
+                        po = mul_add(po, r2, INV_FACTORIAL[n] as $t);
+                    }
+                    if n == 0 {
+                        break;
+                    }
+                    n -= 1;
+                }
+                let p = mul_add(po, r, pe);
+                let ki = t.to_bits().wrapping_sub(magic.to_bits()) as $bits;
+                let scale = <$t>::from_bits((ki.wrapping_add($bias) as $bits) << $mant);
+                p * scale
+            }
+            #[inline(always)]
+            fn log1p_unit(e: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self {
+                // ln(1 + e) = j ln2 + 2 atanh(s), 1 + e = 2^j m, m in [sqrt(1/2), sqrt 2],
+                // s = (m - 1)/(m + 1): s = e/(2 + e) below sqrt 2 (no cancellation for small
+                // e), else m = (1 + e)/2 and s = (e - 1)/(e + 3); |s| <= 0.172.
+                let high = e > (std::f64::consts::SQRT_2 - 1.0) as $t;
+                let (num, den, j) = if high { (e - 1.0, e + 3.0, $ln2_hi + $ln2_lo) } else { (e, 2.0 + e, 0.0) };
+                let s = num / den;
+                let s2 = s * s;
+                let mut p: $t = 0.0;
+                let mut n: usize = $atanh_terms;
+                loop {
+                    p = mul_add(p, s2, 1.0 / (2 * n + 1) as $t);
+                    if n == 0 {
+                        break;
+                    }
+                    n -= 1;
+                }
+                mul_add(2.0 * s, p, j)
+            }
+        }
+    };
+}
+
+// f64: degree 13 and 11 atanh terms reach ~1e-17; f32: degree 7 and 5 terms reach ~1e-8.
+real_impl!(f64, u64, 52, 1023, -708.0, 13, 11, 6.931_471_803_691_238e-1, 1.908_214_929_270_587_7e-10, false);
+real_impl!(f32, u32, 23, 127, -87.0, 7, 5, 6.931_457_5e-1, 1.428_606_8e-6, true);
