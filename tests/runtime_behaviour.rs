@@ -18,7 +18,9 @@ fn case(i: usize) -> (State, Vec<Input>) {
 
 #[test]
 fn batch_rollout_equals_single_rollouts() {
-    batch_equals_single::<f32>(1e-5);
+    // f32: LayerNorm statistics are summed in another order across lanes, so the two drift
+    // apart by rounding only.
+    batch_equals_single::<f32>(1e-4);
     batch_equals_single::<f64>(1e-12);
 }
 

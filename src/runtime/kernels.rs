@@ -40,8 +40,8 @@ pub(crate) fn fused_available() -> bool {
 
 /// `out[r] += sum_i coef[i] * mat[i * stride + r]` for `r < out.len()`: a matrix-vector
 /// product whose matrix is stored one contiguous row per coefficient. Blocks of output are
-/// accumulated in registers across all coefficients (two interleaved sets, even and odd
-/// coefficients, to hide the multiply-add latency), so `out` is loaded and stored once.
+/// accumulated in registers (four AVX2 registers per block) across all coefficients, so
+/// `out` is loaded and stored once.
 #[inline(always)]
 pub(crate) fn accumulate<F: MulAdd, T: Real>(out: &mut [T], coef: &[T], mat: &[T], stride: usize) {
     let n = out.len();
@@ -65,29 +65,47 @@ fn block<F: MulAdd, T: Real, const B: usize>(
     n: usize,
 ) -> usize {
     while r + B <= n {
-        let mut even: [T; B] = out[r..r + B].try_into().expect("block");
-        let mut odd = [T::ZERO; B];
-        let pairs = coef.len() / 2;
-        for p in 0..pairs {
-            let (i, c0, c1) = (2 * p, coef[2 * p], coef[2 * p + 1]);
-            let m0: &[T; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
-            let m1: &[T; B] = mat[(i + 1) * stride + r..(i + 1) * stride + r + B].try_into().expect("block");
-            for t in 0..B {
-                even[t] = F::mul_add(c0, m0[t], even[t]);
-                odd[t] = F::mul_add(c1, m1[t], odd[t]);
-            }
-        }
-        if coef.len() % 2 == 1 {
-            let i = coef.len() - 1;
+        let mut acc: [T; B] = out[r..r + B].try_into().expect("block");
+        for (i, &c) in coef.iter().enumerate() {
             let m: &[T; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
             for t in 0..B {
-                even[t] = F::mul_add(coef[i], m[t], even[t]);
+                acc[t] = F::mul_add(c, m[t], acc[t]);
             }
         }
-        for t in 0..B {
-            out[r + t] = even[t] + odd[t];
-        }
+        out[r..r + B].copy_from_slice(&acc);
         r += B;
     }
     r
+}
+
+/// Lanes of the partial sums in [`sum`] and [`dot`]: a float sum in one accumulator is a
+/// serial chain; eight independent ones vectorise.
+const PARTIALS: usize = 8;
+
+/// `sum_i a[i]`.
+#[inline(always)]
+pub(crate) fn sum<T: Real>(a: &[T]) -> T {
+    let mut acc = [T::ZERO; PARTIALS];
+    let mut chunks = a.chunks_exact(PARTIALS);
+    for c in &mut chunks {
+        for t in 0..PARTIALS {
+            acc[t] += c[t];
+        }
+    }
+    chunks.remainder().iter().copied().sum::<T>() + acc.iter().copied().sum::<T>()
+}
+
+/// `sum_i a[i] * b[i]`.
+#[inline(always)]
+pub(crate) fn dot<F: MulAdd, T: Real>(a: &[T], b: &[T]) -> T {
+    let mut acc = [T::ZERO; PARTIALS];
+    let mut ca = a.chunks_exact(PARTIALS);
+    let mut cb = b.chunks_exact(PARTIALS);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for t in 0..PARTIALS {
+            acc[t] = F::mul_add(x[t], y[t], acc[t]);
+        }
+    }
+    let tail: T = ca.remainder().iter().zip(cb.remainder()).map(|(&x, &y)| x * y).sum();
+    tail + acc.iter().copied().sum::<T>()
 }

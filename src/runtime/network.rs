@@ -2,7 +2,7 @@
 //! needs), its exact Jacobian by reverse mode, and the residual / yaw-rotation output map.
 
 use super::activation::activate_slice;
-use super::kernels::{MulAdd, accumulate};
+use super::kernels::{MulAdd, accumulate, dot, sum};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
@@ -37,13 +37,16 @@ impl<T: Real> Predictor<T> {
             activate_slice::<F, T>(self.activation, layer.beta, layer.inv_beta, out, d);
             if let Some(norm) = &layer.norm {
                 let inv_w = T::of(1.0 / w as f64);
-                let mean = out.iter().copied().sum::<T>() * inv_w;
-                let var = out.iter().map(|&v| (v - mean) * (v - mean)).sum::<T>() * inv_w;
-                let inv_std = T::ONE / (var + norm.eps).root();
-                ws.inv_std[l] = inv_std;
+                let mean = sum(out) * inv_w;
                 let xhat = &mut ws.xhat[l * w..(l + 1) * w];
                 for j in 0..w {
-                    xhat[j] = (out[j] - mean) * inv_std;
+                    xhat[j] = out[j] - mean;
+                }
+                let var = dot::<F, T>(xhat, xhat) * inv_w;
+                let inv_std = T::ONE / (var + norm.eps).root();
+                ws.inv_std[l] = inv_std;
+                for j in 0..w {
+                    xhat[j] *= inv_std;
                     out[j] = F::mul_add(norm.gain[j], xhat[j], norm.bias[j]);
                 }
             }
@@ -78,14 +81,11 @@ impl<T: Real> Predictor<T> {
                 let inv_std = ws.inv_std[l];
                 for k in 0..NX {
                     let g = &mut ws.g[k * w..(k + 1) * w];
-                    let (mut m1, mut m2) = (T::ZERO, T::ZERO);
                     for j in 0..w {
                         g[j] *= norm.gain[j];
-                        m1 += g[j];
-                        m2 += g[j] * xhat[j];
                     }
                     let inv_w = T::of(1.0 / w as f64);
-                    let (m1, m2) = (m1 * inv_w, m2 * inv_w);
+                    let (m1, m2) = (sum(g) * inv_w, dot::<F, T>(g, xhat) * inv_w);
                     for j in 0..w {
                         g[j] = inv_std * (g[j] - m1 - xhat[j] * m2) * d[j];
                     }

@@ -60,26 +60,24 @@ pub trait Real:
     fn log1p_unit(e: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self;
 }
 
-/// Taylor coefficients `1/n!` for `n = 0..=13`.
-const INV_FACTORIAL: [f64; 14] = [
-    1.0,
-    1.0,
-    0.5,
-    1.0 / 6.0,
-    1.0 / 24.0,
-    1.0 / 120.0,
-    1.0 / 720.0,
-    1.0 / 5_040.0,
-    1.0 / 40_320.0,
-    1.0 / 362_880.0,
-    1.0 / 3_628_800.0,
-    1.0 / 39_916_800.0,
-    1.0 / 479_001_600.0,
-    1.0 / 6_227_020_800.0,
-];
+/// `1 / n!`.
+const fn inv_factorial(n: usize) -> f64 {
+    let mut f = 1.0;
+    let mut i = 2;
+    while i <= n {
+        f *= i as f64;
+        i += 1;
+    }
+    1.0 / f
+}
+
+/// `1 / (2 n + 1)`.
+const fn inv_odd(n: usize) -> f64 {
+    1.0 / (2 * n + 1) as f64
+}
 
 macro_rules! real_impl {
-    ($t:ty, $bits:ty, $mant:expr, $bias:expr, $min_x:expr, $degree:expr, $atanh_terms:expr, $ln2_hi:expr, $ln2_lo:expr, $wide:expr) => {
+    ($t:ty, $bits:ty, $mant:expr, $bias:expr, $min_x:expr, $even:expr, $odd:expr, $atanh:expr, $ln2_hi:expr, $ln2_lo:expr, $wide:expr) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
@@ -116,30 +114,25 @@ macro_rules! real_impl {
             fn exp_nonpositive(x: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self {
                 // exp(x) = 2^k exp(r), k = round(x / ln 2), |r| <= ln2 / 2; rounding by adding
                 // 1.5 * 2^mantissa leaves k in the low bits. The clamp keeps 2^k normal.
-                let magic: $t = 1.5 * ((1 as $bits) << $mant) as $t;
+                const MAGIC: $t = 1.5 * ((1 as $bits) << $mant) as $t;
+                const EVEN: &[$t] = &$even;
+                const ODD: &[$t] = &$odd;
                 let x = x.max($min_x);
-                let t = mul_add(x, std::f64::consts::LOG2_E as $t, magic);
-                let k = t - magic;
+                let t = mul_add(x, std::f64::consts::LOG2_E as $t, MAGIC);
+                let k = t - MAGIC;
                 let r = mul_add(-k, $ln2_lo, mul_add(-k, $ln2_hi, x));
                 // Taylor polynomial as two Horner chains in r^2 (half the dependency depth).
                 let r2 = r * r;
                 let (mut pe, mut po): ($t, $t) = (0.0, 0.0);
-                let top = $degree;
-                let mut n = top;
-                loop {
-                    if n % 2 == 0 {
-                        pe = mul_add(pe, r2, INV_FACTORIAL[n] as $t);
-                    } else {
-                        po = mul_add(po, r2, INV_FACTORIAL[n] as $t);
-                    }
-                    if n == 0 {
-                        break;
-                    }
-                    n -= 1;
+                for &c in EVEN {
+                    pe = mul_add(pe, r2, c);
+                }
+                for &c in ODD {
+                    po = mul_add(po, r2, c);
                 }
                 let p = mul_add(po, r, pe);
-                let ki = t.to_bits().wrapping_sub(magic.to_bits()) as $bits;
-                let scale = <$t>::from_bits((ki.wrapping_add($bias) as $bits) << $mant);
+                let ki = t.to_bits().wrapping_sub(MAGIC.to_bits());
+                let scale = <$t>::from_bits(ki.wrapping_add($bias) << $mant);
                 p * scale
             }
             #[inline(always)]
@@ -147,18 +140,14 @@ macro_rules! real_impl {
                 // ln(1 + e) = j ln2 + 2 atanh(s), 1 + e = 2^j m, m in [sqrt(1/2), sqrt 2],
                 // s = (m - 1)/(m + 1): s = e/(2 + e) below sqrt 2 (no cancellation for small
                 // e), else m = (1 + e)/2 and s = (e - 1)/(e + 3); |s| <= 0.172.
+                const ATANH: &[$t] = &$atanh;
                 let high = e > (std::f64::consts::SQRT_2 - 1.0) as $t;
                 let (num, den, j) = if high { (e - 1.0, e + 3.0, $ln2_hi + $ln2_lo) } else { (e, 2.0 + e, 0.0) };
                 let s = num / den;
                 let s2 = s * s;
                 let mut p: $t = 0.0;
-                let mut n: usize = $atanh_terms;
-                loop {
-                    p = mul_add(p, s2, 1.0 / (2 * n + 1) as $t);
-                    if n == 0 {
-                        break;
-                    }
-                    n -= 1;
+                for &c in ATANH {
+                    p = mul_add(p, s2, c);
                 }
                 mul_add(2.0 * s, p, j)
             }
@@ -166,6 +155,44 @@ macro_rules! real_impl {
     };
 }
 
-// f64: degree 13 and 11 atanh terms reach ~1e-17; f32: degree 7 and 5 terms reach ~1e-8.
-real_impl!(f64, u64, 52, 1023, -708.0, 13, 11, 6.931_471_803_691_238e-1, 1.908_214_929_270_587_7e-10, false);
-real_impl!(f32, u32, 23, 127, -87.0, 7, 5, 6.931_457_5e-1, 1.428_606_8e-6, true);
+// f64: exp to degree 13 and atanh to s^23 reach ~1e-17.
+real_impl!(
+    f64,
+    u64,
+    52,
+    1023,
+    -708.0,
+    [inv_factorial(12), inv_factorial(10), inv_factorial(8), inv_factorial(6), inv_factorial(4), inv_factorial(2), 1.0],
+    [inv_factorial(13), inv_factorial(11), inv_factorial(9), inv_factorial(7), inv_factorial(5), inv_factorial(3), 1.0],
+    [
+        inv_odd(11),
+        inv_odd(10),
+        inv_odd(9),
+        inv_odd(8),
+        inv_odd(7),
+        inv_odd(6),
+        inv_odd(5),
+        inv_odd(4),
+        inv_odd(3),
+        inv_odd(2),
+        inv_odd(1),
+        1.0
+    ],
+    6.931_471_803_691_238e-1,
+    1.908_214_929_270_587_7e-10,
+    false
+);
+// f32: exp to degree 7 and atanh to s^11 reach ~1e-8.
+real_impl!(
+    f32,
+    u32,
+    23,
+    127,
+    -87.0,
+    [inv_factorial(6) as f32, inv_factorial(4) as f32, 0.5, 1.0],
+    [inv_factorial(7) as f32, inv_factorial(5) as f32, inv_factorial(3) as f32, 1.0],
+    [inv_odd(5) as f32, inv_odd(4) as f32, inv_odd(3) as f32, inv_odd(2) as f32, inv_odd(1) as f32, 1.0],
+    6.931_457_5e-1,
+    1.428_606_8e-6,
+    true
+);
