@@ -9,40 +9,44 @@ use crate::model::Activation;
 /// PyTorch's softplus returns its input unchanged where `beta * h` exceeds this.
 pub const SOFTPLUS_THRESHOLD: f64 = 20.0;
 
-/// Activation value and derivative `d act / d h` at pre-activation `h`.
+/// Softplus `softplus(beta h) / beta` (PyTorch's threshold) and its derivative
+/// `sigmoid(beta h)`.
 #[inline(always)]
-pub(crate) fn activate<F: MulAdd, T: Real>(kind: Activation, beta: T, inv_beta: T, h: T) -> (T, T) {
+fn softplus<F: MulAdd, T: Real>(beta: T, inv_beta: T, h: T) -> (T, T) {
     let y = beta * h;
-    match kind {
-        Activation::Softplus => {
-            let e = T::exp_nonpositive(-y.absolute(), F::mul_add);
-            let sp = (y.maximum(T::ZERO) + T::log1p_unit(e, F::mul_add)) * inv_beta;
-            let sigmoid = if y >= T::ZERO { T::ONE } else { e } / (T::ONE + e);
-            if y > T::of(SOFTPLUS_THRESHOLD) { (h, T::ONE) } else { (sp, sigmoid) }
+    let e = T::exp_nonpositive(-y.absolute(), F::mul_add);
+    let sp = (y.maximum(T::ZERO) + T::log1p_unit(e, F::mul_add)) * inv_beta;
+    let sigmoid = if y >= T::ZERO { T::ONE } else { e } / (T::ONE + e);
+    let linear = y > T::of(SOFTPLUS_THRESHOLD);
+    (if linear { h } else { sp }, if linear { T::ONE } else { sigmoid })
+}
+
+/// Adaptive tanh `tanh(beta h)` and its derivative.
+#[inline(always)]
+fn tanh<T: Real>(beta: T, h: T) -> (T, T) {
+    let t = (beta * h).hyperbolic_tangent();
+    (t, beta * (T::ONE - t * t))
+}
+
+/// Applies `f` to every element of `h` (in place), writing derivatives into `d` if given.
+/// The loops are branch-free for softplus, so they vectorise.
+#[inline(always)]
+fn apply<T: Real>(h: &mut [T], d: Option<&mut [T]>, f: impl Fn(T) -> (T, T)) {
+    match d {
+        Some(d) => {
+            for (h, d) in h.iter_mut().zip(d.iter_mut()) {
+                let (v, dv) = f(*h);
+                *h = v;
+                *d = dv;
+            }
         }
-        Activation::Tanh => {
-            let t = y.hyperbolic_tangent();
-            (t, beta * (T::ONE - t * t))
+        None => {
+            for h in h.iter_mut() {
+                *h = f(*h).0;
+            }
         }
     }
 }
-
-/// Activation value only (cheaper: no derivative).
-#[inline(always)]
-pub(crate) fn activate_value<F: MulAdd, T: Real>(kind: Activation, beta: T, inv_beta: T, h: T) -> T {
-    let y = beta * h;
-    match kind {
-        Activation::Softplus => {
-            let e = T::exp_nonpositive(-y.absolute(), F::mul_add);
-            let sp = (y.maximum(T::ZERO) + T::log1p_unit(e, F::mul_add)) * inv_beta;
-            if y > T::of(SOFTPLUS_THRESHOLD) { h } else { sp }
-        }
-        Activation::Tanh => y.hyperbolic_tangent(),
-    }
-}
-
-/// Elements processed together so that independent dependency chains overlap.
-const CHUNK: usize = 8;
 
 /// Applies the activation in place over a layer; with `deriv`, also writes derivatives.
 #[inline(always)]
@@ -53,33 +57,11 @@ pub(crate) fn activate_slice<F: MulAdd, T: Real>(
     h: &mut [T],
     deriv: Option<&mut [T]>,
 ) {
-    match deriv {
-        Some(d) => {
-            let mut hc = h.chunks_exact_mut(CHUNK);
-            let mut dc = d.chunks_exact_mut(CHUNK);
-            for (h, d) in (&mut hc).zip(&mut dc) {
-                let h: &mut [T; CHUNK] = h.try_into().expect("chunk");
-                let d: &mut [T; CHUNK] = d.try_into().expect("chunk");
-                for i in 0..CHUNK {
-                    (h[i], d[i]) = activate::<F, T>(kind, beta, inv_beta, h[i]);
-                }
-            }
-            for (h, d) in hc.into_remainder().iter_mut().zip(dc.into_remainder()) {
-                (*h, *d) = activate::<F, T>(kind, beta, inv_beta, *h);
-            }
-        }
-        None => {
-            let mut hc = h.chunks_exact_mut(CHUNK);
-            for h in &mut hc {
-                let h: &mut [T; CHUNK] = h.try_into().expect("chunk");
-                for v in h.iter_mut() {
-                    *v = activate_value::<F, T>(kind, beta, inv_beta, *v);
-                }
-            }
-            for v in hc.into_remainder() {
-                *v = activate_value::<F, T>(kind, beta, inv_beta, *v);
-            }
-        }
+    // One loop per activation kind: a libm call in a shared loop body would stop the
+    // softplus loop from vectorising.
+    match kind {
+        Activation::Softplus => apply(h, deriv, |h| softplus::<F, T>(beta, inv_beta, h)),
+        Activation::Tanh => apply(h, deriv, |h| tanh(beta, h)),
     }
 }
 
@@ -135,13 +117,15 @@ mod tests {
         for beta in [1.0, -0.9, 1.7, 0.5] {
             for i in -400..=400 {
                 let h = i as f64 * 0.1;
-                let (v, d) = activate::<Portable, f64>(Activation::Softplus, beta, 1.0 / beta, h);
+                let (v, d) = softplus::<Portable, f64>(beta, 1.0 / beta, h);
                 let y = beta * h;
                 let want = if y > 20.0 { h } else { (1.0 + y.exp()).ln() / beta };
                 assert!((v - want).abs() <= 1e-14 * want.abs().max(1.0), "beta {beta} h {h}: {v} vs {want}");
                 let want_d = if y > 20.0 { 1.0 } else { 1.0 / (1.0 + (-y).exp()) };
                 assert!((d - want_d).abs() < 1e-15, "derivative at beta {beta} h {h}");
-                assert_eq!(v, activate_value::<Portable, f64>(Activation::Softplus, beta, 1.0 / beta, h));
+                let mut slice = [h];
+                activate_slice::<Portable, f64>(Activation::Softplus, beta, 1.0 / beta, &mut slice, None);
+                assert_eq!(v, slice[0]);
                 let v32 =
                     activate_value::<Portable, f32>(Activation::Softplus, beta as f32, 1.0 / beta as f32, h as f32);
                 assert!((f64::from(v32) - want).abs() <= 1e-6 * want.abs().max(1.0), "f32 at beta {beta} h {h}");
