@@ -3,7 +3,7 @@
 
 use super::activation::activate_slice;
 use super::kernels::{MulAdd, accumulate, dot, sum};
-use super::predictor::{Predictor, Workspace};
+use super::predictor::{OUTPUT_STRIDE, Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 
@@ -52,9 +52,9 @@ impl<T: Real> Predictor<T> {
             }
         }
         let y = &ws.y[(self.layers.len() - 1) * w..];
-        let mut o = [T::ZERO; NX];
-        o.copy_from_slice(&self.output.bias);
-        accumulate::<F, T>(&mut o, y, &self.output.w_col, NX);
+        let mut o = [T::ZERO; OUTPUT_STRIDE];
+        o[..NX].copy_from_slice(&self.output.bias);
+        accumulate::<F, T>(&mut o, y, &self.output.w_col, OUTPUT_STRIDE);
         let mut out = [0.0; NX];
         for k in 0..NX {
             out[k] = F::mul_add(o[k], self.out_std[k], self.out_mean[k]).to_f64();
