@@ -10,6 +10,8 @@
 
 pub mod model;
 pub mod runtime;
+#[cfg(feature = "train")]
+pub mod train;
 pub mod traits;
 pub mod types;
 pub mod vehicle;
