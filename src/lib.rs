@@ -19,6 +19,10 @@ pub mod vehicle;
 #[cfg(feature = "tools")]
 pub mod dataset;
 #[cfg(feature = "tools")]
+pub mod eval;
+#[cfg(feature = "tools")]
+pub mod plot;
+#[cfg(feature = "tools")]
 pub mod trajectory_csv;
 
 pub use types::*;

@@ -2,6 +2,7 @@
 //! is an axpy over a block of lanes), for evaluators and sampling-based planners.
 
 use super::RuntimeError;
+use super::calls::check_dt;
 use super::activation::activate_slice;
 use super::envelope::EnvelopeStatus;
 #[cfg(target_arch = "x86_64")]
@@ -67,6 +68,23 @@ impl<T: Real> Predictor<T> {
         inputs: &[Input],
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
+        self.rollout_batch_dt(ws, x0, inputs, self.dt, out)
+    }
+
+    /// [`rollout_batch`](Self::rollout_batch) with a sample period other than the model's
+    /// (the paper's interpolation and extrapolation sets use 0.06 s and 0.10 s).
+    ///
+    /// # Errors
+    /// As `rollout_batch`, plus a non-finite or non-positive `dt`.
+    pub fn rollout_batch_dt(
+        &self,
+        ws: &mut BatchWorkspace<T>,
+        x0: &[State],
+        inputs: &[Input],
+        dt: f64,
+        out: &mut [State],
+    ) -> Result<(), RuntimeError> {
+        check_dt(dt)?;
         let n = x0.len();
         if n == 0 {
             return if inputs.is_empty() && out.is_empty() {
@@ -105,9 +123,9 @@ impl<T: Real> Predictor<T> {
         #[cfg(target_arch = "x86_64")]
         if self.fused {
             // SAFETY: `fused` is only set when the CPU reports AVX2 and FMA.
-            return unsafe { self.batch_fused(ws, x0, inputs, steps, out) };
+            return unsafe { self.batch_fused(ws, x0, inputs, steps, dt, out) };
         }
-        self.batch_generic::<Portable>(ws, x0, inputs, steps, out)
+        self.batch_generic::<Portable>(ws, x0, inputs, steps, dt, out)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -118,9 +136,10 @@ impl<T: Real> Predictor<T> {
         x0: &[State],
         inputs: &[Input],
         steps: usize,
+        dt: f64,
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
-        self.batch_generic::<Fused>(ws, x0, inputs, steps, out)
+        self.batch_generic::<Fused>(ws, x0, inputs, steps, dt, out)
     }
 
     #[inline(always)]
@@ -130,6 +149,7 @@ impl<T: Real> Predictor<T> {
         x0: &[State],
         inputs: &[Input],
         steps: usize,
+        dt: f64,
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
         const L: usize = LANES;
@@ -158,7 +178,7 @@ impl<T: Real> Predictor<T> {
                     }
                 }
                 let q = self.n_in - 1;
-                ws.z[q * L..q * L + m].fill((T::of(self.dt) - self.in_mean[q]) * self.in_inv_std[q]);
+                ws.z[q * L..q * L + m].fill((T::of(dt) - self.in_mean[q]) * self.in_inv_std[q]);
 
                 for (l, layer) in self.layers.iter().enumerate() {
                     let (input, h) = if l == 0 {

@@ -14,7 +14,7 @@ fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), Ru
     if expected == found { Ok(()) } else { Err(RuntimeError::LengthMismatch { what, expected, found }) }
 }
 
-fn check_dt(dt: f64) -> Result<(), RuntimeError> {
+pub(super) fn check_dt(dt: f64) -> Result<(), RuntimeError> {
     if dt.is_finite() && dt > 0.0 { Ok(()) } else { Err(RuntimeError::BadTimeStep(dt)) }
 }
 

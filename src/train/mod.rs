@@ -1,13 +1,20 @@
 //! The PINC trainer on burn: the network with its time tangent, the physics right-hand
-//! side in tensor ops, and freezing into the `.pinc` format the runtime loads.
+//! side in tensor ops, the five losses, gradient combination, and the training loop that
+//! freezes the best weights into the `.pinc` format the runtime loads.
 
+mod config;
 mod grad_combine;
+mod losses;
 mod net;
 mod physics;
+mod trainer;
 
+pub use config::{Backend, LossKind, TrainConfig};
 pub use grad_combine::{GradCombine, clip_global_norm, combine};
+pub use losses::{Batch, RolloutBatch, joint_losses, loss};
 pub use net::{LAYER_NORM_EPS, PincNet, Prediction};
 pub use physics::rhs;
+pub use trainer::{EpochRecord, StopReason, TrainError, TrainOutcome, device, envelope_of, train};
 
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,148 @@
+//! `pinc eval`: the paper's metrics on freshly generated sets, and a plot of rollouts.
+
+use crate::{PresetName, load_model};
+use indicatif::{ProgressBar, ProgressStyle};
+use pinc::dataset::TrajectorySet;
+use pinc::eval::{EvalSets, Metrics, VPT_THRESHOLD_M, evaluate, full_rollouts, position_errors, vpt};
+use pinc::plot::{Panel, Series, figure};
+use pinc::runtime::Predictor;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `pinc eval`.
+pub struct EvalArgs {
+    pub model: PathBuf,
+    pub preset: PresetName,
+    pub seed: u64,
+    pub count: Option<usize>,
+    pub json: bool,
+    pub plot: Option<PathBuf>,
+    pub no_plot: bool,
+}
+
+/// Generates the sets with a progress bar.
+pub fn eval_sets(preset: PresetName, seed: u64, count: Option<usize>, quiet: bool) -> EvalSets {
+    let p = preset.preset();
+    let total: usize = ["dev_eval", "interp", "extrap"]
+        .iter()
+        .filter_map(|n| p.set(n))
+        .map(|s| count.unwrap_or(s.count))
+        .sum();
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("generating eval sets [{bar:40}] {pos}/{len} ({eta})")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    let sets = EvalSets::generate(&p, seed, count, || bar.inc(1));
+    bar.finish_and_clear();
+    sets
+}
+
+/// Prints metrics as a paper-style table row.
+pub fn print_metrics(label: &str, m: &Metrics) {
+    println!("{:<28} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7}", "", "L1", "L2", "L3", "L4", "L5", "VPT1 s", "VPT2 s", "VPT3 s");
+    println!(
+        "{:<28} {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>7.2} {:>7.2} {:>7.2}",
+        label, m.l1, m.l2, m.l3, m.l4, m.l5, m.vpt1, m.vpt2, m.vpt3
+    );
+}
+
+pub fn run_eval(a: EvalArgs) -> Result<(), String> {
+    let model = load_model(&a.model)?;
+    let start = Instant::now();
+    let sets = eval_sets(a.preset, a.seed, a.count, a.json);
+    let metrics = evaluate(&model, &sets).map_err(|e| format!("evaluation failed: {e}"))?;
+    let seconds = start.elapsed().as_secs_f64();
+    let plot = (!a.no_plot).then(|| {
+        a.plot.clone().unwrap_or_else(|| {
+            let stem = a.model.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "model".into());
+            PathBuf::from(format!("{stem}_eval_seed{}.png", a.seed))
+        })
+    });
+    if let Some(path) = &plot {
+        plot_rollouts(path, &model, &sets.dev).map_err(|e| format!("plot {}: {e}", path.display()))?;
+    }
+    if a.json {
+        let mut v = serde_json::to_value(metrics).map_err(|e| e.to_string())?;
+        let obj = v.as_object_mut().expect("metrics serialise to an object");
+        obj.insert("model".into(), a.model.display().to_string().into());
+        obj.insert("preset".into(), a.preset.preset().name.into());
+        obj.insert("seed".into(), a.seed.into());
+        obj.insert("trajectories_per_set".into(), sets.dev.count.into());
+        obj.insert("vpt_threshold_m".into(), VPT_THRESHOLD_M.into());
+        obj.insert("seconds".into(), seconds.into());
+        if let Some(p) = &plot {
+            obj.insert("plot".into(), p.display().to_string().into());
+        }
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{} on preset {}, seed {}, {} trajectories per set ({:.1} s)",
+            a.model.display(),
+            a.preset.preset().name,
+            a.seed,
+            sets.dev.count,
+            seconds
+        );
+        print_metrics(&a.model.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(), &metrics);
+        if let Some(p) = &plot {
+            println!("plot: {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// xy, z, psi and position error of three dev rollouts (shortest, median and longest VPT)
+/// against the ground truth.
+pub fn plot_rollouts(path: &Path, model: &pinc::model::PincModel, set: &TrajectorySet) -> Result<(), String> {
+    let p = Predictor::<f32>::new(model);
+    let out = full_rollouts(&p, set).map_err(|e| e.to_string())?;
+    let v = vpt(&p, set).map_err(|e| e.to_string())?;
+    let mut idx: Vec<usize> = (0..set.count).collect();
+    idx.sort_by(|&a, &b| v[a].total_cmp(&v[b]));
+    let picks = [idx[0], idx[idx.len() / 2], idx[idx.len() - 1]];
+    let n = set.points;
+    let t = |k: usize| k as f64 * set.dt;
+    let labels: Vec<String> = picks.iter().map(|&i| format!("#{i} (VPT {:.2} s)", v[i])).collect();
+    let truth_labels: Vec<String> = picks.iter().map(|&i| format!("#{i} truth")).collect();
+    let mut panels = Vec::new();
+    let mut line = |title, y_label, log_y, f: &dyn Fn(&pinc::State) -> (f64, f64), use_t: bool| {
+        let mut series = Vec::new();
+        for (c, &i) in picks.iter().enumerate() {
+            let pred = &out[i * n..(i + 1) * n];
+            let truth = set.trajectory(i).0;
+            let pts = |tr: &[pinc::State]| -> Vec<(f64, f64)> {
+                tr.iter().enumerate().map(|(k, s)| if use_t { (t(k), f(s).1) } else { f(s) }).collect()
+            };
+            series.push(Series { label: &truth_labels[c], points: pts(truth), color: c, dashed: true });
+            series.push(Series { label: &labels[c], points: pts(pred), color: c, dashed: false });
+        }
+        panels.push(Panel { title, x_label: if use_t { "t (s)" } else { "x (m)" }, y_label, log_y, series });
+    };
+    line("planar path", "y (m)", false, &|s| (s[0], s[1]), false);
+    line("depth", "z (m, down)", false, &|s| (0.0, s[2]), true);
+    line("heading", "psi (deg)", false, &|s| (0.0, s[4].atan2(s[3]).to_degrees()), true);
+    let mut err_series: Vec<Series> = picks
+        .iter()
+        .enumerate()
+        .map(|(c, &i)| Series {
+            label: &labels[c],
+            points: position_errors(&out[i * n..(i + 1) * n], set.trajectory(i).0)
+                .into_iter()
+                .enumerate()
+                .map(|(k, e)| (t(k), e.max(1e-6)))
+                .collect(),
+            color: c,
+            dashed: false,
+        })
+        .collect();
+    err_series.push(Series {
+        label: "0.05 m",
+        points: vec![(0.0, VPT_THRESHOLD_M), (t(n - 1), VPT_THRESHOLD_M)],
+        color: 6,
+        dashed: true,
+    });
+    panels.push(Panel { title: "position error", x_label: "t (s)", y_label: "m", log_y: true, series: err_series });
+    figure(path, 1400, 1000, 2, &panels)
+}

@@ -1,0 +1,244 @@
+//! `pinc train`: progress bar, per-epoch CSV, training-curve plot, frozen best weights with
+//! final metrics; Ctrl-C or a NaN loss stops cleanly and still writes the best weights.
+
+use crate::PresetName;
+use crate::eval_cmd::{eval_sets, print_metrics};
+use indicatif::{ProgressBar, ProgressStyle};
+use pinc::dataset::generate_set;
+use pinc::eval::evaluate;
+use pinc::model::Activation;
+use pinc::plot::{Panel, Series, figure};
+use pinc::train::{Backend, EpochRecord, GradCombine, LossKind, StopReason, TrainConfig, train};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Arguments of `pinc train` (already parsed by clap).
+pub struct TrainArgs {
+    pub preset: PresetName,
+    pub out: PathBuf,
+    pub epochs: Option<usize>,
+    pub batch: Option<usize>,
+    pub grad: Option<GradCombine>,
+    pub no_physics: bool,
+    pub losses: Option<Vec<String>>,
+    pub backend: Backend,
+    pub seed: u64,
+    pub rollout_steps: Option<usize>,
+    pub rollout_stride: Option<usize>,
+    pub lr: Option<f64>,
+    pub noise: Option<f64>,
+    pub layers: Option<usize>,
+    pub width: Option<usize>,
+    pub tanh: bool,
+    pub train_count: Option<usize>,
+    pub dev_count: Option<usize>,
+    pub eval_count: Option<usize>,
+    pub json: bool,
+}
+
+fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
+    let mut cfg = TrainConfig::paper();
+    if a.layers.is_some() || a.width.is_some() {
+        cfg.architecture = pinc::model::Architecture::paper(a.layers.unwrap_or(4), a.width.unwrap_or(32));
+    }
+    if a.tanh {
+        cfg.architecture.activation = Activation::Tanh;
+    }
+    if let Some(list) = &a.losses {
+        let mut keep = Vec::new();
+        for name in list {
+            keep.push(LossKind::from_name(name.trim()).ok_or_else(|| {
+                format!("--losses: unknown loss {name:?} (data, physics, ic, rollout, physics_rollout)")
+            })?);
+        }
+        cfg = cfg.with_losses(&keep);
+    }
+    if a.no_physics {
+        // Drops the physics-informed terms; a data rollout loss, if active, stays.
+        cfg = cfg.with_losses(&[LossKind::Data, LossKind::Rollout]);
+    }
+    cfg.epochs = a.epochs.unwrap_or(cfg.epochs);
+    cfg.batch = a.batch.unwrap_or(cfg.batch);
+    cfg.grad = a.grad.unwrap_or(cfg.grad);
+    cfg.rollout_steps = a.rollout_steps.unwrap_or(cfg.rollout_steps);
+    cfg.rollout_stride = a.rollout_stride.unwrap_or(cfg.rollout_stride);
+    cfg.lr = a.lr.unwrap_or(cfg.lr);
+    cfg.input_noise = a.noise.unwrap_or(cfg.input_noise);
+    cfg.backend = a.backend;
+    cfg.seed = a.seed;
+    cfg.check()?;
+    Ok(cfg)
+}
+
+fn sibling(out: &Path, ext: &str) -> PathBuf {
+    out.with_extension(ext)
+}
+
+pub fn run_train(a: TrainArgs) -> Result<(), String> {
+    let cfg = config(&a)?;
+    let preset = a.preset.preset();
+    let spec = |name: &str, count: Option<usize>| {
+        let mut s = preset.set(name).expect("preset has train and dev sets").clone();
+        if let Some(c) = count {
+            s.count = c;
+        }
+        s
+    };
+    let train_set = generate_set(&spec("train", a.train_count), a.seed, || {});
+    let dev = generate_set(&spec("dev", a.dev_count), a.seed, || {});
+
+    let interrupt = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupt.clone();
+        // A second handler cannot be installed (tests call run_train once per process).
+        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    }
+    let csv_path = sibling(&a.out, "csv");
+    let mut csv = std::fs::File::create(&csv_path).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    let header: Vec<String> = ["epoch", "lr"]
+        .into_iter()
+        .map(String::from)
+        .chain(cfg.losses.iter().map(|k| format!("train_{}", k.name())))
+        .chain(["dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"].map(String::from))
+        .collect();
+    writeln!(csv, "{}", header.join(",")).map_err(|e| e.to_string())?;
+
+    let bar = if a.json { ProgressBar::hidden() } else { ProgressBar::new(cfg.epochs as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("epoch {pos}/{len} [{bar:30}] {elapsed} (ETA {eta}) {msg}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    let mut io_error = None;
+    let outcome = train(&cfg, &train_set, &dev, &format!("pinc train --preset {}", preset.name), &interrupt, |r: &EpochRecord| {
+        let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
+        bar.set_message(format!(
+            "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
+            losses.join(" "),
+            r.dev_rollout10,
+            r.dev_vpt,
+            r.lr
+        ));
+        bar.inc(1);
+        let mut row = vec![r.epoch.to_string(), format!("{:e}", r.lr)];
+        row.extend(r.train.iter().map(|(_, v)| format!("{v:e}")));
+        row.extend([
+            format!("{:e}", r.dev_one_step),
+            format!("{:e}", r.dev_rollout10),
+            format!("{}", r.dev_vpt),
+            format!("{:e}", r.dev_smoothed),
+            (r.best as u8).to_string(),
+            format!("{:.3}", r.elapsed_s),
+        ]);
+        if let Err(e) = writeln!(csv, "{}", row.join(",")) {
+            io_error.get_or_insert(e);
+        }
+    })
+    .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
+    if let Some(e) = io_error {
+        eprintln!("warning: {}: {e}", csv_path.display());
+    }
+    match &outcome.stop {
+        StopReason::Completed => {}
+        StopReason::Interrupted { epoch } => {
+            eprintln!("interrupted in epoch {epoch}: writing the best weights so far (epoch {})", outcome.best_epoch)
+        }
+        StopReason::NonFiniteLoss { epoch, loss } => eprintln!(
+            "the {} loss became non-finite in epoch {epoch}: training stopped; writing the best weights so far (epoch {})",
+            loss.name(),
+            outcome.best_epoch
+        ),
+    }
+
+    let mut model = outcome.model;
+    let sets = eval_sets(a.preset, a.seed, a.eval_count, a.json);
+    let metrics = evaluate(&model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?;
+    for (k, v) in metrics.entries() {
+        model.provenance.metrics.insert(k.into(), v);
+    }
+    let m = &mut model.provenance.metrics;
+    m.insert("train_seconds".into(), outcome.seconds);
+    m.insert("step_ms".into(), outcome.step_ms);
+    m.insert("best_epoch".into(), outcome.best_epoch as f64);
+    m.insert("epochs_run".into(), outcome.history.len() as f64);
+    model.save(&a.out).map_err(|e| e.to_string())?;
+    let png = sibling(&a.out, "png");
+    plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
+
+    if a.json {
+        let v = serde_json::json!({
+            "model": a.out.display().to_string(),
+            "metrics": metrics,
+            "best_epoch": outcome.best_epoch,
+            "epochs_run": outcome.history.len(),
+            "train_seconds": outcome.seconds,
+            "step_ms": outcome.step_ms,
+            "backend": cfg.backend,
+            "stop": outcome.stop,
+            "csv": csv_path.display().to_string(),
+            "plot": png.display().to_string(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{} epochs in {:.1} s ({:.2} ms per step, {:?} backend); best on dev: epoch {} -> {}",
+            outcome.history.len(),
+            outcome.seconds,
+            outcome.step_ms,
+            cfg.backend,
+            outcome.best_epoch,
+            a.out.display()
+        );
+        print_metrics(&format!("seed {} eval", a.seed), &metrics);
+        println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
+    }
+    Ok(())
+}
+
+fn plot_history(path: &Path, h: &[EpochRecord]) -> Result<(), String> {
+    let Some(first) = h.first() else { return Ok(()) };
+    let train_series: Vec<Series> = first
+        .train
+        .iter()
+        .enumerate()
+        .map(|(i, (k, _))| Series {
+            label: k.name(),
+            points: h.iter().map(|r| (r.epoch as f64, r.train[i].1)).collect(),
+            color: i,
+            dashed: false,
+        })
+        .collect();
+    let ep = |f: &dyn Fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> { h.iter().map(|r| (r.epoch as f64, f(r))).collect() };
+    let panels = vec![
+        Panel { title: "training losses", x_label: "epoch", y_label: "MSE", log_y: true, series: train_series },
+        Panel {
+            title: "dev losses",
+            x_label: "epoch",
+            y_label: "MSE",
+            log_y: true,
+            series: vec![
+                Series { label: "one-step", points: ep(&|r| r.dev_one_step), color: 0, dashed: false },
+                Series { label: "10-step rollout", points: ep(&|r| r.dev_rollout10), color: 1, dashed: false },
+                Series { label: "rollout, smoothed", points: ep(&|r| r.dev_smoothed), color: 6, dashed: true },
+            ],
+        },
+        Panel {
+            title: "dev valid prediction time",
+            x_label: "epoch",
+            y_label: "s",
+            log_y: false,
+            series: vec![Series { label: "", points: ep(&|r| r.dev_vpt), color: 2, dashed: false }],
+        },
+        Panel {
+            title: "learning rate",
+            x_label: "epoch",
+            y_label: "lr",
+            log_y: true,
+            series: vec![Series { label: "", points: ep(&|r| r.lr), color: 3, dashed: false }],
+        },
+    ];
+    figure(path, 1400, 1000, 2, &panels)
+}

@@ -1,0 +1,360 @@
+//! The training loop: per-loss gradients, their combination and global clip, AdamW,
+//! reduce-on-plateau on the smoothed dev loss, best-on-dev selection with the frozen
+//! runtime, and a clean stop on interruption or a non-finite loss.
+
+use super::config::{Backend, LossKind, TrainConfig};
+use super::grad_combine::{clip_global_norm, combine};
+use super::losses::{Batch, joint_losses, loss};
+use super::net::PincNet;
+use super::GradCombine;
+use crate::dataset::TrajectorySet;
+use crate::eval::{one_step_mse, rollout_mse, vpt};
+use crate::model::{Envelope, PincModel, Provenance};
+use crate::runtime::Predictor;
+use crate::types::{NU, NX};
+use crate::vehicle::VehicleParams;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::prelude::*;
+use burn::tensor::Gradients;
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Why training could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// The configuration is inconsistent.
+    #[error("invalid training configuration: {0}")]
+    Config(String),
+    /// A set does not fit the run.
+    #[error("{set} set: {what}")]
+    Data {
+        /// Which set.
+        set: &'static str,
+        /// What is wrong with it.
+        what: String,
+    },
+}
+
+/// What one epoch did.
+#[derive(Debug, Clone, Serialize)]
+pub struct EpochRecord {
+    /// 1-based epoch.
+    pub epoch: usize,
+    /// Learning rate used in the epoch.
+    pub lr: f64,
+    /// Mean of each active loss over the epoch's batches, in the configuration's order.
+    pub train: Vec<(LossKind, f64)>,
+    /// One-step MSE on the dev set after the epoch.
+    pub dev_one_step: f64,
+    /// 10-step rollout MSE on the dev set (the scheduled loss).
+    pub dev_rollout10: f64,
+    /// Mean VPT on the dev set (s), the selection criterion.
+    pub dev_vpt: f64,
+    /// Exponentially smoothed `dev_rollout10`.
+    pub dev_smoothed: f64,
+    /// Whether these weights are the best so far.
+    pub best: bool,
+    /// Wall time since the start (s).
+    pub elapsed_s: f64,
+}
+
+/// How training ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub enum StopReason {
+    /// All epochs ran.
+    Completed,
+    /// The interrupt flag was raised.
+    Interrupted {
+        /// Epoch during which it was noticed.
+        epoch: usize,
+    },
+    /// A loss became NaN or infinite; the weights before that batch are kept.
+    NonFiniteLoss {
+        /// Epoch of the batch.
+        epoch: usize,
+        /// Which loss.
+        loss: LossKind,
+    },
+}
+
+/// The result of a run: the best-on-dev frozen model and the history.
+pub struct TrainOutcome {
+    /// Best weights, frozen, with envelope and provenance.
+    pub model: PincModel,
+    /// Epoch whose weights were kept (0: the initialisation).
+    pub best_epoch: usize,
+    /// Every completed epoch.
+    pub history: Vec<EpochRecord>,
+    /// How it ended.
+    pub stop: StopReason,
+    /// Wall time (s).
+    pub seconds: f64,
+    /// Mean wall time of one optimisation step (ms).
+    pub step_ms: f64,
+}
+
+/// The training device of `backend`, with autodiff.
+pub fn device(backend: Backend) -> Device {
+    match backend {
+        #[allow(deprecated)] // burn marks ndarray deprecated in favour of flex; the design asks for it.
+        Backend::Ndarray => Device::ndarray().autodiff(),
+        Backend::Flex => Device::flex().autodiff(),
+    }
+}
+
+/// Per-channel min / max of the states and inputs of `set`.
+pub fn envelope_of(set: &TrajectorySet) -> Envelope {
+    let mut e = Envelope {
+        state_min: [f64::INFINITY; NX],
+        state_max: [f64::NEG_INFINITY; NX],
+        input_min: [f64::INFINITY; NU],
+        input_max: [f64::NEG_INFINITY; NU],
+    };
+    for x in &set.states {
+        for k in 0..NX {
+            e.state_min[k] = e.state_min[k].min(x[k]);
+            e.state_max[k] = e.state_max[k].max(x[k]);
+        }
+    }
+    for u in &set.inputs {
+        for k in 0..NU {
+            e.input_min[k] = e.input_min[k].min(u[k]);
+            e.input_max[k] = e.input_max[k].max(u[k]);
+        }
+    }
+    e
+}
+
+/// Flattens one loss's gradients in the module's visiting order (zeros where unused).
+struct FlattenGrads<'a> {
+    grads: &'a Gradients,
+    out: Vec<f32>,
+}
+
+impl ModuleVisitor for FlattenGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        match param.grad(self.grads) {
+            Some(g) => self.out.extend(g.try_into_vec_as::<f32>().expect("float gradient")),
+            None => self.out.extend(std::iter::repeat_n(0.0, param.dims().iter().product())),
+        }
+    }
+}
+
+/// Cuts a flat gradient back into per-parameter tensors for the optimiser.
+struct SplitGrads<'a> {
+    flat: &'a [f32],
+    offset: usize,
+    device: Device,
+    out: GradientsParams,
+}
+
+impl ModuleVisitor for SplitGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let dims: [usize; D] = param.dims();
+        let n: usize = dims.iter().product();
+        let chunk = self.flat[self.offset..self.offset + n].to_vec();
+        self.offset += n;
+        self.out.register(param.id, Tensor::<D>::from_data(TensorData::new(chunk, dims), &self.device));
+    }
+}
+
+fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
+    let mut v = FlattenGrads { grads, out: Vec::new() };
+    net.visit(&mut v);
+    v.out
+}
+
+/// Freezes `net` with the run's envelope and provenance.
+fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance) -> PincModel {
+    PincModel {
+        architecture: net.architecture().clone(),
+        dt,
+        input_scaling: None,
+        output_scaling: None,
+        envelope: Some(envelope.clone()),
+        provenance,
+        weights: net.weights(),
+    }
+}
+
+/// Dev metrics of a frozen model: (one-step MSE, 10-step rollout MSE, mean VPT).
+fn dev_metrics(model: &PincModel, dev: &TrajectorySet) -> (f64, f64, f64) {
+    let p = Predictor::<f32>::new(model);
+    let one = one_step_mse(&p, dev).unwrap_or(f64::INFINITY);
+    let roll = rollout_mse(&p, dev, 10).unwrap_or(f64::INFINITY);
+    let v = vpt(&p, dev).map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64).unwrap_or(0.0);
+    (one, roll, v)
+}
+
+/// Reduce-on-plateau with PyTorch's semantics (relative threshold 1e-4).
+struct Plateau {
+    best: f64,
+    bad: usize,
+}
+
+impl Plateau {
+    fn update(&mut self, cfg: &TrainConfig, metric: f64, lr: f64) -> f64 {
+        if metric < self.best * (1.0 - 1e-4) {
+            self.best = metric;
+            self.bad = 0;
+            return lr;
+        }
+        self.bad += 1;
+        if self.bad > cfg.patience {
+            self.bad = 0;
+            return (lr * cfg.lr_factor).max(cfg.lr_min);
+        }
+        lr
+    }
+}
+
+/// Trains on `train_set`, selects on `dev`, and returns the best frozen model. `source`
+/// names the data in the provenance; `on_epoch` sees every epoch; raising `interrupt`
+/// stops after the current batch.
+///
+/// # Errors
+/// An invalid configuration, or sets that do not fit (empty, different sample periods).
+pub fn train(
+    cfg: &TrainConfig,
+    train_set: &TrajectorySet,
+    dev: &TrajectorySet,
+    source: &str,
+    interrupt: &AtomicBool,
+    mut on_epoch: impl FnMut(&EpochRecord),
+) -> Result<TrainOutcome, TrainError> {
+    cfg.check().map_err(TrainError::Config)?;
+    for (name, s) in [("training", train_set), ("dev", dev)] {
+        if s.count == 0 || s.points < 2 {
+            return Err(TrainError::Data { set: name, what: format!("{} trajectories of {} points", s.count, s.points) });
+        }
+    }
+    if (train_set.dt - dev.dt).abs() > 1e-12 {
+        return Err(TrainError::Data {
+            set: "dev",
+            what: format!("sample period {} s differs from training's {} s", dev.dt, train_set.dt),
+        });
+    }
+    let start = Instant::now();
+    let device = device(cfg.backend);
+    let plain = device.clone().without_autodiff();
+    let params = VehicleParams::default();
+    let envelope = envelope_of(train_set);
+    let config_json = serde_json::to_string(cfg).expect("config serialises");
+    let provenance = |epochs: usize, metrics: BTreeMap<String, f64>| Provenance {
+        source: source.to_string(),
+        seed: cfg.seed,
+        epochs: epochs as u64,
+        config_json: config_json.clone(),
+        metrics,
+        created_by: format!("pinc {} train", env!("CARGO_PKG_VERSION")),
+    };
+    let mut net = PincNet::init(&cfg.architecture, cfg.seed, &device);
+    let mut optim = AdamWConfig::new()
+        .with_epsilon(cfg.adam_eps as f32)
+        .with_weight_decay(cfg.weight_decay as f32)
+        .init();
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7261_696e);
+
+    let dev_metrics_map = |one: f64, roll: f64, v: f64| {
+        BTreeMap::from([("dev_one_step_mse".into(), one), ("dev_rollout10_mse".into(), roll), ("dev_vpt_s".into(), v)])
+    };
+    let mut best = {
+        let m = freeze(&net, train_set.dt, &envelope, provenance(0, BTreeMap::new()));
+        let (one, roll, v) = dev_metrics(&m, dev);
+        let mut m = m;
+        m.provenance.metrics = dev_metrics_map(one, roll, v);
+        (m, 0usize, v, roll)
+    };
+    let mut plateau = Plateau { best: f64::INFINITY, bad: 0 };
+    let mut smoothed = f64::NAN;
+    let mut lr = cfg.lr;
+    let mut history = Vec::new();
+    let mut stop = StopReason::Completed;
+    let (mut steps, mut step_time) = (0usize, 0.0f64);
+    let mut order: Vec<usize> = (0..train_set.count).collect();
+
+    'epochs: for epoch in 1..=cfg.epochs {
+        order.shuffle(&mut rng);
+        let mut sums = vec![0.0; cfg.losses.len()];
+        let mut batches = 0usize;
+        for chunk in order.chunks(cfg.batch) {
+            if interrupt.load(Ordering::Relaxed) {
+                stop = StopReason::Interrupted { epoch };
+                break 'epochs;
+            }
+            let t0 = Instant::now();
+            let batch = Batch::new(train_set, chunk, cfg, &mut rng, &device);
+            let (values, mut g) = if cfg.grad == GradCombine::Sum {
+                let (total, values) = joint_losses(cfg, &net, &params, &batch);
+                let g = flatten(&net, &total.backward());
+                (values.into_iter().map(|v| f64::from(v.into_scalar::<f32>())).collect::<Vec<_>>(), g)
+            } else {
+                let mut values = Vec::new();
+                let mut grads = Vec::new();
+                for &k in &cfg.losses {
+                    let l = loss(k, &net, &params, &batch);
+                    grads.push(flatten(&net, &l.backward()));
+                    values.push(f64::from(l.into_scalar::<f32>()));
+                }
+                (values, combine(cfg.grad, &grads, &cfg.weights))
+            };
+            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                stop = StopReason::NonFiniteLoss { epoch, loss: cfg.losses[i] };
+                break 'epochs;
+            }
+            if g.iter().any(|v| !v.is_finite()) {
+                stop = StopReason::NonFiniteLoss { epoch, loss: LossKind::Data };
+                break 'epochs;
+            }
+            clip_global_norm(&mut g, cfg.clip_norm);
+            let mut split = SplitGrads { flat: &g, offset: 0, device: plain.clone(), out: GradientsParams::new() };
+            net.visit(&mut split);
+            net = optim.step(lr, net, split.out);
+            step_time += t0.elapsed().as_secs_f64();
+            steps += 1;
+            for (s, v) in sums.iter_mut().zip(&values) {
+                *s += v;
+            }
+            batches += 1;
+        }
+        let frozen = freeze(&net, train_set.dt, &envelope, provenance(epoch, BTreeMap::new()));
+        let (one, roll, v) = dev_metrics(&frozen, dev);
+        smoothed = if smoothed.is_nan() { roll } else { cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * smoothed };
+        let used_lr = lr;
+        lr = plateau.update(cfg, smoothed, lr);
+        let is_best = v > best.2 || (v == best.2 && roll < best.3);
+        if is_best {
+            let mut m = frozen;
+            m.provenance.metrics = dev_metrics_map(one, roll, v);
+            best = (m, epoch, v, roll);
+        }
+        let record = EpochRecord {
+            epoch,
+            lr: used_lr,
+            train: cfg.losses.iter().zip(&sums).map(|(&k, s)| (k, s / batches.max(1) as f64)).collect(),
+            dev_one_step: one,
+            dev_rollout10: roll,
+            dev_vpt: v,
+            dev_smoothed: smoothed,
+            best: is_best,
+            elapsed_s: start.elapsed().as_secs_f64(),
+        };
+        on_epoch(&record);
+        history.push(record);
+    }
+    let (model, best_epoch, _, _) = best;
+    Ok(TrainOutcome {
+        model,
+        best_epoch,
+        history,
+        stop,
+        seconds: start.elapsed().as_secs_f64(),
+        step_ms: 1e3 * step_time / steps.max(1) as f64,
+    })
+}
