@@ -7,6 +7,9 @@
 //! - unsuffixed IDs use the default `f32` predictor with the AVX2 + FMA kernels (where the
 //!   CPU has them); `*_f64` the `f64` reference predictor; `*_portable` the portable kernels
 //!   (no FMA, baseline x86-64 SIMD) in `f32`;
+//! - `burn_step`: the same weights through the burn training network (flex device, batch 1,
+//!   no tangent), so the runtime's advantage over the framework is measured in one run;
+//!   `burn_step_ndarray` on burn's ndarray device;
 //! - `rk4_step`: one 0.08 s sample period of the analytic vehicle (16 RK4 sub-steps), and
 //!   `rk4_linearise`: the same with the exact Jacobians of the discrete map.
 //!
@@ -77,6 +80,31 @@ fn bench_predictor<T: Real>(c: &mut Criterion, suffix: &str, p: Predictor<T>) {
     }
 }
 
+#[cfg(feature = "train")]
+fn burn_step(c: &mut Criterion) {
+    use burn::prelude::*;
+    let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
+    let model = import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap();
+    let (x, u) = (x0(), inputs(1)[0]);
+    #[allow(deprecated)] // burn marks ndarray deprecated in favour of flex; the design asks for it.
+    let devices = [("burn_step", Device::flex()), ("burn_step_ndarray", Device::ndarray())];
+    for (id, device) in devices {
+        let net = pinc::train::PincNet::from_model(&model, &device);
+        let row = |v: Vec<f32>, n: usize| Tensor::<2>::from_data(TensorData::new(v, [1, n]), &device);
+        let xs: Vec<f32> = x.iter().map(|&v| v as f32).collect();
+        let us: Vec<f32> = u.iter().map(|&v| v as f32).collect();
+        c.bench_function(id, |b| {
+            b.iter(|| {
+                let p = net.forward(row(xs.clone(), 9), row(us.clone(), 4), row(vec![0.08], 1), false);
+                black_box(p.state.try_into_vec_as::<f32>().unwrap())
+            })
+        });
+    }
+}
+
+#[cfg(not(feature = "train"))]
+fn burn_step(_: &mut Criterion) {}
+
 fn rk4_step(c: &mut Criterion) {
     let vehicle = Rk4Vehicle::default();
     let s = SimState::from([0.1, -0.2, 0.5, 0.3, 0.2, 0.01, 0.05, 0.1]);
@@ -86,5 +114,5 @@ fn rk4_step(c: &mut Criterion) {
     c.bench_function("rk4_linearise", |b| b.iter(|| vehicle.step_with_jacobians(black_box(&x), black_box(&u))));
 }
 
-criterion_group!(benches, network, rk4_step);
+criterion_group!(benches, network, burn_step, rk4_step);
 criterion_main!(benches);

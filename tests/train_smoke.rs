@@ -91,3 +91,16 @@ fn inconsistent_inputs_are_refused_with_a_reason() {
     let e = train(&tiny_config(1), &train_set, &dev, "t", &AtomicBool::new(false), |_| {}).err().unwrap();
     assert!(e.to_string().contains("sample period"), "{e}");
 }
+
+#[test]
+fn a_time_budget_ends_training_after_the_epoch_that_spends_it() {
+    let (train_set, dev) = (set("train", 4), set("dev", 4));
+    let mut cfg = tiny_config(5).with_losses(&[LossKind::Data]);
+    cfg.time_limit_s = Some(1e-9);
+    let out = train(&cfg, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).unwrap();
+    assert_eq!(out.stop, StopReason::TimeLimit { epoch: 1 });
+    assert_eq!(out.history.len(), 1);
+    cfg.time_limit_s = Some(0.0);
+    let e = train(&cfg, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).err().unwrap();
+    assert!(e.to_string().contains("time_limit_s"), "{e}");
+}

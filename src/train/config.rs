@@ -100,6 +100,8 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Burn backend.
     pub backend: Backend,
+    /// Wall-clock budget (s): training stops after the epoch that exceeds it.
+    pub time_limit_s: Option<f64>,
 }
 
 impl TrainConfig {
@@ -128,6 +130,7 @@ impl TrainConfig {
             input_noise: 0.0,
             seed: 0,
             backend: Backend::Ndarray,
+            time_limit_s: None,
         }
     }
 
@@ -168,6 +171,9 @@ impl TrainConfig {
         }
         if !(self.clip_norm > 0.0) || !(0.0..=1.0).contains(&self.dev_smoothing) || self.dev_smoothing == 0.0 {
             return Err("clip_norm must be positive and dev_smoothing in (0, 1]".into());
+        }
+        if self.time_limit_s.is_some_and(|t| !(t > 0.0)) {
+            return Err("time_limit_s must be positive".into());
         }
         Ok(())
     }

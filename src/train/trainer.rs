@@ -74,6 +74,11 @@ pub enum StopReason {
         /// Epoch during which it was noticed.
         epoch: usize,
     },
+    /// The wall-clock budget ran out.
+    TimeLimit {
+        /// Last completed epoch.
+        epoch: usize,
+    },
     /// A loss became NaN or infinite; the weights before that batch are kept.
     NonFiniteLoss {
         /// Epoch of the batch.
@@ -347,6 +352,10 @@ pub fn train(
         };
         on_epoch(&record);
         history.push(record);
+        if cfg.time_limit_s.is_some_and(|t| start.elapsed().as_secs_f64() >= t) && epoch < cfg.epochs {
+            stop = StopReason::TimeLimit { epoch };
+            break;
+        }
     }
     let (model, best_epoch, _, _) = best;
     Ok(TrainOutcome {

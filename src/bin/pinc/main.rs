@@ -129,9 +129,18 @@ enum Command {
         /// Rollouts start at every N-th point [default: 1].
         #[arg(long)]
         rollout_stride: Option<usize>,
+        /// Physics-loss collocation points per interval: 1 is t = T (the paper's best), more are a Latin hypercube in [0, T] [default: 1].
+        #[arg(long)]
+        collocation: Option<usize>,
         /// Initial learning rate [default: 8e-3].
         #[arg(long)]
         lr: Option<f64>,
+        /// Epochs without improvement of the smoothed dev loss before the rate halves [default: 100].
+        #[arg(long)]
+        patience: Option<usize>,
+        /// Wall-clock budget in minutes: stop after the epoch that reaches it.
+        #[arg(long)]
+        time_limit: Option<f64>,
         /// Gaussian noise sigma on the network's state and input features [default: 0].
         #[arg(long)]
         noise: Option<f64>,
@@ -244,7 +253,10 @@ fn main() -> ExitCode {
             seed,
             rollout_steps,
             rollout_stride,
+            collocation,
             lr,
+            patience,
+            time_limit,
             noise,
             layers,
             width,
@@ -272,7 +284,10 @@ fn main() -> ExitCode {
             seed,
             rollout_steps,
             rollout_stride,
+            collocation,
             lr,
+            patience,
+            time_limit_min: time_limit,
             noise,
             layers,
             width,

@@ -27,7 +27,10 @@ pub struct TrainArgs {
     pub seed: u64,
     pub rollout_steps: Option<usize>,
     pub rollout_stride: Option<usize>,
+    pub collocation: Option<usize>,
     pub lr: Option<f64>,
+    pub patience: Option<usize>,
+    pub time_limit_min: Option<f64>,
     pub noise: Option<f64>,
     pub layers: Option<usize>,
     pub width: Option<usize>,
@@ -65,6 +68,8 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     cfg.rollout_steps = a.rollout_steps.unwrap_or(cfg.rollout_steps);
     cfg.rollout_stride = a.rollout_stride.unwrap_or(cfg.rollout_stride);
     cfg.lr = a.lr.unwrap_or(cfg.lr);
+    cfg.patience = a.patience.unwrap_or(cfg.patience);
+    cfg.time_limit_s = a.time_limit_min.map(|m| m * 60.0);
     cfg.input_noise = a.noise.unwrap_or(cfg.input_noise);
     cfg.backend = a.backend;
     cfg.seed = a.seed;
@@ -86,7 +91,14 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         }
         s
     };
-    let train_set = generate_set(&spec("train", a.train_count), a.seed, || {});
+    let mut train_spec = spec("train", a.train_count);
+    if let Some(m) = a.collocation {
+        if m == 0 {
+            return Err("--collocation: at least one point per interval".into());
+        }
+        train_spec.collocation_points = m;
+    }
+    let train_set = generate_set(&train_spec, a.seed, || {});
     let dev = generate_set(&spec("dev", a.dev_count), a.seed, || {});
 
     let interrupt = Arc::new(AtomicBool::new(false));
@@ -145,6 +157,9 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         StopReason::Completed => {}
         StopReason::Interrupted { epoch } => {
             eprintln!("interrupted in epoch {epoch}: writing the best weights so far (epoch {})", outcome.best_epoch)
+        }
+        StopReason::TimeLimit { epoch } => {
+            eprintln!("time limit reached after epoch {epoch}; best on dev: epoch {}", outcome.best_epoch)
         }
         StopReason::NonFiniteLoss { epoch, loss } => eprintln!(
             "the {} loss became non-finite in epoch {epoch}: training stopped; writing the best weights so far (epoch {})",
