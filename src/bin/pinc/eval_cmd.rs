@@ -10,13 +10,28 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Arguments of `pinc eval`.
+#[derive(clap::Args)]
 pub struct EvalArgs {
+    /// The .pinc model.
+    #[arg(long)]
     pub model: PathBuf,
+    /// Dataset preset whose evaluation sets are generated.
+    #[arg(long, value_enum, default_value = "paper")]
     pub preset: PresetName,
+    /// Seed of the generated sets.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Trajectories per set [default: the preset's, 1000].
+    #[arg(long)]
     pub count: Option<usize>,
+    /// Print JSON (keys l1..l5, vpt1..vpt3, ...).
+    #[arg(long)]
     pub json: bool,
+    /// Rollout plot path [default: <model stem>_eval_seed<S>.png].
+    #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Skip the plot.
+    #[arg(long)]
     pub no_plot: bool,
 }
 

@@ -95,118 +95,9 @@ enum Command {
     ///
     /// Writes OUT (the model), OUT with .csv (metrics per epoch) and .png (curves).
     #[cfg(feature = "train")]
-    Train {
-        /// Dataset preset (generated in memory from --seed).
-        #[arg(long, value_enum, default_value = "paper")]
-        preset: PresetName,
-        /// Output .pinc file.
-        #[arg(long)]
-        out: PathBuf,
-        /// Epochs [default: 1200].
-        #[arg(long)]
-        epochs: Option<usize>,
-        /// Trajectories per batch [default: 10].
-        #[arg(long)]
-        batch: Option<usize>,
-        /// Gradient combination [default: normalize].
-        #[arg(long, value_enum)]
-        grad: Option<GradName>,
-        /// Drop the physics, physics-rollout and initial-condition losses.
-        #[arg(long)]
-        no_physics: bool,
-        /// Active losses, comma-separated, data first: data,physics,ic,rollout,physics_rollout [default: all].
-        #[arg(long, value_delimiter = ',')]
-        losses: Option<Vec<String>>,
-        /// burn CPU backend.
-        #[arg(long, value_enum, default_value = "ndarray")]
-        backend: BackendName,
-        /// Seed of data, initialisation and shuffling.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Rollout-loss length [default: 20].
-        #[arg(long)]
-        rollout_steps: Option<usize>,
-        /// Rollouts start at every N-th point [default: 1].
-        #[arg(long)]
-        rollout_stride: Option<usize>,
-        /// Physics-loss collocation points per interval: 1 is t = T (the paper's best), more are a Latin hypercube in [0, T] [default: 1].
-        #[arg(long)]
-        collocation: Option<usize>,
-        /// Initial learning rate [default: 8e-3].
-        #[arg(long)]
-        lr: Option<f64>,
-        /// Epochs without improvement of the smoothed dev loss before the rate halves [default: 100].
-        #[arg(long)]
-        patience: Option<usize>,
-        /// Wall-clock budget in minutes: stop after the epoch that reaches it.
-        #[arg(long)]
-        time_limit: Option<f64>,
-        /// Gaussian noise sigma on the network's state and input features [default: 0].
-        #[arg(long)]
-        noise: Option<f64>,
-        /// Hidden layers [default: 4].
-        #[arg(long)]
-        layers: Option<usize>,
-        /// Neurons per hidden layer [default: 32].
-        #[arg(long)]
-        width: Option<usize>,
-        /// Adaptive tanh instead of adaptive softplus.
-        #[arg(long)]
-        tanh: bool,
-        /// Use only the first N training trajectories' worth (a smaller generated set).
-        #[arg(long)]
-        train_count: Option<usize>,
-        /// Dev trajectories used for selection [default: the preset's].
-        #[arg(long)]
-        dev_count: Option<usize>,
-        /// Trajectories per set for the final evaluation [default: 1000].
-        #[arg(long)]
-        eval_count: Option<usize>,
-        /// Print the summary as JSON (no progress bar).
-        #[arg(long)]
-        json: bool,
-    },
+    Train(train_cmd::TrainArgs),
     /// The paper's metrics L1..L5 and VPT1..3 on freshly generated sets, and a rollout plot.
-    Eval {
-        /// The .pinc model.
-        #[arg(long)]
-        model: PathBuf,
-        /// Dataset preset whose evaluation sets are generated.
-        #[arg(long, value_enum, default_value = "paper")]
-        preset: PresetName,
-        /// Seed of the generated sets.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Trajectories per set [default: the preset's, 1000].
-        #[arg(long)]
-        count: Option<usize>,
-        /// Print JSON (keys l1..l5, vpt1..vpt3, ...).
-        #[arg(long)]
-        json: bool,
-        /// Rollout plot path [default: <model stem>_eval_seed<S>.png].
-        #[arg(long)]
-        plot: Option<PathBuf>,
-        /// Skip the plot.
-        #[arg(long)]
-        no_plot: bool,
-    },
-}
-
-/// Gradient combination scheme names on the command line.
-#[cfg(feature = "train")]
-#[derive(Clone, Copy, ValueEnum)]
-enum GradName {
-    Sum,
-    Normalize,
-    Config,
-}
-
-/// Burn backends on the command line.
-#[cfg(feature = "train")]
-#[derive(Clone, Copy, ValueEnum)]
-enum BackendName {
-    Ndarray,
-    Flex,
+    Eval(eval_cmd::EvalArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -241,65 +132,8 @@ fn main() -> ExitCode {
         Command::Inspect { model, json } => run_inspect(&model, json),
         Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
         #[cfg(feature = "train")]
-        Command::Train {
-            preset,
-            out,
-            epochs,
-            batch,
-            grad,
-            no_physics,
-            losses,
-            backend,
-            seed,
-            rollout_steps,
-            rollout_stride,
-            collocation,
-            lr,
-            patience,
-            time_limit,
-            noise,
-            layers,
-            width,
-            tanh,
-            train_count,
-            dev_count,
-            eval_count,
-            json,
-        } => train_cmd::run_train(train_cmd::TrainArgs {
-            preset,
-            out,
-            epochs,
-            batch,
-            grad: grad.map(|g| match g {
-                GradName::Sum => pinc::train::GradCombine::Sum,
-                GradName::Normalize => pinc::train::GradCombine::Normalize,
-                GradName::Config => pinc::train::GradCombine::Config,
-            }),
-            no_physics,
-            losses,
-            backend: match backend {
-                BackendName::Ndarray => pinc::train::Backend::Ndarray,
-                BackendName::Flex => pinc::train::Backend::Flex,
-            },
-            seed,
-            rollout_steps,
-            rollout_stride,
-            collocation,
-            lr,
-            patience,
-            time_limit_min: time_limit,
-            noise,
-            layers,
-            width,
-            tanh,
-            train_count,
-            dev_count,
-            eval_count,
-            json,
-        }),
-        Command::Eval { model, preset, seed, count, json, plot, no_plot } => {
-            eval_cmd::run_eval(eval_cmd::EvalArgs { model, preset, seed, count, json, plot, no_plot })
-        }
+        Command::Train(args) => train_cmd::run_train(args),
+        Command::Eval(args) => eval_cmd::run_eval(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

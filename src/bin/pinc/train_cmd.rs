@@ -14,31 +14,93 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-/// Arguments of `pinc train` (already parsed by clap).
+/// Arguments of `pinc train`.
+#[derive(clap::Args)]
 pub struct TrainArgs {
+    /// Dataset preset (generated in memory from --seed).
+    #[arg(long, value_enum, default_value = "paper")]
     pub preset: PresetName,
+    /// Output .pinc file.
+    #[arg(long)]
     pub out: PathBuf,
+    /// Epochs [default: 1200].
+    #[arg(long)]
     pub epochs: Option<usize>,
+    /// Trajectories per batch [default: 10].
+    #[arg(long)]
     pub batch: Option<usize>,
-    pub grad: Option<GradCombine>,
+    /// Gradient combination [default: normalize].
+    #[arg(long, value_enum)]
+    pub grad: Option<GradName>,
+    /// Drop the physics, physics-rollout and initial-condition losses.
+    #[arg(long)]
     pub no_physics: bool,
+    /// Active losses, comma-separated, data first: data,physics,ic,rollout,physics_rollout [default: all].
+    #[arg(long, value_delimiter = ',')]
     pub losses: Option<Vec<String>>,
-    pub backend: Backend,
+    /// burn CPU backend.
+    #[arg(long, value_enum, default_value = "ndarray")]
+    pub backend: BackendName,
+    /// Seed of data, initialisation and shuffling.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Rollout-loss length [default: 20].
+    #[arg(long)]
     pub rollout_steps: Option<usize>,
+    /// Rollouts start at every N-th point [default: 1].
+    #[arg(long)]
     pub rollout_stride: Option<usize>,
+    /// Physics-loss collocation points per interval: 1 is t = T (the paper's best), more are a Latin hypercube in [0, T] [default: 1].
+    #[arg(long)]
     pub collocation: Option<usize>,
+    /// Initial learning rate [default: 8e-3].
+    #[arg(long)]
     pub lr: Option<f64>,
+    /// Epochs without improvement of the smoothed dev loss before the rate halves [default: 100].
+    #[arg(long)]
     pub patience: Option<usize>,
-    pub time_limit_min: Option<f64>,
+    /// Wall-clock budget in minutes: stop after the epoch that reaches it.
+    #[arg(long)]
+    pub time_limit: Option<f64>,
+    /// Gaussian noise sigma on the network's state and input features [default: 0].
+    #[arg(long)]
     pub noise: Option<f64>,
+    /// Hidden layers [default: 4].
+    #[arg(long)]
     pub layers: Option<usize>,
+    /// Neurons per hidden layer [default: 32].
+    #[arg(long)]
     pub width: Option<usize>,
+    /// Adaptive tanh instead of adaptive softplus.
+    #[arg(long)]
     pub tanh: bool,
+    /// Use only the first N training trajectories' worth (a smaller generated set).
+    #[arg(long)]
     pub train_count: Option<usize>,
+    /// Dev trajectories used for selection [default: the preset's].
+    #[arg(long)]
     pub dev_count: Option<usize>,
+    /// Trajectories per set for the final evaluation [default: 1000].
+    #[arg(long)]
     pub eval_count: Option<usize>,
+    /// Print the summary as JSON (no progress bar).
+    #[arg(long)]
     pub json: bool,
+}
+
+/// Gradient combination scheme names on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum GradName {
+    Sum,
+    Normalize,
+    Config,
+}
+
+/// burn backends on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum BackendName {
+    Ndarray,
+    Flex,
 }
 
 fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
@@ -64,14 +126,23 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     }
     cfg.epochs = a.epochs.unwrap_or(cfg.epochs);
     cfg.batch = a.batch.unwrap_or(cfg.batch);
-    cfg.grad = a.grad.unwrap_or(cfg.grad);
+    if let Some(g) = a.grad {
+        cfg.grad = match g {
+            GradName::Sum => GradCombine::Sum,
+            GradName::Normalize => GradCombine::Normalize,
+            GradName::Config => GradCombine::Config,
+        };
+    }
     cfg.rollout_steps = a.rollout_steps.unwrap_or(cfg.rollout_steps);
     cfg.rollout_stride = a.rollout_stride.unwrap_or(cfg.rollout_stride);
     cfg.lr = a.lr.unwrap_or(cfg.lr);
     cfg.patience = a.patience.unwrap_or(cfg.patience);
-    cfg.time_limit_s = a.time_limit_min.map(|m| m * 60.0);
+    cfg.time_limit_s = a.time_limit.map(|m| m * 60.0);
     cfg.input_noise = a.noise.unwrap_or(cfg.input_noise);
-    cfg.backend = a.backend;
+    cfg.backend = match a.backend {
+        BackendName::Ndarray => Backend::Ndarray,
+        BackendName::Flex => Backend::Flex,
+    };
     cfg.seed = a.seed;
     cfg.check()?;
     Ok(cfg)
