@@ -239,7 +239,10 @@ pub fn valid_prediction_time(errors: &[f64], dt: f64) -> f64 {
 ///
 /// # Errors
 /// A non-finite state or input in the set.
-pub fn full_rollouts<T: crate::runtime::Real>(p: &Predictor<T>, set: &TrajectorySet) -> Result<Vec<State>, RuntimeError> {
+pub fn full_rollouts<T: crate::runtime::Real>(
+    p: &Predictor<T>,
+    set: &TrajectorySet,
+) -> Result<Vec<State>, RuntimeError> {
     let x0: Vec<State> = (0..set.count).map(|i| set.trajectory(i).0[0]).collect();
     rollouts(p, set.dt, &x0, &set.inputs, set.points - 1)
 }

@@ -6,9 +6,14 @@
 //! `x_hat(t) = x(0) + N([x(0), u(0), t])`; fed back on itself it rolls out long horizons.
 //!
 //! The embeddable core (`vehicle`, `model`, `runtime`) builds with
-//! `--no-default-features`; the `tools` feature adds dataset generation and the CLI.
+//! `--no-default-features`; the `tools` feature adds dataset generation, evaluation and the
+//! CLI, `train` the burn trainer, `mpc` the Clarabel MPC and the closed loop.
 
+#[cfg(feature = "mpc")]
+pub mod closed_loop;
 pub mod model;
+#[cfg(feature = "mpc")]
+pub mod mpc;
 pub mod runtime;
 #[cfg(feature = "train")]
 pub mod train;

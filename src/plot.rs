@@ -65,9 +65,11 @@ pub fn color(i: usize) -> RGBColor {
 }
 
 fn bounds(panel: &Panel) -> ((f64, f64), (f64, f64)) {
-    let pts = panel.series.iter().flat_map(|s| s.points.iter()).filter(|(x, y)| {
-        x.is_finite() && y.is_finite() && (!panel.log_y || *y > 0.0)
-    });
+    let pts = panel
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && (!panel.log_y || *y > 0.0));
     let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     for &(x, y) in pts {
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
@@ -87,7 +89,22 @@ fn bounds(panel: &Panel) -> ((f64, f64), (f64, f64)) {
     ((x0, x1), (y0, y1))
 }
 
-fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, plotters::coord::Shift>, panel: &Panel) -> Result<(), PlotError>
+/// A linear-axis tick: as few digits as the value needs (`50`, `0.25`, `-1.5e-3`).
+fn tick(v: f64) -> String {
+    if v == 0.0 {
+        return "0".into();
+    }
+    if !(1e-3..1e5).contains(&v.abs()) {
+        return format!("{v:.1e}");
+    }
+    let s = format!("{v:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+fn draw_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    panel: &Panel,
+) -> Result<(), PlotError>
 where
     DB::ErrorType: 'static,
 {
@@ -101,6 +118,8 @@ where
                 .configure_mesh()
                 .x_desc(panel.x_label)
                 .y_desc(panel.y_label)
+                .x_label_formatter(&|x| tick(*x))
+                .y_label_formatter(&|y| if panel.log_y { format!("{y:.0e}") } else { tick(*y) })
                 .label_style(("sans-serif", 13))
                 .draw()
                 .map_err(err)?;
@@ -114,7 +133,8 @@ where
                     chart.draw_series(LineSeries::new(pts, c.stroke_width(2))).map_err(err)?
                 };
                 if !s.label.is_empty() {
-                    anno.label(s.label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+                    anno.label(s.label)
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
                 }
             }
             if panel.series.iter().any(|s| !s.label.is_empty()) {

@@ -43,12 +43,19 @@ fn shipped_paper_models_carry_their_provenance_and_envelope() {
 }
 
 #[test]
-fn shipped_pinc_beats_the_data_only_baseline_on_unseen_trajectories() {
+fn shipped_pinc_beats_the_data_only_baseline_at_sample_periods_it_was_not_fitted_on() {
+    // The data-only network only ever sees t = T; the physics and initial-condition losses
+    // teach the PINC what its time input means, so it keeps predicting at 0.06 s and 0.10 s.
     let (pinc, dnn) = (shipped("paper_pinc.pinc"), shipped("paper_dnn.pinc"));
-    for set in ["dev_eval", "interp", "extrap"] {
+    for set in ["interp", "extrap"] {
         let s = fresh(set, 7);
         let (a, b) = (mean_vpt(&pinc, &s), mean_vpt(&dnn, &s));
-        assert!(a > b, "{set}: PINC VPT {a:.3} s is not above the baseline's {b:.3} s");
-        assert!(a >= 1.0, "{set}: PINC VPT {a:.3} s");
+        assert!(a > b + 0.2, "{set}: PINC VPT {a:.3} s is not above the baseline's {b:.3} s");
+    }
+    // At the training period both predict for well over a second.
+    let dev = fresh("dev_eval", 7);
+    for (name, m) in [("pinc", &pinc), ("dnn", &dnn)] {
+        let v = mean_vpt(m, &dev);
+        assert!(v > 1.5, "{name}: dev VPT {v:.3} s");
     }
 }

@@ -2,8 +2,8 @@
 //! is an axpy over a block of lanes), for evaluators and sampling-based planners.
 
 use super::RuntimeError;
-use super::calls::check_dt;
 use super::activation::activate_slice;
+use super::calls::check_dt;
 use super::envelope::EnvelopeStatus;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;

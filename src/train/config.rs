@@ -169,10 +169,11 @@ impl TrainConfig {
         if !(self.lr > 0.0 && self.lr_min > 0.0 && self.lr_min <= self.lr) {
             return Err(format!("lr {} / lr_min {}: need 0 < lr_min <= lr", self.lr, self.lr_min));
         }
-        if !(self.clip_norm > 0.0) || !(0.0..=1.0).contains(&self.dev_smoothing) || self.dev_smoothing == 0.0 {
+        let clip_ok = self.clip_norm.is_finite() && self.clip_norm > 0.0;
+        if !clip_ok || self.dev_smoothing <= 0.0 || self.dev_smoothing > 1.0 || self.dev_smoothing.is_nan() {
             return Err("clip_norm must be positive and dev_smoothing in (0, 1]".into());
         }
-        if self.time_limit_s.is_some_and(|t| !(t > 0.0)) {
+        if self.time_limit_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
             return Err("time_limit_s must be positive".into());
         }
         Ok(())

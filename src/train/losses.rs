@@ -170,10 +170,9 @@ pub fn loss(kind: LossKind, net: &PincNet, params: &VehicleParams, batch: &Batch
         LossKind::Data => {
             mse(net.forward(batch.x.clone(), batch.u.clone(), batch.t_end.clone(), false).state, batch.next.clone())
         }
-        LossKind::InitialCondition => mse(
-            net.forward(batch.x.clone(), batch.u.clone(), batch.t_zero.clone(), false).state,
-            batch.x_clean.clone(),
-        ),
+        LossKind::InitialCondition => {
+            mse(net.forward(batch.x.clone(), batch.u.clone(), batch.t_zero.clone(), false).state, batch.x_clean.clone())
+        }
         LossKind::Physics => {
             let (x, u, t) = batch.colloc.clone();
             residual(net, params, x, u, t)
@@ -198,7 +197,8 @@ pub fn joint_losses(
 ) -> (Tensor<1>, Vec<Tensor<1>>) {
     let mut values: Vec<Option<Tensor<1>>> = vec![None; cfg.losses.len()];
     let pos = |k: LossKind| cfg.losses.iter().position(|&l| l == k);
-    if let (Some(r), true) = (&batch.rollout, pos(LossKind::Rollout).is_some() || pos(LossKind::PhysicsRollout).is_some())
+    if let (Some(r), true) =
+        (&batch.rollout, pos(LossKind::Rollout).is_some() || pos(LossKind::PhysicsRollout).is_some())
     {
         let t_end = batch.t_end.clone().narrow(0, 0, 1).into_scalar::<f32>();
         let (pr, pp) = (pos(LossKind::Rollout), pos(LossKind::PhysicsRollout));

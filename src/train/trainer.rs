@@ -2,11 +2,11 @@
 //! reduce-on-plateau on the smoothed dev loss, best-on-dev selection with the frozen
 //! runtime, and a clean stop on interruption or a non-finite loss.
 
+use super::GradCombine;
 use super::config::{Backend, LossKind, TrainConfig};
 use super::grad_combine::{clip_global_norm, combine};
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
-use super::GradCombine;
 use crate::dataset::TrajectorySet;
 use crate::eval::{one_step_mse, rollout_mse, vpt};
 use crate::model::{Envelope, PincModel, Provenance};
@@ -236,7 +236,10 @@ pub fn train(
     cfg.check().map_err(TrainError::Config)?;
     for (name, s) in [("training", train_set), ("dev", dev)] {
         if s.count == 0 || s.points < 2 {
-            return Err(TrainError::Data { set: name, what: format!("{} trajectories of {} points", s.count, s.points) });
+            return Err(TrainError::Data {
+                set: name,
+                what: format!("{} trajectories of {} points", s.count, s.points),
+            });
         }
     }
     if (train_set.dt - dev.dt).abs() > 1e-12 {
@@ -260,10 +263,8 @@ pub fn train(
         created_by: format!("pinc {} train", env!("CARGO_PKG_VERSION")),
     };
     let mut net = PincNet::init(&cfg.architecture, cfg.seed, &device);
-    let mut optim = AdamWConfig::new()
-        .with_epsilon(cfg.adam_eps as f32)
-        .with_weight_decay(cfg.weight_decay as f32)
-        .init();
+    let mut optim =
+        AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7261_696e);
 
     let dev_metrics_map = |one: f64, roll: f64, v: f64| {
@@ -330,7 +331,8 @@ pub fn train(
         }
         let frozen = freeze(&net, train_set.dt, &envelope, provenance(epoch, BTreeMap::new()));
         let (one, roll, v) = dev_metrics(&frozen, dev);
-        smoothed = if smoothed.is_nan() { roll } else { cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * smoothed };
+        smoothed =
+            if smoothed.is_nan() { roll } else { cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * smoothed };
         let used_lr = lr;
         lr = plateau.update(cfg, smoothed, lr);
         let is_best = v > best.2 || (v == best.2 && roll < best.3);

@@ -38,11 +38,8 @@ pub struct EvalArgs {
 /// Generates the sets with a progress bar.
 pub fn eval_sets(preset: PresetName, seed: u64, count: Option<usize>, quiet: bool) -> EvalSets {
     let p = preset.preset();
-    let total: usize = ["dev_eval", "interp", "extrap"]
-        .iter()
-        .filter_map(|n| p.set(n))
-        .map(|s| count.unwrap_or(s.count))
-        .sum();
+    let total: usize =
+        ["dev_eval", "interp", "extrap"].iter().filter_map(|n| p.set(n)).map(|s| count.unwrap_or(s.count)).sum();
     let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total as u64) };
     bar.set_style(
         ProgressStyle::with_template("generating eval sets [{bar:40}] {pos}/{len} ({eta})")
@@ -56,7 +53,10 @@ pub fn eval_sets(preset: PresetName, seed: u64, count: Option<usize>, quiet: boo
 
 /// Prints metrics as a paper-style table row.
 pub fn print_metrics(label: &str, m: &Metrics) {
-    println!("{:<28} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7}", "", "L1", "L2", "L3", "L4", "L5", "VPT1 s", "VPT2 s", "VPT3 s");
+    println!(
+        "{:<28} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7}",
+        "", "L1", "L2", "L3", "L4", "L5", "VPT1 s", "VPT2 s", "VPT3 s"
+    );
     println!(
         "{:<28} {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>7.2} {:>7.2} {:>7.2}",
         label, m.l1, m.l2, m.l3, m.l4, m.l5, m.vpt1, m.vpt2, m.vpt3
@@ -120,7 +120,7 @@ pub fn plot_rollouts(path: &Path, model: &pinc::model::PincModel, set: &Trajecto
     let n = set.points;
     let t = |k: usize| k as f64 * set.dt;
     let labels: Vec<String> = picks.iter().map(|&i| format!("#{i} (VPT {:.2} s)", v[i])).collect();
-    let truth_labels: Vec<String> = picks.iter().map(|&i| format!("#{i} truth")).collect();
+    let truth_labels: Vec<String> = picks.iter().map(|&i| format!("#{i} truth (dashed)")).collect();
     let mut panels = Vec::new();
     let mut line = |title, y_label, log_y, f: &dyn Fn(&pinc::State) -> (f64, f64), use_t: bool| {
         let mut series = Vec::new();

@@ -184,7 +184,10 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         .into_iter()
         .map(String::from)
         .chain(cfg.losses.iter().map(|k| format!("train_{}", k.name())))
-        .chain(["dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"].map(String::from))
+        .chain(
+            ["dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"]
+                .map(String::from),
+        )
         .collect();
     writeln!(csv, "{}", header.join(",")).map_err(|e| e.to_string())?;
 
@@ -195,30 +198,37 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             .progress_chars("=> "),
     );
     let mut io_error = None;
-    let outcome = train(&cfg, &train_set, &dev, &format!("pinc train --preset {}", preset.name), &interrupt, |r: &EpochRecord| {
-        let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
-        bar.set_message(format!(
-            "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
-            losses.join(" "),
-            r.dev_rollout10,
-            r.dev_vpt,
-            r.lr
-        ));
-        bar.inc(1);
-        let mut row = vec![r.epoch.to_string(), format!("{:e}", r.lr)];
-        row.extend(r.train.iter().map(|(_, v)| format!("{v:e}")));
-        row.extend([
-            format!("{:e}", r.dev_one_step),
-            format!("{:e}", r.dev_rollout10),
-            format!("{}", r.dev_vpt),
-            format!("{:e}", r.dev_smoothed),
-            (r.best as u8).to_string(),
-            format!("{:.3}", r.elapsed_s),
-        ]);
-        if let Err(e) = writeln!(csv, "{}", row.join(",")) {
-            io_error.get_or_insert(e);
-        }
-    })
+    let outcome = train(
+        &cfg,
+        &train_set,
+        &dev,
+        &format!("pinc train --preset {}", preset.name),
+        &interrupt,
+        |r: &EpochRecord| {
+            let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
+            bar.set_message(format!(
+                "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
+                losses.join(" "),
+                r.dev_rollout10,
+                r.dev_vpt,
+                r.lr
+            ));
+            bar.inc(1);
+            let mut row = vec![r.epoch.to_string(), format!("{:e}", r.lr)];
+            row.extend(r.train.iter().map(|(_, v)| format!("{v:e}")));
+            row.extend([
+                format!("{:e}", r.dev_one_step),
+                format!("{:e}", r.dev_rollout10),
+                format!("{}", r.dev_vpt),
+                format!("{:e}", r.dev_smoothed),
+                (r.best as u8).to_string(),
+                format!("{:.3}", r.elapsed_s),
+            ]);
+            if let Err(e) = writeln!(csv, "{}", row.join(",")) {
+                io_error.get_or_insert(e);
+            }
+        },
+    )
     .map_err(|e| e.to_string())?;
     bar.finish_and_clear();
     if let Some(e) = io_error {
@@ -297,7 +307,8 @@ fn plot_history(path: &Path, h: &[EpochRecord]) -> Result<(), String> {
             dashed: false,
         })
         .collect();
-    let ep = |f: &dyn Fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> { h.iter().map(|r| (r.epoch as f64, f(r))).collect() };
+    let ep =
+        |f: &dyn Fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> { h.iter().map(|r| (r.epoch as f64, f(r))).collect() };
     let panels = vec![
         Panel { title: "training losses", x_label: "epoch", y_label: "MSE", log_y: true, series: train_series },
         Panel {

@@ -1,0 +1,287 @@
+//! The sparse QP of one real-time iteration, in deviations from the nominal rollout:
+//! `z = [dx_1 .. dx_N, du_0 .. du_{N-1}]`, `x_k = xbar_k + dx_k`, `u_k = ubar_k + du_k`
+//! (`dx_0 = 0`: the rollout starts at the measured state).
+//!
+//! Clarabel's form is `min 1/2 z'Pz + q'z  s.t.  Az + s = b, s in K`. Rows of `A`:
+//! - `9N` equalities `dx_{k+1} - A_k dx_k - B_k du_k = 0` (the nominal rollout has no defect);
+//! - `8N` input bounds `u_min <= ubar_k + du_k <= u_max`;
+//! - with rate limits, `8N` more: `|u_k - u_{k-1}| <= rate` (`u_{-1}`: the applied input).
+//!
+//! The sparsity pattern of `A` holds every entry of every `A_k` and `B_k`, zeros included,
+//! so each sample only overwrites values (`update_A`); `P` never changes.
+
+use crate::types::{InputMatrix, NU, NX, StateMatrix};
+use clarabel::algebra::CscMatrix;
+
+/// Column-wise triplets, assembled into CSC with a record of where each entry landed.
+struct CscBuilder {
+    rows: usize,
+    cols: Vec<Vec<(usize, f64)>>,
+}
+
+impl CscBuilder {
+    fn new(rows: usize, cols: usize) -> Self {
+        Self { rows, cols: vec![Vec::new(); cols] }
+    }
+
+    /// Adds an entry; rows within a column must come in increasing order.
+    fn push(&mut self, row: usize, col: usize, value: f64) {
+        debug_assert!(self.cols[col].last().is_none_or(|&(r, _)| r < row), "rows out of order");
+        self.cols[col].push((row, value));
+    }
+
+    /// The position in `nzval` of the `i`-th entry pushed to `col`.
+    fn offsets(&self) -> Vec<usize> {
+        let mut start = vec![0; self.cols.len() + 1];
+        for (c, entries) in self.cols.iter().enumerate() {
+            start[c + 1] = start[c] + entries.len();
+        }
+        start
+    }
+
+    fn build(self) -> CscMatrix<f64> {
+        let colptr = self.offsets();
+        let (rowval, nzval) = self.cols.into_iter().flatten().unzip();
+        CscMatrix::new(self.rows, colptr.len() - 1, colptr, rowval, nzval)
+    }
+}
+
+/// Stage weights of the cost, all diagonal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Weights {
+    /// State weights over the 9-state (the tracked components and the velocities).
+    pub state: [f64; NX],
+    /// Factor on the state weights at `k = N`.
+    pub terminal: f64,
+    /// Input weights.
+    pub input: [f64; NU],
+    /// Input-change weights.
+    pub input_rate: [f64; NU],
+}
+
+/// The QP's fixed structure and its per-sample data.
+pub(crate) struct Qp {
+    pub(crate) horizon: usize,
+    pub(crate) p: CscMatrix<f64>,
+    pub(crate) a: CscMatrix<f64>,
+    /// Current values of `A`'s non-zeros (handed to `update_A`).
+    pub(crate) a_values: Vec<f64>,
+    pub(crate) q: Vec<f64>,
+    pub(crate) b: Vec<f64>,
+    /// `nzval` index of `A_k[(r, c)]`, `k = 1..N-1`, at `((k - 1) * 9 + c) * 9 + r`.
+    idx_a: Vec<usize>,
+    /// `nzval` index of `B_k[(r, j)]` at `(k * 4 + j) * 9 + r`.
+    idx_b: Vec<usize>,
+    pub(crate) n_eq: usize,
+}
+
+/// Column of `dx_k`, `k = 1..=N`.
+fn col_x(k: usize, i: usize) -> usize {
+    (k - 1) * NX + i
+}
+
+impl Qp {
+    /// The structure for `horizon` steps.
+    pub(crate) fn new(horizon: usize, w: &Weights, rate_limited: bool) -> Self {
+        let n = horizon;
+        let n_var = n * (NX + NU);
+        let col_u = |k: usize, j: usize| n * NX + k * NU + j;
+        let n_eq = n * NX;
+        let n_rows = n_eq + 2 * NU * n + if rate_limited { 2 * NU * n } else { 0 };
+        let bound_row = |k: usize, j: usize, upper: bool| n_eq + k * 2 * NU + j + if upper { 0 } else { NU };
+        let rate_row =
+            |k: usize, j: usize, upper: bool| n_eq + 2 * NU * n + k * 2 * NU + j + if upper { 0 } else { NU };
+
+        let mut a = CscBuilder::new(n_rows, n_var);
+        let mut a_slot = vec![(0usize, 0usize); 0];
+        let mut b_slot = Vec::new();
+        for k in 1..=n {
+            for c in 0..NX {
+                a.push(NX * (k - 1) + c, col_x(k, c), 1.0);
+                if k < n {
+                    for r in 0..NX {
+                        a_slot.push(((k - 1) * NX * NX + c * NX + r, col_x(k, c)));
+                        a.push(NX * k + r, col_x(k, c), 0.0);
+                    }
+                }
+            }
+        }
+        for k in 0..n {
+            for j in 0..NU {
+                let c = col_u(k, j);
+                for r in 0..NX {
+                    b_slot.push(((k * NU + j) * NX + r, c));
+                    a.push(NX * k + r, c, 0.0);
+                }
+                a.push(bound_row(k, j, true), c, 1.0);
+                a.push(bound_row(k, j, false), c, -1.0);
+                if rate_limited {
+                    a.push(rate_row(k, j, true), c, 1.0);
+                    a.push(rate_row(k, j, false), c, -1.0);
+                    if k + 1 < n {
+                        a.push(rate_row(k + 1, j, true), c, -1.0);
+                        a.push(rate_row(k + 1, j, false), c, 1.0);
+                    }
+                }
+            }
+        }
+        // Where each A_k / B_k entry landed: the dynamics entries come right after the
+        // identity entry in a state column, first in an input column.
+        let start = a.offsets();
+        let mut idx_a = vec![0; a_slot.len()];
+        for (slot, col) in a_slot {
+            let r = slot % NX;
+            idx_a[slot] = start[col] + 1 + r;
+        }
+        let mut idx_b = vec![0; b_slot.len()];
+        for (slot, col) in b_slot {
+            idx_b[slot] = start[col] + slot % NX;
+        }
+        let a = a.build();
+
+        let mut p = CscBuilder::new(n_var, n_var);
+        for k in 1..=n {
+            let f = if k == n { w.terminal } else { 1.0 };
+            for i in 0..NX {
+                p.push(col_x(k, i), col_x(k, i), 2.0 * f * w.state[i]);
+            }
+        }
+        for k in 0..n {
+            for j in 0..NU {
+                let c = col_u(k, j);
+                let next = if k + 1 < n { 2.0 * w.input_rate[j] } else { 0.0 };
+                if k > 0 {
+                    p.push(col_u(k - 1, j), c, -2.0 * w.input_rate[j]);
+                }
+                p.push(c, c, 2.0 * w.input[j] + 2.0 * w.input_rate[j] + next);
+            }
+        }
+        let p = p.build();
+        Self { horizon, a_values: a.nzval.clone(), q: vec![0.0; n_var], b: vec![0.0; n_rows], p, a, idx_a, idx_b, n_eq }
+    }
+
+    /// Number of decision variables.
+    #[cfg(test)]
+    fn n_var(&self) -> usize {
+        self.q.len()
+    }
+
+    /// Writes `-A_k` (k >= 1) and `-B_k` into the constraint values.
+    pub(crate) fn set_dynamics(&mut self, a: &[StateMatrix], b: &[InputMatrix]) {
+        for k in 1..self.horizon {
+            for c in 0..NX {
+                for r in 0..NX {
+                    self.a_values[self.idx_a[((k - 1) * NX + c) * NX + r]] = -a[k][(r, c)];
+                }
+            }
+        }
+        for k in 0..self.horizon {
+            for j in 0..NU {
+                for r in 0..NX {
+                    self.a_values[self.idx_b[(k * NU + j) * NX + r]] = -b[k][(r, j)];
+                }
+            }
+        }
+    }
+
+    /// Index of `du_k[j]` in `z`.
+    pub(crate) fn u_index(&self, k: usize, j: usize) -> usize {
+        self.horizon * NX + k * NU + j
+    }
+
+    /// Index of `dx_k[i]` in `z`, `k = 1..=N`.
+    pub(crate) fn x_index(&self, k: usize, i: usize) -> usize {
+        col_x(k, i)
+    }
+
+    /// Row of the upper (`true`) or lower input bound of `u_k[j]`.
+    pub(crate) fn bound_row(&self, k: usize, j: usize, upper: bool) -> usize {
+        self.n_eq + k * 2 * NU + j + if upper { 0 } else { NU }
+    }
+
+    /// Row of the upper or lower rate bound of `u_k[j] - u_{k-1}[j]`.
+    pub(crate) fn rate_row(&self, k: usize, j: usize, upper: bool) -> usize {
+        self.n_eq + 2 * NU * self.horizon + k * 2 * NU + j + if upper { 0 } else { NU }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn weights() -> Weights {
+        Weights {
+            state: [0.0, 0.0, 5.0, 2.0, 2.0, 0.1, 0.1, 0.1, 0.1],
+            terminal: 3.0,
+            input: [0.01; 4],
+            input_rate: [0.1; 4],
+        }
+    }
+
+    /// Dense `A` from the CSC values, to compare with the block structure.
+    fn dense(m: &CscMatrix<f64>, values: &[f64]) -> Vec<Vec<f64>> {
+        let mut d = vec![vec![0.0; m.n]; m.m];
+        for c in 0..m.n {
+            for i in m.colptr[c]..m.colptr[c + 1] {
+                d[m.rowval[i]][c] = values[i];
+            }
+        }
+        d
+    }
+
+    #[test]
+    fn dynamics_blocks_land_where_the_equalities_need_them() {
+        let n = 3;
+        let mut qp = Qp::new(n, &weights(), true);
+        let a: Vec<StateMatrix> =
+            (0..n).map(|k| StateMatrix::from_fn(|r, c| (100 * k + 10 * r + c) as f64 + 0.5)).collect();
+        let b: Vec<InputMatrix> =
+            (0..n).map(|k| InputMatrix::from_fn(|r, j| -((100 * k + 10 * r + j) as f64) - 0.25)).collect();
+        qp.set_dynamics(&a, &b);
+        let d = dense(&qp.a, &qp.a_values);
+        for k in 0..n {
+            for r in 0..NX {
+                let row = NX * k + r;
+                for c in 0..NX {
+                    assert_eq!(d[row][qp.x_index(k + 1, c)], if r == c { 1.0 } else { 0.0 });
+                    if k >= 1 {
+                        assert_eq!(d[row][qp.x_index(k, c)], -a[k][(r, c)]);
+                    }
+                }
+                for j in 0..NU {
+                    assert_eq!(d[row][qp.u_index(k, j)], -b[k][(r, j)]);
+                }
+            }
+            for j in 0..NU {
+                assert_eq!(d[qp.bound_row(k, j, true)][qp.u_index(k, j)], 1.0);
+                assert_eq!(d[qp.bound_row(k, j, false)][qp.u_index(k, j)], -1.0);
+                assert_eq!(d[qp.rate_row(k, j, true)][qp.u_index(k, j)], 1.0);
+                if k > 0 {
+                    assert_eq!(d[qp.rate_row(k, j, true)][qp.u_index(k - 1, j)], -1.0);
+                }
+            }
+        }
+        // Every A_k and B_k entry has a slot, zeros included: the pattern never changes.
+        assert_eq!(qp.a.nzval.len(), n * NX + (n - 1) * NX * NX + n * NU * NX + (3 * n - 1) * NU * 2);
+        qp.a.check_format().unwrap();
+        qp.p.check_format().unwrap();
+    }
+
+    #[test]
+    fn cost_matrix_is_upper_triangular_and_couples_consecutive_inputs() {
+        let w = weights();
+        let qp = Qp::new(4, &w, false);
+        let d = dense(&qp.p, &qp.p.nzval);
+        for r in 0..qp.n_var() {
+            for c in 0..r {
+                assert_eq!(d[r][c], 0.0, "lower triangle at ({r}, {c})");
+            }
+        }
+        assert_eq!(d[qp.x_index(2, 2)][qp.x_index(2, 2)], 2.0 * w.state[2]);
+        assert_eq!(d[qp.x_index(4, 2)][qp.x_index(4, 2)], 2.0 * w.terminal * w.state[2]);
+        let (u0, u1) = (qp.u_index(0, 1), qp.u_index(1, 1));
+        assert_eq!(d[u0][u1], -2.0 * w.input_rate[1]);
+        assert_eq!(d[u0][u0], 2.0 * w.input[1] + 4.0 * w.input_rate[1]);
+        assert_eq!(d[qp.u_index(3, 1)][qp.u_index(3, 1)], 2.0 * w.input[1] + 2.0 * w.input_rate[1]);
+    }
+}
