@@ -187,13 +187,15 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[rank.clamp(1, v.len()) - 1]
 }
 
-/// Overshoot (same units as the signal) and settling time of each reference step.
-fn step_response(t: &[f64], y: &[f64], steps: &[(f64, f64)], end: f64) -> (f64, Vec<f64>) {
+/// Overshoot (same units as the signal) and settling time of each reference step. Each
+/// step's window ends `preview` seconds before the next step, where a controller that sees
+/// the reference ahead starts moving on purpose.
+fn step_response(t: &[f64], y: &[f64], steps: &[(f64, f64)], end: f64, preview: f64) -> (f64, Vec<f64>) {
     let mut overshoot: f64 = 0.0;
     let mut settling = Vec::new();
     for w in 1..steps.len() {
         let (t0, target) = steps[w];
-        let (from, t1) = (steps[w - 1].1, steps.get(w + 1).map_or(end, |s| s.0));
+        let (from, t1) = (steps[w - 1].1, steps.get(w + 1).map_or(end, |s| s.0 - preview));
         let size = target - from;
         let band = 0.05 * size.abs();
         let window: Vec<(f64, f64)> =
@@ -212,8 +214,9 @@ fn step_response(t: &[f64], y: &[f64], steps: &[(f64, f64)], end: f64) -> (f64, 
     (overshoot, settling)
 }
 
-/// Summarises `samples` of `scenario`.
-pub fn summarise(samples: &[Sample], scenario: Scenario) -> Summary {
+/// Summarises `samples` of `scenario` run by a controller that previews the reference
+/// `preview` seconds ahead (horizon times sample period).
+pub fn summarise(samples: &[Sample], scenario: Scenario, preview: f64) -> Summary {
     let t: Vec<f64> = samples.iter().map(|s| s.t).collect();
     let depth: Vec<f64> = samples.iter().map(|s| s.state[2]).collect();
     let n = samples.len().max(1) as f64;
@@ -223,8 +226,8 @@ pub fn summarise(samples: &[Sample], scenario: Scenario) -> Summary {
     // Heading unwrapped around each reference so overshoot is measured in degrees.
     let heading: Vec<f64> = samples.iter().map(|s| s.reference.heading.to_degrees() + heading_err(s)).collect();
     let end = scenario.duration();
-    let (os_d, settle_d) = step_response(&t, &depth, &DEPTH_STEPS, end);
-    let (os_h, settle_h) = step_response(&t, &heading, &HEADING_STEPS, end);
+    let (os_d, settle_d) = step_response(&t, &depth, &DEPTH_STEPS, end, preview);
+    let (os_h, settle_h) = step_response(&t, &heading, &HEADING_STEPS, end, preview);
     let mut solve: Vec<f64> = samples.iter().map(|s| s.cycle.solve_us / 1e3).collect();
     let mut cycle: Vec<f64> = samples.iter().map(|s| s.cycle.cycle_us / 1e3).collect();
     Summary {
@@ -289,7 +292,7 @@ mod tests {
                 }
             })
             .collect();
-        let (os, settle) = step_response(&t, &y, &[(0.0, 0.0), (1.0, 1.0)], 10.0);
+        let (os, settle) = step_response(&t, &y, &[(0.0, 0.0), (1.0, 1.0)], 10.0, 1.6);
         assert!((os - 0.1).abs() < 1e-9);
         assert!((settle[0] - 1.1).abs() < 1e-9, "{settle:?}");
         let mut v = vec![5.0, 1.0, 3.0, 2.0, 4.0];
