@@ -173,3 +173,59 @@ fn bad_model_files_give_one_line_errors() {
         assert!(err.contains(".pinc") || err.contains("garbage"), "{err:?} names the file");
     }
 }
+
+/// A tiny end-to-end `train` + `eval`: every output file exists, the JSON carries the
+/// contract's keys, and the architecture switches reach the frozen file.
+#[cfg(feature = "train")]
+#[test]
+fn train_then_eval_writes_model_metrics_and_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("tiny.pinc");
+    let m = model.to_str().unwrap();
+    let args = [
+        "train",
+        "--preset",
+        "paper",
+        "--epochs",
+        "2",
+        "--batch",
+        "4",
+        "--train-count",
+        "8",
+        "--dev-count",
+        "4",
+        "--eval-count",
+        "5",
+        "--rollout-steps",
+        "5",
+        "--rollout-stride",
+        "8",
+        "--position-free",
+        "--backend",
+        "flex",
+        "--json",
+        "--out",
+        m,
+    ];
+    let out = pinc(&args);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["epochs_run"], 2);
+    for ext in ["csv", "png"] {
+        assert!(model.with_extension(ext).exists(), "{ext} missing");
+    }
+    let frozen = pinc::model::PincModel::load(&model).unwrap();
+    assert_eq!(frozen.architecture.state_inputs, vec![3, 4, 5, 6, 7, 8]);
+    let csv = std::fs::read_to_string(model.with_extension("csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "header and one row per epoch");
+
+    let plot = dir.path().join("eval.png");
+    let out = pinc(&["eval", "--model", m, "--count", "5", "--json", "--plot", plot.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["l1", "l2", "l3", "l4", "l5", "vpt1", "vpt2", "vpt3"] {
+        assert!(v[key].is_number(), "{key}: {}", v[key]);
+    }
+    assert!(plot.exists());
+    assert_eq!(pinc(&["train", "--out", m, "--grad", "nope"]).status.code(), Some(2));
+}

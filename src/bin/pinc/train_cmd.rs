@@ -74,6 +74,10 @@ pub struct TrainArgs {
     /// Adaptive tanh instead of adaptive softplus.
     #[arg(long)]
     pub tanh: bool,
+    /// Keep the position (x, y, z) out of the network input; the dynamics do not depend on
+    /// it, so the model is not confined to the positions it was trained at.
+    #[arg(long)]
+    pub position_free: bool,
     /// Use only the first N training trajectories' worth (a smaller generated set).
     #[arg(long)]
     pub train_count: Option<usize>,
@@ -110,6 +114,9 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     }
     if a.tanh {
         cfg.architecture.activation = Activation::Tanh;
+    }
+    if a.position_free {
+        cfg.architecture.state_inputs = (3..pinc::NX as u8).collect();
     }
     if let Some(list) = &a.losses {
         let mut keep = Vec::new();
