@@ -91,8 +91,8 @@ fn bounds(panel: &Panel) -> ((f64, f64), (f64, f64)) {
 
 /// A linear-axis tick: as few digits as the value needs (`50`, `0.25`, `-1.5e-3`).
 fn tick(v: f64) -> String {
-    if v == 0.0 {
-        return "0".into();
+    if v.abs() < 1e-12 {
+        return "0".into(); // float noise on a tick that is meant to be zero
     }
     if !(1e-3..1e5).contains(&v.abs()) {
         return format!("{v:.1e}");

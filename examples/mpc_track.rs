@@ -1,0 +1,218 @@
+//! Closed-loop depth and heading tracking: the LTV-MPC on the frozen PINC (or, with
+//! `--oracle`, on the analytic model) against the simulated BlueROV2.
+//!
+//! ```sh
+//! cargo run --release --example mpc_track                       # PINC-MPC, scenario default
+//! cargo run --release --example mpc_track -- --oracle --scenario disturbed --json
+//! ```
+//!
+//! Prints a summary table (or `--json`) and writes a PNG of the run to `--out-dir`.
+
+use clap::{Parser, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use pinc::Input;
+use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
+use pinc::model::PincModel;
+use pinc::mpc::{Mpc, MpcConfig};
+use pinc::plot::{Panel, Series, figure};
+use pinc::runtime::Predictor;
+use pinc::traits::DiscreteModel;
+use pinc::vehicle::Rk4Vehicle;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+#[derive(Parser)]
+#[command(about = "Closed-loop depth and heading tracking with the LTV-MPC")]
+struct Args {
+    /// The frozen model inside the MPC (its training envelope bounds the inputs).
+    #[arg(long, default_value = "models/mpc_pinc.pinc")]
+    model: PathBuf,
+    /// Run the identical controller on the analytic vehicle model instead (bounds still from --model).
+    #[arg(long)]
+    oracle: bool,
+    /// Which scenario.
+    #[arg(long, value_enum, default_value = "default")]
+    scenario: ScenarioName,
+    /// Prediction horizon (samples).
+    #[arg(long, default_value_t = 20)]
+    horizon: usize,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Where the plot goes.
+    #[arg(long, default_value = "out")]
+    out_dir: PathBuf,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ScenarioName {
+    Default,
+    Disturbed,
+}
+
+fn main() -> ExitCode {
+    match try_main(Args::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn try_main(a: Args) -> Result<(), String> {
+    let scenario = match a.scenario {
+        ScenarioName::Default => Scenario::Default,
+        ScenarioName::Disturbed => Scenario::Disturbed,
+    };
+    let model = PincModel::load(&a.model).map_err(|e| format!("{}: {e}", a.model.display()))?;
+    let predictor = Predictor::<f64>::with_precision(&model);
+    let bounds = predictor
+        .input_bounds()
+        .ok_or_else(|| format!("{}: no training envelope to bound the inputs", a.model.display()))?;
+    let cfg = MpcConfig { horizon: a.horizon, bounds: Some(bounds), ..MpcConfig::default() };
+    let samples = if a.oracle {
+        let oracle = Rk4Vehicle::with_dt(predictor.dt());
+        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, a.json)
+    } else {
+        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, a.json)
+    };
+    let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
+    std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
+    let name = format!("mpc_{}_{}", scenario.name(), if a.oracle { "oracle" } else { "pinc" });
+    let png = a.out_dir.join(format!("{name}.png"));
+    plot(
+        &png,
+        &samples,
+        bounds,
+        &format!("{} MPC, scenario {}", if a.oracle { "oracle" } else { "PINC" }, scenario.name()),
+    )?;
+    if a.json {
+        let mut v = serde_json::to_value(&summary).map_err(|e| e.to_string())?;
+        let o = v.as_object_mut().expect("summary is an object");
+        o.insert("scenario".into(), scenario.name().into());
+        o.insert(
+            "controller_model".into(),
+            if a.oracle { "analytic".into() } else { a.model.display().to_string().into() },
+        );
+        o.insert("horizon".into(), a.horizon.into());
+        o.insert("plot".into(), png.display().to_string().into());
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else {
+        print_summary(&summary);
+        println!("plot: {}", png.display());
+    }
+    Ok(())
+}
+
+/// Runs the loop with a progress bar; Ctrl-C ends it early with the samples so far.
+fn closed_loop<M: DiscreteModel>(mut mpc: Mpc<M>, scenario: Scenario, quiet: bool) -> Vec<Sample> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    let total = (scenario.duration() / mpc.model().dt()).round() as u64;
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
+    bar.set_style(
+        ProgressStyle::with_template("t {msg} [{bar:40}] {pos}/{len} samples ({eta})")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    let samples = run(&mut mpc, scenario, |s| {
+        bar.set_message(format!("{:5.1} s  z {:5.2} m  solve {:5.2} ms", s.t, s.state[2], s.cycle.solve_us / 1e3));
+        bar.inc(1);
+        !stop.load(Ordering::Relaxed)
+    });
+    bar.finish_and_clear();
+    samples
+}
+
+fn print_summary(s: &Summary) {
+    let secs = |v: &[f64]| v.iter().map(|t| format!("{t:.2}")).collect::<Vec<_>>().join(" / ");
+    println!("samples                 {}", s.samples);
+    println!("RMS depth error         {:.4} m", s.rms_depth_m);
+    println!("RMS heading error       {:.3} deg", s.rms_heading_deg);
+    println!(
+        "max overshoot           {:.4} m depth, {:.3} deg heading",
+        s.max_overshoot_depth_m, s.max_overshoot_heading_deg
+    );
+    println!(
+        "settling (5 %)          depth {} s, heading {} s",
+        secs(&s.settling_depth_s),
+        secs(&s.settling_heading_s)
+    );
+    println!(
+        "solve time              median {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+        s.solve_ms_median, s.solve_ms_p99, s.solve_ms_max
+    );
+    println!("cycle time              median {:.3} ms, p99 {:.3} ms", s.cycle_ms_median, s.cycle_ms_p99);
+    println!("fallbacks               {}", s.fallbacks);
+    println!("deadline misses         {}", s.deadline_misses);
+    println!("bound violations        {}", s.bound_violations);
+    println!("samples at a bound      {}", s.saturated_samples);
+}
+
+fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) -> Result<(), String> {
+    let series = |label, color, dashed, f: &dyn Fn(&Sample) -> f64| Series {
+        label,
+        points: samples.iter().map(|s| (s.t, f(s))).collect(),
+        color,
+        dashed,
+    };
+    let bound = |label, color, v: f64| Series {
+        label,
+        points: vec![(0.0, v), (samples.last().map_or(0.0, |s| s.t), v)],
+        color,
+        dashed: true,
+    };
+    let names = ["X (N)", "Y (N)", "Z (N)"];
+    let mut forces: Vec<Series> =
+        (0..3).map(|j| series(names[j], j, false, &move |s: &Sample| s.cycle.input[j])).collect();
+    for j in 0..3 {
+        forces.push(bound("", j, lo[j]));
+        forces.push(bound("", j, hi[j]));
+    }
+    let panels = vec![
+        Panel {
+            title,
+            x_label: "t (s)",
+            y_label: "depth z (m, down)",
+            log_y: false,
+            series: vec![series("reference", 6, true, &|s| s.reference.depth), series("z", 0, false, &|s| s.state[2])],
+        },
+        Panel {
+            title: "heading",
+            x_label: "t (s)",
+            y_label: "psi (deg)",
+            log_y: false,
+            series: vec![
+                series("reference", 6, true, &|s| s.reference.heading.to_degrees()),
+                series("psi", 1, false, &|s| s.state[3].to_degrees()),
+            ],
+        },
+        Panel { title: "forces, bounds dashed", x_label: "t (s)", y_label: "N", log_y: false, series: forces },
+        Panel {
+            title: "yaw moment, bounds dashed",
+            x_label: "t (s)",
+            y_label: "N m",
+            log_y: false,
+            series: vec![series("Mz", 3, false, &|s| s.cycle.input[3]), bound("", 3, lo[3]), bound("", 3, hi[3])],
+        },
+        Panel {
+            title: "QP solve time",
+            x_label: "t (s)",
+            y_label: "ms",
+            log_y: false,
+            series: vec![series("solve", 4, false, &|s| s.cycle.solve_us / 1e3)],
+        },
+        Panel {
+            title: "cycle time (rollout, linearise, update, solve)",
+            x_label: "t (s)",
+            y_label: "ms",
+            log_y: false,
+            series: vec![series("cycle", 5, false, &|s| s.cycle.cycle_us / 1e3)],
+        },
+    ];
+    figure(path, 1400, 1200, 2, &panels)
+}
