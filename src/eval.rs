@@ -107,7 +107,7 @@ pub fn evaluate(model: &PincModel, sets: &EvalSets) -> Result<Metrics, RuntimeEr
     })
 }
 
-fn mean(v: &[f64]) -> f64 {
+pub(crate) fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
@@ -252,11 +252,15 @@ pub fn full_rollouts<T: crate::runtime::Real>(
 /// # Errors
 /// A non-finite state or input in the set.
 pub fn vpt<T: crate::runtime::Real>(p: &Predictor<T>, set: &TrajectorySet) -> Result<Vec<f64>, RuntimeError> {
-    let out = full_rollouts(p, set)?;
-    Ok((0..set.count)
+    Ok(vpt_of_rollouts(&full_rollouts(p, set)?, set))
+}
+
+/// VPT of every trajectory of `set` (s) from its [`full_rollouts`].
+pub fn vpt_of_rollouts(out: &[State], set: &TrajectorySet) -> Vec<f64> {
+    (0..set.count)
         .map(|i| {
             let pred = &out[i * set.points..(i + 1) * set.points];
             valid_prediction_time(&position_errors(pred, set.trajectory(i).0), set.dt)
         })
-        .collect())
+        .collect()
 }

@@ -8,7 +8,7 @@ use super::grad_combine::{clip_global_norm, combine};
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
-use crate::eval::{one_step_mse, rollout_mse, vpt};
+use crate::eval::{mean, one_step_mse, rollout_mse, vpt};
 use crate::model::{Envelope, PincModel, Provenance};
 use crate::runtime::Predictor;
 use crate::types::{NU, NX};
@@ -193,7 +193,7 @@ fn dev_metrics(model: &PincModel, dev: &TrajectorySet) -> (f64, f64, f64) {
     let p = Predictor::<f32>::new(model);
     let one = one_step_mse(&p, dev).unwrap_or(f64::INFINITY);
     let roll = rollout_mse(&p, dev, 10).unwrap_or(f64::INFINITY);
-    let v = vpt(&p, dev).map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64).unwrap_or(0.0);
+    let v = vpt(&p, dev).map(|v| mean(&v)).unwrap_or(0.0);
     (one, roll, v)
 }
 

@@ -3,7 +3,7 @@
 use crate::{PresetName, load_model};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::TrajectorySet;
-use pinc::eval::{EvalSets, Metrics, VPT_THRESHOLD_M, evaluate, full_rollouts, position_errors, vpt};
+use pinc::eval::{EvalSets, Metrics, VPT_THRESHOLD_M, evaluate, full_rollouts, position_errors, vpt_of_rollouts};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
 use std::path::{Path, PathBuf};
@@ -113,7 +113,7 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
 pub fn plot_rollouts(path: &Path, model: &pinc::model::PincModel, set: &TrajectorySet) -> Result<(), String> {
     let p = Predictor::<f32>::new(model);
     let out = full_rollouts(&p, set).map_err(|e| e.to_string())?;
-    let v = vpt(&p, set).map_err(|e| e.to_string())?;
+    let v = vpt_of_rollouts(&out, set);
     let mut idx: Vec<usize> = (0..set.count).collect();
     idx.sort_by(|&a, &b| v[a].total_cmp(&v[b]));
     let picks = [idx[0], idx[idx.len() / 2], idx[idx.len() - 1]];
