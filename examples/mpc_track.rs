@@ -6,12 +6,14 @@
 //! cargo run --release --example mpc_track -- --oracle --scenario disturbed --json
 //! ```
 //!
-//! Prints a summary table (or `--json`) and writes a PNG of the run to `--out-dir`.
+//! Prints a summary table (or `--json`) and writes a PNG of the run and its MCAP log (open it
+//! in Foxglove) to `--out-dir`.
 
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
+use pinc::mcap_log::{LogError, McapLog, RunInfo};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::plot::{Panel, Series, figure};
@@ -41,7 +43,7 @@ struct Args {
     /// Print the summary as JSON.
     #[arg(long)]
     json: bool,
-    /// Where the plot goes.
+    /// Where the plot and the MCAP log go.
     #[arg(long, default_value = "out")]
     out_dir: PathBuf,
 }
@@ -73,16 +75,28 @@ fn try_main(a: Args) -> Result<(), String> {
         .input_bounds()
         .ok_or_else(|| format!("{}: no training envelope to bound the inputs", a.model.display()))?;
     let cfg = MpcConfig { horizon: a.horizon, bounds: Some(bounds), ..MpcConfig::default() };
-    let samples = if a.oracle {
+    std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
+    let controller = if a.oracle { "oracle" } else { "pinc" };
+    let name = format!("mpc_{}_{controller}", scenario.name());
+    let png = a.out_dir.join(format!("{name}.png"));
+    let mcap = a.out_dir.join(format!("{name}.mcap"));
+    let info = RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt };
+    let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
+    let (samples, log_error) = if a.oracle {
         let oracle = Rk4Vehicle::with_dt(predictor.dt());
-        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, a.json)
+        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, a.json, &mut log)
     } else {
-        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, a.json)
+        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, a.json, &mut log)
     };
     let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
-    std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
-    let name = format!("mpc_{}_{}", scenario.name(), if a.oracle { "oracle" } else { "pinc" });
-    let png = a.out_dir.join(format!("{name}.png"));
+    // The log is finished even when a write failed mid-run, so what was written stays readable.
+    let t_end = samples.last().map_or(0.0, |s| s.t);
+    let finished = log.finish(&summary, t_end);
+    let stats = match (log_error, finished) {
+        (Some(e), _) | (None, Err(e)) => return Err(format!("{}: {e}", mcap.display())),
+        (None, Ok(stats)) => stats,
+    };
+    let log_bytes = std::fs::metadata(&mcap).map_err(|e| format!("{}: {e}", mcap.display()))?.len();
     plot(
         &png,
         &samples,
@@ -99,16 +113,26 @@ fn try_main(a: Args) -> Result<(), String> {
         );
         o.insert("horizon".into(), a.horizon.into());
         o.insert("plot".into(), png.display().to_string().into());
+        o.insert("log".into(), mcap.display().to_string().into());
+        o.insert("log_bytes".into(), log_bytes.into());
+        o.insert("log_messages".into(), stats.messages.into());
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
         print_summary(&summary);
         println!("plot: {}", png.display());
+        println!("log:  {} ({log_bytes} bytes, {} messages; open it in Foxglove)", mcap.display(), stats.messages);
     }
     Ok(())
 }
 
-/// Runs the loop with a progress bar; Ctrl-C ends it early with the samples so far.
-fn closed_loop<M: DiscreteModel>(mut mpc: Mpc<M>, scenario: Scenario, quiet: bool) -> Vec<Sample> {
+/// Runs the loop with a progress bar, logging every sample; Ctrl-C ends it early with the
+/// samples so far. A log write error stops the logging, not the loop, and is returned.
+fn closed_loop<M: DiscreteModel>(
+    mut mpc: Mpc<M>,
+    scenario: Scenario,
+    quiet: bool,
+    log: &mut McapLog,
+) -> (Vec<Sample>, Option<LogError>) {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
@@ -119,13 +143,17 @@ fn closed_loop<M: DiscreteModel>(mut mpc: Mpc<M>, scenario: Scenario, quiet: boo
             .expect("static template")
             .progress_chars("=> "),
     );
+    let mut log_error = None;
     let samples = run(&mut mpc, scenario, |s| {
+        if log_error.is_none() {
+            log_error = log.record(s).err();
+        }
         bar.set_message(format!("{:5.1} s  z {:5.2} m  solve {:5.2} ms", s.t, s.state[2], s.cycle.solve_us / 1e3));
         bar.inc(1);
         !stop.load(Ordering::Relaxed)
     });
     bar.finish_and_clear();
-    samples
+    (samples, log_error)
 }
 
 fn print_summary(s: &Summary) {

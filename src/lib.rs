@@ -7,10 +7,12 @@
 //!
 //! The embeddable core (`vehicle`, `model`, `runtime`) builds with
 //! `--no-default-features`; the `tools` feature adds dataset generation, evaluation and the
-//! CLI, `train` the burn trainer, `mpc` the Clarabel MPC and the closed loop.
+//! CLI, `train` the burn trainer, `mpc` the Clarabel MPC, the closed loop and its MCAP logs.
 
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
+#[cfg(feature = "mpc")]
+pub mod mcap_log;
 pub mod model;
 #[cfg(feature = "mpc")]
 pub mod mpc;

@@ -130,7 +130,11 @@ where
                 let anno = if s.dashed {
                     chart.draw_series(DashedLineSeries::new(pts, 6, 4, c.stroke_width(2))).map_err(err)?
                 } else {
-                    chart.draw_series(LineSeries::new(pts, c.stroke_width(2))).map_err(err)?
+                    // Segment by segment: plotters joins a thick polyline with unlimited
+                    // mitres, so a series that reverses sharply (a chattering input) would
+                    // draw spikes far outside the panel.
+                    let segments = pts.windows(2).map(|w| PathElement::new(vec![w[0], w[1]], c.stroke_width(2)));
+                    chart.draw_series(segments).map_err(err)?
                 };
                 if !s.label.is_empty() {
                     anno.label(s.label)

@@ -2,7 +2,7 @@
 //! controller can run either (learned-model MPC and true-model "oracle" MPC are the same
 //! code).
 
-use crate::runtime::{Predictor, Real, RuntimeError, Workspace};
+use crate::runtime::{EnvelopeStatus, Predictor, Real, RuntimeError, Workspace};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 use crate::vehicle::Rk4Vehicle;
 
@@ -40,6 +40,19 @@ pub trait DiscreteModel {
         a: &mut [StateMatrix],
         b: &mut [InputMatrix],
     ) -> Result<(), RuntimeError>;
+
+    /// Training-envelope exits seen by the last call on `ws` (a model without an envelope,
+    /// like the analytic vehicle, is valid everywhere).
+    fn envelope_status(&self, _ws: &Self::Workspace) -> EnvelopeStatus {
+        EnvelopeStatus::default()
+    }
+
+    /// True if the dynamics do not depend on the horizontal position: `x_{k+1}, y_{k+1}`
+    /// depend on `x_k, y_k` through the identity only, and nothing else depends on them. A
+    /// controller can then leave `x, y` out of its optimisation (the MPC does).
+    fn position_free(&self) -> bool {
+        false
+    }
 }
 
 impl<T: Real> DiscreteModel for Predictor<T> {
@@ -72,6 +85,16 @@ impl<T: Real> DiscreteModel for Predictor<T> {
     ) -> Result<(), RuntimeError> {
         Predictor::linearise_horizon(self, ws, x0, inputs, traj, a, b)
     }
+
+    fn envelope_status(&self, ws: &Workspace<T>) -> EnvelopeStatus {
+        ws.envelope_status()
+    }
+
+    /// The network predicts increments `x_{k+1} = x_k + N(..)`: without `x, y` among its
+    /// inputs, position enters only through that identity.
+    fn position_free(&self) -> bool {
+        !self.state_inputs().iter().any(|&i| i < 2)
+    }
 }
 
 fn check_finite(step: usize, x: &State, u: &Input) -> Result<(), RuntimeError> {
@@ -95,6 +118,10 @@ impl DiscreteModel for Rk4Vehicle {
 
     fn input_bounds(&self) -> Option<(Input, Input)> {
         None
+    }
+
+    fn position_free(&self) -> bool {
+        true
     }
 
     fn step(&self, _: &mut (), x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {

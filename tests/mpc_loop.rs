@@ -1,12 +1,16 @@
 //! The MPC in closed loop with the analytic vehicle: the true-model ("oracle") controller
-//! settles a depth step, and a controller whose every solve fails keeps running on its
-//! fallback plan within the bounds.
+//! settles a depth step, the controller on the shipped PINC tracks within 10 % of it, the
+//! position-free QP gives the full QP's solution, and a controller whose every solve fails
+//! keeps running on its fallback plan within the bounds.
 #![cfg(feature = "mpc")]
 
-use pinc::Input;
 use pinc::closed_loop::{Scenario, run, summarise};
-use pinc::mpc::{Fallback, Mpc, MpcConfig};
-use pinc::vehicle::Rk4Vehicle;
+use pinc::model::PincModel;
+use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};
+use pinc::runtime::{EnvelopeStatus, Predictor, RuntimeError};
+use pinc::traits::DiscreteModel;
+use pinc::vehicle::{Rk4Vehicle, to_network};
+use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
 
 /// The controller envelope of the `mpc` dataset preset.
 fn bounds() -> (Input, Input) {
@@ -56,4 +60,76 @@ fn a_controller_without_bounds_or_with_bad_weights_is_refused() {
             .err()
             .unwrap();
     assert!(e.to_string().contains("weights"), "{e}");
+}
+
+#[test]
+fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
+    let model = PincModel::load("models/mpc_pinc.pinc").unwrap();
+    let pinc = Predictor::<f64>::with_precision(&model);
+    let bounds = pinc.input_bounds().unwrap();
+    let cfg = MpcConfig { bounds: Some(bounds), ..MpcConfig::default() };
+    let samples = run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, |_| true);
+    let s = summarise(&samples, Scenario::Default, 1.6);
+    let o = summarise(
+        &run(&mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(), Scenario::Default, |_| true),
+        Scenario::Default,
+        1.6,
+    );
+    assert_eq!((s.samples, s.fallbacks, s.bound_violations), (750, 0, 0), "{s:?}");
+    assert!(samples.iter().all(|x| x.state.iter().all(|v| v.is_finite()) && x.state[2].abs() < 3.0));
+    assert!(s.rms_depth_m <= 1.1 * o.rms_depth_m, "PINC {s:?}\noracle {o:?}");
+    assert!(s.rms_heading_deg <= 1.1 * o.rms_heading_deg, "PINC {s:?}\noracle {o:?}");
+    assert!(s.max_overshoot_depth_m < 0.05 && s.max_overshoot_heading_deg < 5.0, "{s:?}");
+    // Every depth step settles (within 5 %) before the next one.
+    assert!(s.settling_depth_s.iter().all(|t| *t < 5.0), "{s:?}");
+}
+
+/// The analytic vehicle, claiming to depend on position: the MPC keeps x, y in its QP.
+struct WithPosition(Rk4Vehicle);
+
+impl DiscreteModel for WithPosition {
+    type Workspace = ();
+    fn workspace(&self) {}
+    fn dt(&self) -> f64 {
+        self.0.dt
+    }
+    fn input_bounds(&self) -> Option<(Input, Input)> {
+        None
+    }
+    fn step(&self, ws: &mut (), x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
+        self.0.step(ws, x, u, out)
+    }
+    fn linearise_horizon(
+        &self,
+        ws: &mut (),
+        x0: &State,
+        inputs: &[Input],
+        traj: &mut [State],
+        a: &mut [StateMatrix],
+        b: &mut [InputMatrix],
+    ) -> Result<(), RuntimeError> {
+        self.0.linearise_horizon(ws, x0, inputs, traj, a, b)
+    }
+    fn envelope_status(&self, _: &()) -> EnvelopeStatus {
+        EnvelopeStatus::default()
+    }
+}
+
+#[test]
+fn leaving_position_out_of_the_qp_changes_nothing_but_its_size() {
+    assert!(Rk4Vehicle::default().position_free() && !WithPosition(Rk4Vehicle::default()).position_free());
+    let cfg = MpcConfig { bounds: Some(bounds()), ..MpcConfig::default() };
+    let mut reduced = Mpc::new(Rk4Vehicle::default(), cfg.clone()).unwrap();
+    let mut full = Mpc::new(WithPosition(Rk4Vehicle::default()), cfg).unwrap();
+    let refs = vec![Reference { depth: 1.5, heading: 0.8 }; 20];
+    let mut x = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
+    for _ in 0..10 {
+        let (r, f) = (reduced.step(&x, &refs), full.step(&x, &refs));
+        assert!(r.fallback.is_none() && f.fallback.is_none());
+        assert!((r.input - f.input).amax() < 1e-6, "{} vs {}", r.input, f.input);
+        for (pr, pf) in reduced.prediction().iter().zip(full.prediction()) {
+            assert!((pr - pf).amax() < 1e-7, "predictions {pr} vs {pf}");
+        }
+        x = Rk4Vehicle::default().step_network(&x, &r.input);
+    }
 }

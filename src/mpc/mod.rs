@@ -10,12 +10,13 @@ mod qp;
 
 pub use qp::Weights;
 
+use crate::runtime::EnvelopeStatus;
 use crate::traits::DiscreteModel;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 use clarabel::solver::{
     DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
 };
-use qp::Qp;
+use qp::{ALL_STATES, Qp, WITHOUT_POSITION};
 use std::time::Instant;
 
 /// Everything the controller can be tuned by, with defaults for depth and heading tracking
@@ -44,8 +45,14 @@ pub struct MpcConfig {
     pub solver_time_limit: f64,
     /// Clarabel's iteration limit per solve.
     pub solver_max_iter: u32,
+    /// Clarabel's duality-gap (absolute and relative) and feasibility tolerances.
+    pub solver_tolerance: f64,
     /// The real-time budget of one cycle (s); longer cycles are counted as deadline misses.
     pub deadline: f64,
+    /// Apply the shifted previous plan when the nominal rollout leaves the model's training
+    /// envelope. Off by default: exits are reported in every [`CycleReport`] either way, and
+    /// the previous plan came from the same model, so it is rarely the safer choice.
+    pub envelope_fallback: bool,
 }
 
 impl Default for MpcConfig {
@@ -55,14 +62,19 @@ impl Default for MpcConfig {
             depth: 20.0,
             heading: 10.0,
             velocity: [0.05, 0.05, 0.5, 0.2],
-            input: [1e-3, 1e-3, 1e-3, 1e-2],
-            input_rate: [5e-3, 5e-3, 5e-3, 5e-2],
+            // Surge and sway forces do nothing for depth and heading: weighted 50x more, so a
+            // learned model's small spurious couplings cannot make them worth using.
+            input: [5e-2, 5e-2, 1e-3, 1e-2],
+            // A heavy weight on yaw-moment changes keeps the learned model's Mz from chattering.
+            input_rate: [5e-2, 5e-2, 5e-3, 5e-1],
             terminal: 5.0,
             rate_limit: None,
             bounds: None,
             solver_time_limit: 0.04,
             solver_max_iter: 50,
+            solver_tolerance: 1e-5,
             deadline: 0.08,
+            envelope_fallback: false,
         }
     }
 }
@@ -88,6 +100,18 @@ pub enum Fallback {
     Model,
     /// Clarabel did not return a solution (status attached).
     Solver(SolverStatus),
+    /// The nominal rollout left the training envelope (with [`MpcConfig::envelope_fallback`]).
+    Envelope,
+}
+
+impl std::fmt::Display for Fallback {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Fallback::Model => f.write_str("model rollout or linearisation failed"),
+            Fallback::Solver(status) => write!(f, "QP not solved ({status:?})"),
+            Fallback::Envelope => f.write_str("nominal rollout outside the training envelope"),
+        }
+    }
 }
 
 /// The reference of one sample: depth (m, down) and heading (rad).
@@ -108,6 +132,9 @@ pub struct CycleReport {
     pub saturated: [bool; NU],
     /// Set when the shifted previous plan was applied instead of a fresh solution.
     pub fallback: Option<Fallback>,
+    /// Training-envelope exits along the nominal rollout (always inside for a model
+    /// without an envelope).
+    pub envelope: EnvelopeStatus,
     /// Clarabel's status (`Unsolved` when the model failed first).
     pub status: SolverStatus,
     /// Interior-point iterations.
@@ -155,9 +182,14 @@ fn settings(cfg: &MpcConfig) -> Result<DefaultSettings<f64>, MpcError> {
         .input_sparse_dropzeros(false)
         .time_limit(cfg.solver_time_limit)
         .max_iter(cfg.solver_max_iter)
-        .tol_gap_abs(1e-6)
-        .tol_gap_rel(1e-6)
-        .tol_feas(1e-6)
+        .tol_gap_abs(cfg.solver_tolerance)
+        .tol_gap_rel(cfg.solver_tolerance)
+        .tol_feas(cfg.solver_tolerance)
+        // Two refinement steps to 1e-8 instead of up to ten to 1e-13: the KKT solves are a
+        // quarter of the solve time, and a tolerance of 1e-5 needs no more.
+        .iterative_refinement_reltol(1e-8)
+        .iterative_refinement_abstol(1e-8)
+        .iterative_refinement_max_iter(2)
         .build()
         .map_err(|e| MpcError::Config(e.to_string()))
 }
@@ -191,7 +223,8 @@ impl<M: DiscreteModel> Mpc<M> {
         state_weights[5..].copy_from_slice(&cfg.velocity);
         let w = Weights { state: state_weights, terminal: cfg.terminal, input: cfg.input, input_rate: cfg.input_rate };
         let n = cfg.horizon;
-        let qp = Qp::new(n, &w, cfg.rate_limit.is_some());
+        let states: &[usize] = if model.position_free() { &WITHOUT_POSITION } else { &ALL_STATES };
+        let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states);
         let n_ineq = qp.b.len() - qp.n_eq;
         let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
         // A placeholder problem with the final pattern; every cycle overwrites its data.
@@ -266,6 +299,7 @@ impl<M: DiscreteModel> Mpc<M> {
             input: self.nominal[0],
             saturated: [false; NU],
             fallback: None,
+            envelope: EnvelopeStatus::default(),
             status: SolverStatus::Unsolved,
             iterations: 0,
             objective: f64::NAN,
@@ -279,8 +313,11 @@ impl<M: DiscreteModel> Mpc<M> {
             self.model.linearise_horizon(&mut self.ws, x, &self.nominal, &mut self.traj, &mut self.a, &mut self.b);
         let t1 = Instant::now();
         report.linearise_us = (t1 - t0).as_secs_f64() * 1e6;
+        report.envelope = self.model.envelope_status(&self.ws);
         if lin.is_err() {
             report.fallback = Some(Fallback::Model);
+        } else if self.cfg.envelope_fallback && !report.envelope.inside() {
+            report.fallback = Some(Fallback::Envelope);
         } else {
             self.fill_data(refs);
             let ok = self.solver.update_A(&self.qp.a_values).is_ok()
@@ -303,9 +340,18 @@ impl<M: DiscreteModel> Mpc<M> {
                         let du = Input::from_fn(|j, _| sol.x[self.qp.u_index(k, j)]);
                         self.plan[k] = self.clip(&(self.nominal[k] + du));
                     }
+                    // The QP's states from its solution, any left out (x, y) by propagating
+                    // the linearised dynamics: both are the same linear prediction.
                     self.predicted[0] = self.traj[0];
-                    for k in 1..=n {
-                        self.predicted[k] = self.traj[k] + State::from_fn(|i, _| sol.x[self.qp.x_index(k, i)]);
+                    let mut dx = State::zeros();
+                    for k in 0..n {
+                        let du = Input::from_fn(|j, _| sol.x[self.qp.u_index(k, j)]);
+                        let mut next = self.a[k] * dx + self.b[k] * du;
+                        for (s, &i) in self.qp.states.iter().enumerate() {
+                            next[i] = sol.x[self.qp.x_index(k + 1, s)];
+                        }
+                        dx = next;
+                        self.predicted[k + 1] = self.traj[k + 1] + dx;
                     }
                     report.input = self.plan[0];
                 } else {
@@ -337,8 +383,8 @@ impl<M: DiscreteModel> Mpc<M> {
             let mut target = [0.0; NX];
             (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
             let f = if k == n { self.cfg.terminal } else { 1.0 };
-            for i in 0..NX {
-                let at = qp.x_index(k, i);
+            for (s, &i) in qp.states.iter().enumerate() {
+                let at = qp.x_index(k, s);
                 qp.q[at] = 2.0 * f * self.state_weights[i] * (self.traj[k][i] - target[i]);
             }
         }
