@@ -133,3 +133,21 @@ fn leaving_position_out_of_the_qp_changes_nothing_but_its_size() {
         x = Rk4Vehicle::default().step_network(&x, &r.input);
     }
 }
+
+#[test]
+fn envelope_exits_are_reported_and_fall_back_only_when_asked() {
+    let model = PincModel::load("models/mpc_pinc.pinc").unwrap();
+    let w_min = model.envelope.as_ref().unwrap().state_min[7];
+    // Rising faster than anything in the training data.
+    let x = to_network(&SimState::from([0.0, 0.0, 1.0, 0.2, 0.0, 0.0, w_min - 0.2, 0.0]));
+    let refs = [Reference { depth: 1.0, heading: 0.2 }];
+    for ask in [false, true] {
+        let cfg = MpcConfig { envelope_fallback: ask, ..MpcConfig::default() };
+        let mut mpc = Mpc::new(Predictor::<f64>::with_precision(&model), cfg).unwrap();
+        let r = mpc.step(&x, &refs);
+        let exit = r.envelope.first.expect("the rollout starts outside the envelope");
+        assert_eq!((exit.step, exit.quantity), (0, pinc::runtime::Quantity::State(7)), "{r:?}");
+        assert_eq!(exit.value, w_min - 0.2);
+        assert_eq!(r.fallback, if ask { Some(Fallback::Envelope) } else { None }, "{r:?}");
+    }
+}
