@@ -410,6 +410,6 @@ impl<M: DiscreteModel> Mpc<M> {
                 }
             }
         }
-        qp.b[..qp.n_eq].fill(0.0);
+        // The equality rows of `b` stay zero from construction (the rollout has no defect).
     }
 }

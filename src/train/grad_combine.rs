@@ -59,12 +59,14 @@ pub fn combine(scheme: GradCombine, grads: &[Vec<f32>], weights: &[f64]) -> Vec<
             }
         }
         GradCombine::Config => {
-            let live: Vec<&Vec<f32>> = grads.iter().filter(|g| norm(g) > 0.0).collect();
+            // Each norm once: recomputing it per matrix element cost O(p^2) per step.
+            let (live, norms): (Vec<&Vec<f32>>, Vec<f64>) =
+                grads.iter().map(|g| (g, norm(g))).filter(|&(_, n)| n > 0.0).unzip();
             if live.is_empty() {
                 return vec![0.0; p];
             }
             let m = live.len();
-            let units = DMatrix::from_fn(p, m, |r, c| f64::from(live[c][r]) / norm(live[c]));
+            let units = DMatrix::from_fn(p, m, |r, c| f64::from(live[c][r]) / norms[c]);
             let gram = units.transpose() * &units;
             let coeff = gram.pseudo_inverse(1e-12).expect("pseudo-inverse of a small Gram matrix")
                 * DVector::from_element(m, 1.0);

@@ -170,7 +170,7 @@ impl ModuleVisitor for SplitGrads<'_> {
 }
 
 fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
-    let mut v = FlattenGrads { grads, out: Vec::new() };
+    let mut v = FlattenGrads { grads, out: Vec::with_capacity(net.num_params()) };
     net.visit(&mut v);
     v.out
 }

@@ -110,7 +110,11 @@ pub enum BackendName {
 fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     let mut cfg = TrainConfig::paper();
     if a.layers.is_some() || a.width.is_some() {
-        cfg.architecture = pinc::model::Architecture::paper(a.layers.unwrap_or(4), a.width.unwrap_or(32));
+        let default = &cfg.architecture;
+        cfg.architecture = pinc::model::Architecture::paper(
+            a.layers.unwrap_or(default.hidden_layers),
+            a.width.unwrap_or(default.width),
+        );
     }
     if a.tanh {
         cfg.architecture.activation = Activation::Tanh;
