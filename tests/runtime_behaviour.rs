@@ -17,6 +17,43 @@ fn case(i: usize) -> (State, Vec<Input>) {
 }
 
 #[test]
+fn steps_match_a_plain_reference_for_every_variant() {
+    // The runtime folds scalings, betas and LayerNorm affines into padded weight packs; the
+    // reference computes the network as written down. f32 differs by rounding only.
+    for (name, model) in common::variants() {
+        for (precision, tol) in [("f64", 1e-12), ("f32", 2e-5)] {
+            for portable in [false, true] {
+                let mut worst = 0.0_f64;
+                for i in 0..20 {
+                    let (x, inputs) = case(i);
+                    let (t, u) = (0.02 + 0.01 * i as f64, inputs[i % STEPS]);
+                    let want = common::reference_step(&model, &x.into(), &u.into(), t);
+                    let got = if precision == "f64" {
+                        step_with::<f64>(&model, portable, &x, &u, t)
+                    } else {
+                        step_with::<f32>(&model, portable, &x, &u, t)
+                    };
+                    for k in 0..9 {
+                        worst = worst.max((got[k] - want[k]).abs() / want[k].abs().max(1.0));
+                    }
+                }
+                assert!(worst < tol, "{name} {precision} (portable {portable}): max relative error {worst:e}");
+            }
+        }
+    }
+}
+
+fn step_with<T: Real>(model: &pinc::model::PincModel, portable: bool, x: &State, u: &Input, t: f64) -> State {
+    let mut p = Predictor::<T>::with_precision(model);
+    if portable {
+        p = p.with_portable_kernels();
+    }
+    let mut next = State::zeros();
+    p.step_dt(&mut p.workspace(), x, u, t, &mut next).unwrap();
+    next
+}
+
+#[test]
 fn batch_rollout_equals_single_rollouts() {
     // f32: LayerNorm statistics are summed in another order across lanes, so the two drift
     // apart by rounding only.

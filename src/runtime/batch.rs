@@ -2,12 +2,12 @@
 //! is an axpy over a block of lanes), for evaluators and sampling-based planners.
 
 use super::RuntimeError;
-use super::activation::activate_slice;
+use super::activation::activate;
 use super::calls::check_dt;
 use super::envelope::EnvelopeStatus;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
-use super::kernels::{MulAdd, Portable, accumulate};
+use super::kernels::{MulAdd, PACK, Pack, Portable, matvec};
 use super::predictor::Predictor;
 use super::real::Real;
 use crate::types::{Input, NU, NX, State};
@@ -15,34 +15,39 @@ use crate::types::{Input, NU, NX, State};
 /// Trajectories advanced together; 32 keeps a 32-wide layer block in L1.
 pub const LANES: usize = 32;
 
+/// Packs per component of the lane-major buffers.
+const LANE_PACKS: usize = LANES / PACK;
+
 /// Scratch memory for [`Predictor::rollout_batch`], component-major over [`LANES`] lanes.
 ///
 /// # Memory allocation
-/// `BatchWorkspace::new` allocates `(inputs + 2 width + 2 * 9 + 2) * 32` floats; rollouts
-/// allocate nothing.
+/// `BatchWorkspace::new` allocates `(inputs + 2 width + 3 * 9 + 2) * 32` floats (widths
+/// rounded up to packs of 8); rollouts allocate nothing.
 #[derive(Debug, Clone)]
 pub struct BatchWorkspace<T: Real = f32> {
-    z: Vec<T>,
-    ha: Vec<T>,
-    hb: Vec<T>,
+    z: Vec<Pack<T>>,
+    ha: Vec<Pack<T>>,
+    hb: Vec<Pack<T>>,
     x: Vec<f64>,
-    o: Vec<T>,
-    mean: Vec<T>,
-    var: Vec<T>,
+    o: Vec<Pack<T>>,
+    mean: Vec<Pack<T>>,
+    var: Vec<Pack<T>>,
     envelope: EnvelopeStatus,
 }
 
 impl<T: Real> BatchWorkspace<T> {
     /// Sizes every buffer for `p`.
     pub fn new(p: &Predictor<T>) -> Self {
+        let zero = [T::ZERO; PACK];
+        let units = p.packs * PACK;
         Self {
-            z: vec![T::ZERO; p.n_in * LANES],
-            ha: vec![T::ZERO; p.width * LANES],
-            hb: vec![T::ZERO; p.width * LANES],
+            z: vec![zero; p.n_in * LANE_PACKS],
+            ha: vec![zero; units * LANE_PACKS],
+            hb: vec![zero; units * LANE_PACKS],
             x: vec![0.0; NX * LANES],
-            o: vec![T::ZERO; NX * LANES],
-            mean: vec![T::ZERO; LANES],
-            var: vec![T::ZERO; LANES],
+            o: vec![zero; NX * LANE_PACKS],
+            mean: vec![zero; LANE_PACKS],
+            var: vec![zero; LANE_PACKS],
             envelope: EnvelopeStatus::default(),
         }
     }
@@ -153,34 +158,41 @@ impl<T: Real> Predictor<T> {
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
         const L: usize = LANES;
+        const P: usize = LANE_PACKS;
         let ns = self.seen.len();
-        let w = self.width;
+        let net = &self.net;
+        // Lane b of component c is element b of the P packs starting at c * P.
+        let lane = |v: &mut [Pack<T>], c: usize, b: usize, value: T| v[c * P + b / PACK][b % PACK] = value;
         for start in (0..x0.len()).step_by(L) {
             let m = L.min(x0.len() - start);
+            // Lanes past the last trajectory compute on zeros and are never read.
+            ws.x.fill(0.0);
+            ws.z.fill([T::ZERO; PACK]);
             for b in 0..m {
                 for c in 0..NX {
                     ws.x[c * L + b] = x0[start + b][c];
                 }
                 out[(start + b) * (steps + 1)] = x0[start + b];
             }
+            for b in 0..L {
+                lane(&mut ws.z, ns + NU, b, T::of(dt));
+            }
             for k in 0..steps {
                 let u_of = |b: usize| &inputs[(start + b) * steps + k];
-                // Network input, component-major.
+                // Raw network input, component-major.
                 for (q, &i) in self.seen.iter().enumerate() {
-                    for b in 0..m {
-                        ws.z[q * L + b] = (T::of(ws.x[i * L + b]) - self.in_mean[q]) * self.in_inv_std[q];
+                    for b in 0..L {
+                        lane(&mut ws.z, q, b, T::of(ws.x[i * L + b]));
                     }
                 }
-                for c in 0..NU {
-                    let q = ns + c;
-                    for b in 0..m {
-                        ws.z[q * L + b] = (T::of(u_of(b)[c]) - self.in_mean[q]) * self.in_inv_std[q];
+                for b in 0..m {
+                    let u = u_of(b);
+                    for c in 0..NU {
+                        lane(&mut ws.z, ns + c, b, T::of(u[c]));
                     }
                 }
-                let q = self.n_in - 1;
-                ws.z[q * L..q * L + m].fill((T::of(dt) - self.in_mean[q]) * self.in_inv_std[q]);
 
-                for (l, layer) in self.layers.iter().enumerate() {
+                for (l, layer) in net.hidden.iter().enumerate() {
                     let (input, h) = if l == 0 {
                         (&ws.z[..], &mut ws.ha)
                     } else if l % 2 == 1 {
@@ -188,52 +200,33 @@ impl<T: Real> Predictor<T> {
                     } else {
                         (&ws.hb[..], &mut ws.ha)
                     };
-                    for j in 0..w {
-                        let hj = &mut h[j * L..j * L + m];
-                        hj.fill(layer.bias[j]);
-                        accumulate::<F, T>(hj, &layer.w_row[j * layer.cols..(j + 1) * layer.cols], input, L);
-                        activate_slice::<F, T>(self.activation, layer.beta, layer.inv_beta, hj, None);
+                    let q = layer.in_packs();
+                    for (j, hj) in h.chunks_exact_mut(P).enumerate() {
+                        let bias = layer.bias[j / PACK][j % PACK];
+                        let mut pre = [[bias; PACK]; P];
+                        let row = &layer.rev[j * q..(j + 1) * q].as_flattened()[..layer.cols];
+                        matvec::<F, T>(&mut pre, row, input, P);
+                        activate::<F, T>(self.activation, &pre, hj, None);
                     }
-                    if let Some(norm) = &layer.norm {
-                        let (mean, var) = (&mut ws.mean[..m], &mut ws.var[..m]);
-                        mean.fill(T::ZERO);
-                        var.fill(T::ZERO);
-                        for j in 0..w {
-                            for (s, &v) in mean.iter_mut().zip(&h[j * L..j * L + m]) {
-                                *s += v;
-                            }
-                        }
-                        let inv_w = T::of(1.0 / w as f64);
-                        mean.iter_mut().for_each(|s| *s *= inv_w);
-                        for j in 0..w {
-                            for ((s, &v), &mu) in var.iter_mut().zip(&h[j * L..j * L + m]).zip(mean.iter()) {
-                                *s += (v - mu) * (v - mu);
-                            }
-                        }
-                        var.iter_mut().for_each(|s| *s = T::ONE / (*s * inv_w + norm.eps).root());
-                        for j in 0..w {
-                            let (g, beta) = (norm.gain[j], norm.bias[j]);
-                            for ((v, &mu), &is) in h[j * L..j * L + m].iter_mut().zip(mean.iter()).zip(var.iter()) {
-                                *v = F::mul_add(g, (*v - mu) * is, beta);
-                            }
-                        }
+                    if let Some(eps) = net.norm_eps[l] {
+                        self.batch_layer_norm::<F>(h, &mut ws.mean, &mut ws.var, eps);
                     }
                 }
-                let y = if self.layers.len() % 2 == 1 { &ws.ha } else { &ws.hb };
-                for kk in 0..NX {
-                    let ok = &mut ws.o[kk * L..kk * L + m];
-                    ok.fill(self.output.bias[kk]);
-                    accumulate::<F, T>(ok, &self.output.w_row[kk * w..(kk + 1) * w], y, L);
-                    for v in ok.iter_mut() {
-                        *v = F::mul_add(*v, self.out_std[kk], self.out_mean[kk]);
-                    }
+                let y = if net.hidden.len() % 2 == 1 { &ws.ha } else { &ws.hb };
+                let q = net.output.in_packs();
+                for (kk, ok) in ws.o.chunks_exact_mut(P).enumerate() {
+                    let bias = net.output.bias[kk / PACK][kk % PACK];
+                    ok.fill([bias; PACK]);
+                    let row = &net.output.rev[kk * q..(kk + 1) * q].as_flattened()[..net.output.cols];
+                    matvec::<F, T>(ok, row, y, P);
                 }
+                let o_flat = ws.o.as_flattened();
                 for b in 0..m {
                     let mut x = State::zeros();
                     let mut o = [0.0; NX];
                     for c in 0..NX {
                         x[c] = ws.x[c * L + b];
-                        o[c] = ws.o[c * L + b].to_f64();
+                        o[c] = o_flat[c * L + b].to_f64();
                     }
                     self.envelope.check(&mut ws.envelope, k, &x, u_of(b));
                     let next = self.compose(&x, &o);
@@ -248,5 +241,40 @@ impl<T: Real> Predictor<T> {
             }
         }
         Ok(())
+    }
+
+    /// LayerNorm (no gain or bias, folded into the next layer) of every lane over the
+    /// real units of a component-major layer.
+    #[inline(always)]
+    fn batch_layer_norm<F: MulAdd>(&self, h: &mut [Pack<T>], mean: &mut [Pack<T>], var: &mut [Pack<T>], eps: T) {
+        const P: usize = LANE_PACKS;
+        let units = &mut h[..self.net.width * P];
+        let inv_w = self.net.inv_width;
+        mean.fill([T::ZERO; PACK]);
+        var.fill([T::ZERO; PACK]);
+        for hj in units.chunks_exact(P) {
+            for (s, v) in mean.iter_mut().zip(hj) {
+                for t in 0..PACK {
+                    s[t] += v[t];
+                }
+            }
+        }
+        mean.iter_mut().for_each(|s| s.iter_mut().for_each(|s| *s *= inv_w));
+        for hj in units.chunks_exact(P) {
+            for ((s, v), mu) in var.iter_mut().zip(hj).zip(mean.iter()) {
+                for t in 0..PACK {
+                    let dev = v[t] - mu[t];
+                    s[t] = F::mul_add(dev, dev, s[t]);
+                }
+            }
+        }
+        var.iter_mut().for_each(|s| s.iter_mut().for_each(|s| *s = T::ONE / (*s * inv_w + eps).root()));
+        for hj in units.chunks_exact_mut(P) {
+            for ((v, mu), is) in hj.iter_mut().zip(mean.iter()).zip(var.iter()) {
+                for t in 0..PACK {
+                    v[t] = (v[t] - mu[t]) * is[t];
+                }
+            }
+        }
     }
 }

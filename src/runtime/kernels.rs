@@ -1,7 +1,22 @@
 //! The inner loops of the runtime, generic over how a multiply-add is done so the same
 //! code compiles once portably and once with AVX2 + FMA (selected at run time).
+//!
+//! Vectors of hidden units are stored as packs of [`PACK`] values (one AVX2 register of
+//! `f32`), zero-padded, so every loop below runs over whole packs and vectorises without
+//! remainder code.
 
 use super::real::Real;
+
+/// Values per pack.
+pub(crate) const PACK: usize = 8;
+
+/// Eight consecutive values of a vector.
+pub(crate) type Pack<T> = [T; PACK];
+
+/// Packs needed for `n` values.
+pub(crate) const fn packs(n: usize) -> usize {
+    n.div_ceil(PACK)
+}
 
 /// How `a * b + c` is evaluated.
 pub(crate) trait MulAdd {
@@ -38,74 +53,99 @@ pub(crate) fn fused_available() -> bool {
     }
 }
 
-/// `out[r] += sum_i coef[i] * mat[i * stride + r]` for `r < out.len()`: a matrix-vector
-/// product whose matrix is stored one contiguous row per coefficient. Blocks of output are
-/// accumulated in registers (four AVX2 registers per block) across all coefficients, so
-/// `out` is loaded and stored once.
+/// `out[p] += sum_i coef[i] * mat[i * stride + p]` for every pack `p < out.len()`: a
+/// matrix-vector product whose matrix holds one row of `stride` packs per coefficient.
+/// Blocks of output packs stay in registers across all coefficients.
 #[inline(always)]
-pub(crate) fn accumulate<F: MulAdd, T: Real>(out: &mut [T], coef: &[T], mat: &[T], stride: usize) {
+pub(crate) fn matvec<F: MulAdd, T: Real>(out: &mut [Pack<T>], coef: &[T], mat: &[Pack<T>], stride: usize) {
     let n = out.len();
-    let mut r = 0;
-    if T::WIDE_BLOCK {
-        r = block::<F, T, 32>(out, coef, mat, stride, r, n);
+    let mut p = 0;
+    while n - p >= T::BLOCK {
+        if T::BLOCK == 4 {
+            block::<F, T, 4>(out, coef, mat, stride, p);
+        } else {
+            block::<F, T, 2>(out, coef, mat, stride, p);
+        }
+        p += T::BLOCK;
     }
-    r = block::<F, T, 16>(out, coef, mat, stride, r, n);
-    r = block::<F, T, 8>(out, coef, mat, stride, r, n);
-    r = block::<F, T, 4>(out, coef, mat, stride, r, n);
-    block::<F, T, 1>(out, coef, mat, stride, r, n);
+    if n - p >= 2 {
+        block::<F, T, 2>(out, coef, mat, stride, p);
+        p += 2;
+    }
+    if n - p == 1 {
+        block::<F, T, 1>(out, coef, mat, stride, p);
+    }
 }
 
+/// One block of `B` output packs. Even and odd coefficients go to two sets of accumulators:
+/// a layer is a chain of dependent multiply-adds per accumulator, and two sets halve its
+/// length (the single-vector step is bound by that latency, not by throughput).
 #[inline(always)]
 fn block<F: MulAdd, T: Real, const B: usize>(
-    out: &mut [T],
+    out: &mut [Pack<T>],
     coef: &[T],
-    mat: &[T],
+    mat: &[Pack<T>],
     stride: usize,
-    mut r: usize,
-    n: usize,
-) -> usize {
-    while r + B <= n {
-        let mut acc: [T; B] = out[r..r + B].try_into().expect("block");
-        for (i, &c) in coef.iter().enumerate() {
-            let m: &[T; B] = mat[i * stride + r..i * stride + r + B].try_into().expect("block");
-            for t in 0..B {
-                acc[t] = F::mul_add(c, m[t], acc[t]);
+    p: usize,
+) {
+    let mut even: [Pack<T>; B] = out[p..p + B].try_into().expect("block in range");
+    let mut odd = [[T::ZERO; PACK]; B];
+    let rows = &mat[p..];
+    let pairs = coef.len() / 2;
+    for q in 0..pairs {
+        let (c0, c1) = (coef[2 * q], coef[2 * q + 1]);
+        let r0: &[Pack<T>; B] = rows[2 * q * stride..2 * q * stride + B].try_into().expect("row in range");
+        let r1: &[Pack<T>; B] = rows[(2 * q + 1) * stride..(2 * q + 1) * stride + B].try_into().expect("row in range");
+        for k in 0..B {
+            for t in 0..PACK {
+                even[k][t] = F::mul_add(c0, r0[k][t], even[k][t]);
+                odd[k][t] = F::mul_add(c1, r1[k][t], odd[k][t]);
             }
         }
-        out[r..r + B].copy_from_slice(&acc);
-        r += B;
     }
-    r
-}
-
-/// Lanes of the partial sums in [`sum`] and [`dot`]: a float sum in one accumulator is a
-/// serial chain; eight independent ones vectorise.
-const PARTIALS: usize = 8;
-
-/// `sum_i a[i]`.
-#[inline(always)]
-pub(crate) fn sum<T: Real>(a: &[T]) -> T {
-    let mut acc = [T::ZERO; PARTIALS];
-    let mut chunks = a.chunks_exact(PARTIALS);
-    for c in &mut chunks {
-        for t in 0..PARTIALS {
-            acc[t] += c[t];
+    if coef.len() % 2 == 1 {
+        let i = coef.len() - 1;
+        let r: &[Pack<T>; B] = rows[i * stride..i * stride + B].try_into().expect("row in range");
+        for k in 0..B {
+            for t in 0..PACK {
+                even[k][t] = F::mul_add(coef[i], r[k][t], even[k][t]);
+            }
         }
     }
-    chunks.remainder().iter().copied().sum::<T>() + acc.iter().copied().sum::<T>()
+    for k in 0..B {
+        for t in 0..PACK {
+            out[p + k][t] = even[k][t] + odd[k][t];
+        }
+    }
 }
 
-/// `sum_i a[i] * b[i]`.
+/// Sum of the lanes of a pack, as a tree (three dependent adds, not seven).
 #[inline(always)]
-pub(crate) fn dot<F: MulAdd, T: Real>(a: &[T], b: &[T]) -> T {
-    let mut acc = [T::ZERO; PARTIALS];
-    let mut ca = a.chunks_exact(PARTIALS);
-    let mut cb = b.chunks_exact(PARTIALS);
-    for (x, y) in (&mut ca).zip(&mut cb) {
-        for t in 0..PARTIALS {
+pub(crate) fn lane_sum<T: Real>(a: Pack<T>) -> T {
+    let h: [T; 4] = std::array::from_fn(|t| a[t] + a[t + 4]);
+    (h[0] + h[2]) + (h[1] + h[3])
+}
+
+/// `sum_p a[p]` lane-wise.
+#[inline(always)]
+pub(crate) fn sum<T: Real>(a: &[Pack<T>]) -> T {
+    let mut acc = [T::ZERO; PACK];
+    for v in a {
+        for t in 0..PACK {
+            acc[t] += v[t];
+        }
+    }
+    lane_sum(acc)
+}
+
+/// `sum_p a[p] . b[p]`.
+#[inline(always)]
+pub(crate) fn dot<F: MulAdd, T: Real>(a: &[Pack<T>], b: &[Pack<T>]) -> T {
+    let mut acc = [T::ZERO; PACK];
+    for (x, y) in a.iter().zip(b) {
+        for t in 0..PACK {
             acc[t] = F::mul_add(x[t], y[t], acc[t]);
         }
     }
-    let tail: T = ca.remainder().iter().zip(cb.remainder()).map(|(&x, &y)| x * y).sum();
-    tail + acc.iter().copied().sum::<T>()
+    lane_sum(acc)
 }

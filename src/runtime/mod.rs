@@ -6,6 +6,7 @@ mod batch;
 mod calls;
 mod envelope;
 mod error;
+mod fold;
 mod kernels;
 mod network;
 mod predictor;

@@ -1,15 +1,47 @@
 //! One evaluation of the network (forward, optionally keeping what the reverse pass
 //! needs), its exact Jacobian by reverse mode, and the residual / yaw-rotation output map.
 
-use super::activation::activate_slice;
-use super::kernels::{MulAdd, accumulate, dot, sum};
-use super::predictor::{OUTPUT_STRIDE, Predictor, Workspace};
+use super::activation::activate;
+use super::kernels::{MulAdd, PACK, Pack, dot, matvec, packs, sum};
+use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 
-/// Raw network output (after output scaling, widened to f64), before the residual and
-/// rotation.
+/// Raw network output (in state units, widened to f64), before the residual and rotation.
 pub(crate) type NetOut = [f64; NX];
+
+/// LayerNorm without gain or bias, in place; returns `1 / sqrt(var + eps)`. `mask` zeroes
+/// the padding units so they count in neither statistic (and read as 0 afterwards).
+#[inline(always)]
+pub(crate) fn layer_norm<F: MulAdd, T: Real>(v: &mut [Pack<T>], eps: T, inv_width: T, mask: Option<&[Pack<T>]>) -> T {
+    if let Some(mask) = mask {
+        for (v, m) in v.iter_mut().zip(mask) {
+            for t in 0..PACK {
+                v[t] *= m[t];
+            }
+        }
+    }
+    let mean = sum(v) * inv_width;
+    for v in v.iter_mut() {
+        for t in 0..PACK {
+            v[t] = v[t] - mean;
+        }
+    }
+    if let Some(mask) = mask {
+        for (v, m) in v.iter_mut().zip(mask) {
+            for t in 0..PACK {
+                v[t] *= m[t];
+            }
+        }
+    }
+    let inv_std = T::ONE / (dot::<F, T>(v, v) * inv_width + eps).root();
+    for v in v.iter_mut() {
+        for t in 0..PACK {
+            v[t] = v[t] * inv_std;
+        }
+    }
+    inv_std
+}
 
 impl<T: Real> Predictor<T> {
     /// Forward pass. With `keep`, stores activation derivatives and LayerNorm statistics
@@ -18,101 +50,73 @@ impl<T: Real> Predictor<T> {
     pub(crate) fn network<F: MulAdd>(&self, ws: &mut Workspace<T>, x: &State, u: &Input, t: f64, keep: bool) -> NetOut {
         let ns = self.seen.len();
         for (k, &i) in self.seen.iter().enumerate() {
-            ws.z[k] = (T::of(x[i]) - self.in_mean[k]) * self.in_inv_std[k];
+            ws.z[k] = T::of(x[i]);
         }
         for c in 0..NU {
-            ws.z[ns + c] = (T::of(u[c]) - self.in_mean[ns + c]) * self.in_inv_std[ns + c];
+            ws.z[ns + c] = T::of(u[c]);
         }
-        let last = self.n_in - 1;
-        ws.z[last] = (T::of(t) - self.in_mean[last]) * self.in_inv_std[last];
+        ws.z[ns + NU] = T::of(t);
 
-        let w = self.width;
-        for (l, layer) in self.layers.iter().enumerate() {
-            let (done, rest) = ws.y.split_at_mut(l * w);
-            let input: &[T] = if l == 0 { &ws.z } else { &done[(l - 1) * w..] };
-            let out = &mut rest[..w];
-            out.copy_from_slice(&layer.bias);
-            accumulate::<F, T>(out, input, &layer.w_col, w);
-            let d = if keep { Some(&mut ws.d[l * w..(l + 1) * w]) } else { None };
-            activate_slice::<F, T>(self.activation, layer.beta, layer.inv_beta, out, d);
-            if let Some(norm) = &layer.norm {
-                let inv_w = T::of(1.0 / w as f64);
-                let mean = sum(out) * inv_w;
-                let xhat = &mut ws.xhat[l * w..(l + 1) * w];
-                for j in 0..w {
-                    xhat[j] = out[j] - mean;
-                }
-                let var = dot::<F, T>(xhat, xhat) * inv_w;
-                let inv_std = T::ONE / (var + norm.eps).root();
-                ws.inv_std[l] = inv_std;
-                for j in 0..w {
-                    xhat[j] *= inv_std;
-                    out[j] = F::mul_add(norm.gain[j], xhat[j], norm.bias[j]);
-                }
+        let np = self.packs;
+        let net = &self.net;
+        for (l, layer) in net.hidden.iter().enumerate() {
+            let (done, rest) = ws.y.split_at_mut(l * np);
+            let input: &[T] = if l == 0 { &ws.z } else { &done[(l - 1) * np..].as_flattened()[..layer.cols] };
+            let out = &mut rest[..np];
+            let pre = &mut ws.pre[..np];
+            pre.copy_from_slice(&layer.bias);
+            matvec::<F, T>(pre, input, &layer.fwd, np);
+            let d = if keep { Some(&mut ws.d[l * np..(l + 1) * np]) } else { None };
+            activate::<F, T>(self.activation, pre, out, d);
+            if let Some(eps) = net.norm_eps[l] {
+                ws.inv_std[l] = layer_norm::<F, T>(out, eps, net.inv_width, net.mask.as_deref());
             }
         }
-        let y = &ws.y[(self.layers.len() - 1) * w..];
-        let mut o = [T::ZERO; OUTPUT_STRIDE];
-        o[..NX].copy_from_slice(&self.output.bias);
-        accumulate::<F, T>(&mut o, y, &self.output.w_col, OUTPUT_STRIDE);
-        let mut out = [0.0; NX];
-        for k in 0..NX {
-            out[k] = F::mul_add(o[k], self.out_std[k], self.out_mean[k]).to_f64();
-        }
-        out
+        let y = &ws.y[(net.hidden.len() - 1) * np..].as_flattened()[..net.output.cols];
+        let mut o = [[T::ZERO; PACK]; packs(NX)];
+        o.copy_from_slice(&net.output.bias);
+        matvec::<F, T>(&mut o, y, &net.output.fwd, packs(NX));
+        std::array::from_fn(|k| o.as_flattened()[k].to_f64())
     }
 
-    /// Reverse pass after `network(.., keep = true)`: leaves `d out / d z_raw` (9 rows of
-    /// `n_in`, row-major, with both scalings applied) in `ws.g`.
+    /// Reverse pass after `network(.., keep = true)`: leaves `d out / d z` (9 rows of
+    /// input packs, `z` the raw `[x_seen, u, t]`) in `ws.g`.
     #[inline(always)]
     pub(crate) fn network_jacobian<F: MulAdd>(&self, ws: &mut Workspace<T>) {
-        let w = self.width;
-        // Seed: rows of the output layer, scaled by the output de-normalisation.
-        for k in 0..NX {
-            for j in 0..w {
-                ws.g[k * w + j] = self.output.w_row[k * w + j] * self.out_std[k];
-            }
-        }
-        for (l, layer) in self.layers.iter().enumerate().rev() {
-            let cols = layer.cols;
-            let d = &ws.d[l * w..(l + 1) * w];
-            if let Some(norm) = &layer.norm {
-                let xhat = &ws.xhat[l * w..(l + 1) * w];
-                let inv_std = ws.inv_std[l];
-                for k in 0..NX {
-                    let g = &mut ws.g[k * w..(k + 1) * w];
-                    for j in 0..w {
-                        g[j] *= norm.gain[j];
+        let np = self.packs;
+        let net = &self.net;
+        // Seed: the output layer's rows.
+        ws.g[..NX * np].copy_from_slice(&net.output.rev[..NX * np]);
+        for (l, layer) in net.hidden.iter().enumerate().rev() {
+            let d = &ws.d[l * np..(l + 1) * np];
+            let xhat = &ws.y[l * np..(l + 1) * np];
+            for k in 0..NX {
+                let g = &mut ws.g[k * np..(k + 1) * np];
+                if net.norm_eps[l].is_some() {
+                    // Through v = (s - mean s) r: r (g - mean g - v mean(g v)).
+                    let inv_std = ws.inv_std[l];
+                    let (m1, m2) = (sum(g) * net.inv_width, dot::<F, T>(g, xhat) * net.inv_width);
+                    for (g, (v, d)) in g.iter_mut().zip(xhat.iter().zip(d)) {
+                        for t in 0..PACK {
+                            g[t] = inv_std * (g[t] - m1 - v[t] * m2) * d[t];
+                        }
                     }
-                    let inv_w = T::of(1.0 / w as f64);
-                    let (m1, m2) = (sum(g) * inv_w, dot::<F, T>(g, xhat) * inv_w);
-                    for j in 0..w {
-                        g[j] = inv_std * (g[j] - m1 - xhat[j] * m2) * d[j];
-                    }
-                }
-            } else {
-                for k in 0..NX {
-                    for (g, &d) in ws.g[k * w..(k + 1) * w].iter_mut().zip(d) {
-                        *g *= d;
+                } else {
+                    for (g, d) in g.iter_mut().zip(d) {
+                        for t in 0..PACK {
+                            g[t] *= d[t];
+                        }
                     }
                 }
             }
-            // g2 = g W: row k of g2 accumulates g[k, j] * (row j of W).
+            // Row k of the next g is row k of g times W (rows of `W` in the reverse layout).
+            let q = layer.in_packs();
             for k in 0..NX {
-                let g2 = &mut ws.g2[k * cols..(k + 1) * cols];
-                g2.fill(T::ZERO);
-                accumulate::<F, T>(g2, &ws.g[k * w..(k + 1) * w], &layer.w_row, cols);
+                let out = &mut ws.g2[k * q..(k + 1) * q];
+                out.fill([T::ZERO; PACK]);
+                matvec::<F, T>(out, ws.g[k * np..(k + 1) * np].as_flattened(), &layer.rev, q);
             }
-            // The next (earlier) layer reads rows of length `cols` (= w, or n_in at the end).
-            for k in 0..NX {
-                ws.g[k * cols..(k + 1) * cols].copy_from_slice(&ws.g2[k * cols..(k + 1) * cols]);
-            }
-        }
-        let n = self.n_in;
-        for k in 0..NX {
-            for i in 0..n {
-                ws.g[k * n + i] *= self.in_inv_std[i];
-            }
+            std::mem::swap(&mut ws.g, &mut ws.g2);
         }
     }
 
@@ -146,13 +150,13 @@ impl<T: Real> Predictor<T> {
         a: &mut StateMatrix,
         b: &mut InputMatrix,
     ) {
-        let n = self.n_in;
+        let q = packs(self.n_in);
         let ns = self.seen.len();
         // D = d out / d (x, u).
         let mut dx = StateMatrix::zeros();
         let mut du = InputMatrix::zeros();
         for k in 0..NX {
-            let row = &ws.g[k * n..(k + 1) * n];
+            let row = ws.g[k * q..(k + 1) * q].as_flattened();
             for (m, &i) in self.seen.iter().enumerate() {
                 dx[(k, i)] = row[m].to_f64();
             }

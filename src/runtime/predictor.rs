@@ -3,60 +3,11 @@
 
 use super::RuntimeError;
 use super::envelope::{EnvelopeCheck, EnvelopeStatus};
-use super::kernels::fused_available;
+use super::fold::Folded;
+use super::kernels::{PACK, Pack, fused_available, packs};
 use super::real::Real;
-use crate::model::{Activation, Envelope, Linear, PincModel};
+use crate::model::{Activation, Envelope, PincModel};
 use crate::types::{Input, NX, State};
-
-/// One dense layer, stored twice: column-major for the forward pass (a matrix-vector
-/// product over inputs) and row-major for the reverse pass.
-#[derive(Debug, Clone)]
-pub(crate) struct Layer<T> {
-    pub cols: usize,
-    /// `w_col[i * rows + j] = W[j][i]`.
-    pub w_col: Vec<T>,
-    /// `w_row[j * cols + i] = W[j][i]`.
-    pub w_row: Vec<T>,
-    pub bias: Vec<T>,
-    pub beta: T,
-    pub inv_beta: T,
-    pub norm: Option<Norm<T>>,
-}
-
-#[derive(Debug, Clone)]
-pub(crate) struct Norm<T> {
-    pub gain: Vec<T>,
-    pub bias: Vec<T>,
-    pub eps: T,
-}
-
-fn convert<T: Real>(v: &[f32]) -> Vec<T> {
-    v.iter().map(|&x| T::of(f64::from(x))).collect()
-}
-
-/// Rows of the output layer as stored column-major: 9 padded to 16 so the forward pass
-/// runs one 16-wide register block instead of an 8-wide and a scalar one.
-pub(crate) const OUTPUT_STRIDE: usize = 16;
-
-impl<T: Real> Layer<T> {
-    fn new(l: &Linear, beta: f32, norm: Option<Norm<T>>) -> Self {
-        Self::with_column_stride(l, beta, norm, l.rows)
-    }
-
-    /// `w_col` with `stride >= rows` entries per column, the padding zero.
-    fn with_column_stride(l: &Linear, beta: f32, norm: Option<Norm<T>>, stride: usize) -> Self {
-        let (rows, cols) = (l.rows, l.cols);
-        let w_row: Vec<T> = convert(&l.weight);
-        let mut w_col = vec![T::ZERO; stride * cols];
-        for j in 0..rows {
-            for i in 0..cols {
-                w_col[i * stride + j] = w_row[j * cols + i];
-            }
-        }
-        let beta = f64::from(beta);
-        Self { cols, w_col, w_row, bias: convert(&l.bias), beta: T::of(beta), inv_beta: T::of(1.0 / beta), norm }
-    }
-}
 
 /// A frozen PINC ready to run: `x_hat(t) = x + N([x_seen, u, t])` with the planar
 /// increments rotated by the predicted yaw (SPEC section 3).
@@ -71,16 +22,12 @@ impl<T: Real> Layer<T> {
 /// and rotation are applied in `f64`.
 #[derive(Debug, Clone)]
 pub struct Predictor<T: Real = f32> {
-    pub(crate) layers: Vec<Layer<T>>,
-    pub(crate) output: Layer<T>,
+    pub(crate) net: Folded<T>,
     pub(crate) activation: Activation,
     pub(crate) seen: Vec<usize>,
     pub(crate) n_in: usize,
-    pub(crate) width: usize,
-    pub(crate) in_mean: Vec<T>,
-    pub(crate) in_inv_std: Vec<T>,
-    pub(crate) out_mean: [T; NX],
-    pub(crate) out_std: [T; NX],
+    /// Packs per hidden layer.
+    pub(crate) packs: usize,
     pub(crate) residual: bool,
     pub(crate) rotate: bool,
     pub(crate) renormalise_yaw: bool,
@@ -103,46 +50,18 @@ impl<T: Real> Predictor<T> {
     /// Builds a predictor computing in `T` from a validated model.
     ///
     /// # Memory allocation
-    /// Allocates the weights twice (two layouts), `2 * size_of::<T>() * parameters` bytes.
+    /// Allocates the weights twice (two layouts, padded to whole packs of 8 units),
+    /// about `2 * size_of::<T>() * parameters` bytes.
     pub fn with_precision(model: &PincModel) -> Self {
         let a = &model.architecture;
-        let layers = model
-            .weights
-            .hidden
-            .iter()
-            .map(|h| {
-                let norm = h.layer_norm.as_ref().map(|n| Norm {
-                    gain: convert(&n.gain),
-                    bias: convert(&n.bias),
-                    eps: T::of(f64::from(n.eps)),
-                });
-                Layer::new(&h.linear, h.beta, norm)
-            })
-            .collect();
-        let n_in = a.input_size();
-        let (in_mean, in_inv_std) = match &model.input_scaling {
-            Some(s) => (s.mean.iter().map(|&v| T::of(v)).collect(), s.std.iter().map(|v| T::of(1.0 / v)).collect()),
-            None => (vec![T::ZERO; n_in], vec![T::ONE; n_in]),
-        };
-        let (mut out_mean, mut out_std) = ([T::ZERO; NX], [T::ONE; NX]);
-        if let Some(s) = &model.output_scaling {
-            for k in 0..NX {
-                (out_mean[k], out_std[k]) = (T::of(s.mean[k]), T::of(s.std[k]));
-            }
-        }
         let seen: Vec<usize> = a.state_inputs.iter().map(|&i| i as usize).collect();
         Self {
-            layers,
-            output: Layer::with_column_stride(&model.weights.output, 1.0, None, OUTPUT_STRIDE),
+            net: Folded::new(model),
             activation: a.activation,
             envelope: EnvelopeCheck::new(model.envelope.clone(), &seen),
             seen,
-            n_in,
-            width: a.width,
-            in_mean,
-            in_inv_std,
-            out_mean,
-            out_std,
+            n_in: a.input_size(),
+            packs: packs(a.width),
             residual: a.residual,
             rotate: a.rotate_xy,
             renormalise_yaw: false,
@@ -213,23 +132,24 @@ impl<T: Real> Predictor<T> {
 /// Scratch memory for one thread's calls into a [`Predictor`].
 ///
 /// # Memory allocation
-/// `Workspace::new` allocates `(4 L + 2 * 9) * width + 10 * inputs + L` floats for `L`
-/// hidden layers; no call that takes a workspace allocates afterwards.
+/// `Workspace::new` allocates about `(2 L + 1 + 2 * 9) * width + inputs + L` floats for `L`
+/// hidden layers (widths rounded up to packs of 8); no call that takes a workspace
+/// allocates afterwards.
 #[derive(Debug, Clone)]
 pub struct Workspace<T: Real = f32> {
-    /// Network input (after scaling).
+    /// Raw network input `[x_seen, u, t]`.
     pub(crate) z: Vec<T>,
-    /// Output of every hidden layer (after activation and LayerNorm), `L * width`.
-    pub(crate) y: Vec<T>,
-    /// Activation derivative of every hidden unit, `L * width`.
-    pub(crate) d: Vec<T>,
-    /// Normalised activations of LayerNorm layers, `L * width`.
-    pub(crate) xhat: Vec<T>,
+    /// Pre-activations of the current layer.
+    pub(crate) pre: Vec<Pack<T>>,
+    /// Output of every hidden layer (after activation and LayerNorm), `L * packs`.
+    pub(crate) y: Vec<Pack<T>>,
+    /// Activation derivative of every hidden unit, `L * packs`.
+    pub(crate) d: Vec<Pack<T>>,
     /// `1 / sqrt(var + eps)` of each LayerNorm layer.
     pub(crate) inv_std: Vec<T>,
-    /// Reverse-mode row buffers, `9 * max(width, inputs)` each.
-    pub(crate) g: Vec<T>,
-    pub(crate) g2: Vec<T>,
+    /// Reverse-mode rows (9 of them), `9 * max(packs, input packs)` packs each.
+    pub(crate) g: Vec<Pack<T>>,
+    pub(crate) g2: Vec<Pack<T>>,
     /// Envelope exits of the last call.
     pub(crate) envelope: EnvelopeStatus,
 }
@@ -237,17 +157,16 @@ pub struct Workspace<T: Real = f32> {
 impl<T: Real> Workspace<T> {
     /// Sizes every buffer for `p`.
     pub fn new(p: &Predictor<T>) -> Self {
-        let l = p.layers.len();
-        let w = p.width;
-        let rows = w.max(p.n_in);
+        let l = p.net.hidden.len();
+        let rows = p.packs.max(packs(p.n_in));
         Self {
             z: vec![T::ZERO; p.n_in],
-            y: vec![T::ZERO; l * w],
-            d: vec![T::ZERO; l * w],
-            xhat: vec![T::ZERO; l * w],
+            pre: vec![[T::ZERO; PACK]; p.packs],
+            y: vec![[T::ZERO; PACK]; l * p.packs],
+            d: vec![[T::ZERO; PACK]; l * p.packs],
             inv_std: vec![T::ZERO; l],
-            g: vec![T::ZERO; NX * rows],
-            g2: vec![T::ZERO; NX * rows],
+            g: vec![[T::ZERO; PACK]; NX * rows],
+            g2: vec![[T::ZERO; PACK]; NX * rows],
             envelope: EnvelopeStatus::default(),
         }
     }

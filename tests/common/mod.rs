@@ -101,6 +101,9 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
     no_pos.state_inputs = vec![3, 4, 5, 6, 7, 8];
     let mut no_ln = Architecture::paper(3, 20);
     no_ln.layer_norm = vec![false; 3];
+    // 13 units: the last pack of 8 is padded; LayerNorm after the negative beta of layer 2.
+    let mut all_ln = Architecture::paper(3, 13);
+    all_ln.layer_norm = vec![true; 3];
     vec![
         ("paper 4x32", random_model(paper, 1)),
         ("paper 4x32 scaled", with_extras(random_model(Architecture::paper(4, 32), 2))),
@@ -109,5 +112,62 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
         ("tanh 3x16", random_model(tanh, 5)),
         ("position-free 2x24", with_extras(random_model(no_pos, 6))),
         ("no LayerNorm 3x20", random_model(no_ln, 7)),
+        ("LayerNorm everywhere 3x13", with_extras(random_model(all_ln, 8))),
     ]
+}
+
+/// One step of `m` computed the plain way, in f64, straight from the SPEC's definition
+/// (input scaling, Linear, `softplus(beta h) / beta` with torch's threshold or
+/// `tanh(beta h)`, LayerNorm with gain and bias, output layer and scaling, residual, planar
+/// increments rotated by the predicted yaw): the reference the runtime's folded, packed
+/// kernels are checked against.
+pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64; 9] {
+    let arch = &m.architecture;
+    let mut a: Vec<f64> = arch.state_inputs.iter().map(|&i| x[i as usize]).chain(u.iter().copied()).collect();
+    a.push(t);
+    if let Some(s) = &m.input_scaling {
+        a = a.iter().zip(s.mean.iter().zip(&s.std)).map(|(v, (mu, sd))| (v - mu) / sd).collect();
+    }
+    let dense = |l: &Linear, a: &[f64]| -> Vec<f64> {
+        (0..l.rows)
+            .map(|j| {
+                f64::from(l.bias[j]) + (0..l.cols).map(|i| f64::from(l.weight[j * l.cols + i]) * a[i]).sum::<f64>()
+            })
+            .collect()
+    };
+    for h in &m.weights.hidden {
+        let beta = f64::from(h.beta);
+        a = dense(&h.linear, &a)
+            .into_iter()
+            .map(|v| match arch.activation {
+                Activation::Softplus if beta * v > 20.0 => v,
+                Activation::Softplus => (1.0 + (beta * v).exp()).ln() / beta,
+                Activation::Tanh => (beta * v).tanh(),
+            })
+            .collect();
+        if let Some(n) = &h.layer_norm {
+            let w = a.len() as f64;
+            let mean = a.iter().sum::<f64>() / w;
+            let var = a.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / w;
+            let sd = (var + f64::from(n.eps)).sqrt();
+            a = a
+                .iter()
+                .enumerate()
+                .map(|(j, v)| (v - mean) / sd * f64::from(n.gain[j]) + f64::from(n.bias[j]))
+                .collect();
+        }
+    }
+    let mut o = dense(&m.weights.output, &a);
+    if let Some(s) = &m.output_scaling {
+        o = o.iter().enumerate().map(|(k, v)| v * s.std[k] + s.mean[k]).collect();
+    }
+    let mut next = if arch.residual { *x } else { [0.0; 9] };
+    let (c, s) = (next[3] + o[3], next[4] + o[4]);
+    let (dx, dy) = if arch.rotate_xy { (c * o[0] - s * o[1], s * o[0] + c * o[1]) } else { (o[0], o[1]) };
+    next[0] += dx;
+    next[1] += dy;
+    for k in 2..9 {
+        next[k] += o[k];
+    }
+    next
 }
