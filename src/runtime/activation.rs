@@ -34,31 +34,53 @@ fn tanh<T: Real>(y: T) -> (T, T) {
 /// Applies `f` to every value of `pre`, writing values into `out` and derivatives into `d`
 /// if given. Out of place on purpose: in place, "keep y above the threshold" compiles to a
 /// masked store, which the next layer's loads cannot be forwarded from (+50 % per step).
+/// Packs go four at a time: the activation is a long dependency chain, and four
+/// independent chains side by side keep the FMA units busy (one pack at a time, the step
+/// waits on its latency).
 #[inline(always)]
-fn apply<T: Real>(pre: &[Pack<T>], out: &mut [Pack<T>], d: Option<&mut [Pack<T>]>, f: impl Fn(T) -> (T, T)) {
-    // Whole packs through locals: the SLP vectoriser turns each into one vector operation.
+fn apply<T: Real>(pre: &[Pack<T>], out: &mut [Pack<T>], mut d: Option<&mut [Pack<T>]>, f: impl Fn(T) -> (T, T)) {
+    let mut p = 0;
+    while pre.len() - p >= 4 {
+        apply_block::<T, 4>(pre, out, d.as_deref_mut(), p, &f);
+        p += 4;
+    }
+    while p < pre.len() {
+        apply_block::<T, 1>(pre, out, d.as_deref_mut(), p, &f);
+        p += 1;
+    }
+}
+
+/// `B` packs from `p` on, through locals (the SLP vectoriser turns each line into `B`
+/// vector operations).
+#[inline(always)]
+fn apply_block<T: Real, const B: usize>(
+    pre: &[Pack<T>],
+    out: &mut [Pack<T>],
+    d: Option<&mut [Pack<T>]>,
+    p: usize,
+    f: &impl Fn(T) -> (T, T),
+) {
+    let y: [Pack<T>; B] = pre[p..p + B].try_into().expect("block in range");
+    let mut v = [[T::ZERO; PACK]; B];
     match d {
         Some(d) => {
-            for ((y, o), d) in pre.iter().zip(out.iter_mut()).zip(d.iter_mut()) {
-                let y = *y;
-                let (mut v, mut dv) = ([T::ZERO; PACK], [T::ZERO; PACK]);
+            let mut dv = [[T::ZERO; PACK]; B];
+            for k in 0..B {
                 for t in 0..PACK {
-                    (v[t], dv[t]) = f(y[t]);
+                    (v[k][t], dv[k][t]) = f(y[k][t]);
                 }
-                (*o, *d) = (v, dv);
             }
+            d[p..p + B].copy_from_slice(&dv);
         }
         None => {
-            for (y, o) in pre.iter().zip(out.iter_mut()) {
-                let y = *y;
-                let mut v = [T::ZERO; PACK];
+            for k in 0..B {
                 for t in 0..PACK {
-                    v[t] = f(y[t]).0;
+                    v[k][t] = f(y[k][t]).0;
                 }
-                *o = v;
             }
         }
     }
+    out[p..p + B].copy_from_slice(&v);
 }
 
 /// The activation of a layer's pre-activations `pre`, into `out`; with `deriv`, also the

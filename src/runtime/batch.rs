@@ -202,10 +202,14 @@ impl<T: Real> Predictor<T> {
                     };
                     let q = layer.in_packs();
                     for (j, hj) in h.chunks_exact_mut(P).enumerate() {
+                        // Product first, bias after: the order of the single-trajectory path.
                         let bias = layer.bias[j / PACK][j % PACK];
-                        let mut pre = [[bias; PACK]; P];
+                        let mut pre = [[T::ZERO; PACK]; P];
                         let row = &layer.rev[j * q..(j + 1) * q].as_flattened()[..layer.cols];
                         matvec::<F, T>(&mut pre, row, input, P);
+                        for v in pre.iter_mut().flatten() {
+                            *v += bias;
+                        }
                         activate::<F, T>(self.activation, &pre, hj, None);
                     }
                     if let Some(eps) = net.norm_eps[l] {
@@ -216,9 +220,12 @@ impl<T: Real> Predictor<T> {
                 let q = net.output.in_packs();
                 for (kk, ok) in ws.o.chunks_exact_mut(P).enumerate() {
                     let bias = net.output.bias[kk / PACK][kk % PACK];
-                    ok.fill([bias; PACK]);
+                    ok.fill([T::ZERO; PACK]);
                     let row = &net.output.rev[kk * q..(kk + 1) * q].as_flattened()[..net.output.cols];
                     matvec::<F, T>(ok, row, y, P);
+                    for v in ok.iter_mut().flatten() {
+                        *v += bias;
+                    }
                 }
                 let o_flat = ws.o.as_flattened();
                 for b in 0..m {

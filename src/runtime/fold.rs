@@ -28,6 +28,9 @@ pub(crate) struct Dense<T> {
     pub rev: Vec<Pack<T>>,
     /// `b`, padded to whole packs with zeros.
     pub bias: Vec<Pack<T>>,
+    /// `sum_i W[j][i]` per output: `W (s - mu) r = r (W s) - r mu (W 1)` lets a LayerNorm
+    /// before this layer be applied after its matrix-vector product.
+    pub row_sum: Vec<Pack<T>>,
 }
 
 impl<T: Real> Dense<T> {
@@ -37,7 +40,9 @@ impl<T: Real> Dense<T> {
         let mut fwd = vec![[T::ZERO; PACK]; cols * p];
         let mut rev = vec![[T::ZERO; PACK]; packs(rows) * PACK * q];
         let mut bias = vec![[T::ZERO; PACK]; p];
+        let mut row_sum = vec![[T::ZERO; PACK]; p];
         for j in 0..rows {
+            row_sum[j / PACK][j % PACK] = T::of(w[j * cols..(j + 1) * cols].iter().sum());
             for i in 0..cols {
                 let v = T::of(w[j * cols + i]);
                 fwd[i * p + j / PACK][j % PACK] = v;
@@ -45,7 +50,7 @@ impl<T: Real> Dense<T> {
             }
             bias[j / PACK][j % PACK] = T::of(b[j]);
         }
-        Self { cols, fwd, rev, bias }
+        Self { cols, fwd, rev, bias, row_sum }
     }
 
     /// Packs of a reverse-layout row (input gradients).

@@ -88,27 +88,26 @@ fn block<F: MulAdd, T: Real, const B: usize>(
     stride: usize,
     p: usize,
 ) {
+    // Checked once here, so that the loop below carries no bounds checks.
+    assert!(p + B <= stride && coef.len() * stride <= mat.len(), "matrix block out of range");
     let mut even: [Pack<T>; B] = out[p..p + B].try_into().expect("block in range");
     let mut odd = [[T::ZERO; PACK]; B];
-    let rows = &mat[p..];
-    let pairs = coef.len() / 2;
-    for q in 0..pairs {
-        let (c0, c1) = (coef[2 * q], coef[2 * q + 1]);
-        let r0: &[Pack<T>; B] = rows[2 * q * stride..2 * q * stride + B].try_into().expect("row in range");
-        let r1: &[Pack<T>; B] = rows[(2 * q + 1) * stride..(2 * q + 1) * stride + B].try_into().expect("row in range");
+    let pairs = coef.chunks_exact(2);
+    let last = pairs.remainder().first().map(|&c| (c, coef.len() - 1));
+    for (c, rows) in pairs.zip(mat.chunks_exact(2 * stride)) {
+        let (r0, r1) = rows.split_at(stride);
         for k in 0..B {
             for t in 0..PACK {
-                even[k][t] = F::mul_add(c0, r0[k][t], even[k][t]);
-                odd[k][t] = F::mul_add(c1, r1[k][t], odd[k][t]);
+                even[k][t] = F::mul_add(c[0], r0[p + k][t], even[k][t]);
+                odd[k][t] = F::mul_add(c[1], r1[p + k][t], odd[k][t]);
             }
         }
     }
-    if coef.len() % 2 == 1 {
-        let i = coef.len() - 1;
-        let r: &[Pack<T>; B] = rows[i * stride..i * stride + B].try_into().expect("row in range");
+    if let Some((c, i)) = last {
+        let r = &mat[i * stride..(i + 1) * stride];
         for k in 0..B {
             for t in 0..PACK {
-                even[k][t] = F::mul_add(coef[i], r[k][t], even[k][t]);
+                even[k][t] = F::mul_add(c, r[p + k][t], even[k][t]);
             }
         }
     }

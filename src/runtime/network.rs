@@ -2,7 +2,8 @@
 //! needs), its exact Jacobian by reverse mode, and the residual / yaw-rotation output map.
 
 use super::activation::activate;
-use super::kernels::{MulAdd, PACK, Pack, dot, matvec, packs, sum};
+use super::fold::Dense;
+use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, packs, sum};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
@@ -10,37 +11,65 @@ use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 /// Raw network output (in state units, widened to f64), before the residual and rotation.
 pub(crate) type NetOut = [f64; NX];
 
-/// LayerNorm without gain or bias, in place; returns `1 / sqrt(var + eps)`. `mask` zeroes
-/// the padding units so they count in neither statistic (and read as 0 afterwards).
+/// Statistics of a LayerNorm without gain or bias over `s`: `(mean, 1 / sqrt(var + eps))`.
+/// `mask` leaves the padding units out.
 #[inline(always)]
-pub(crate) fn layer_norm<F: MulAdd, T: Real>(v: &mut [Pack<T>], eps: T, inv_width: T, mask: Option<&[Pack<T>]>) -> T {
-    if let Some(mask) = mask {
-        for (v, m) in v.iter_mut().zip(mask) {
+pub(crate) fn norm_stats<F: MulAdd, T: Real>(s: &[Pack<T>], eps: T, inv_width: T, mask: Option<&[Pack<T>]>) -> (T, T) {
+    let mut acc = [T::ZERO; PACK];
+    let mean = match mask {
+        Some(m) => dot::<F, T>(s, m),
+        None => sum(s),
+    } * inv_width;
+    // Two passes (mean, then squared deviations), as PyTorch does.
+    for (p, v) in s.iter().enumerate() {
+        let mut d = [T::ZERO; PACK];
+        for t in 0..PACK {
+            d[t] = v[t] - mean;
+        }
+        if let Some(m) = mask {
             for t in 0..PACK {
-                v[t] *= m[t];
+                d[t] *= m[p][t];
+            }
+        }
+        for t in 0..PACK {
+            acc[t] = F::mul_add(d[t], d[t], acc[t]);
+        }
+    }
+    (mean, T::ONE / (lane_sum(acc) * inv_width + eps).root())
+}
+
+/// `(s - mean) inv_std` (0 on padding units), the normalised vector the reverse pass needs.
+#[inline(always)]
+fn normalised<T: Real>(s: &[Pack<T>], out: &mut [Pack<T>], (mean, inv_std): (T, T), mask: Option<&[Pack<T>]>) {
+    for (p, (v, o)) in s.iter().zip(out.iter_mut()).enumerate() {
+        let v = *v;
+        let m = mask.map_or([T::ONE; PACK], |m| m[p]);
+        *o = std::array::from_fn(|t| (v[t] - mean) * inv_std * m[t]);
+    }
+}
+
+/// `acc + b`, or, after a LayerNorm with statistics `(mean, r)` on the layer's input,
+/// `r acc - r mean (W 1) + b`.
+#[inline(always)]
+fn finish<F: MulAdd, T: Real>(acc: &mut [Pack<T>], layer: &Dense<T>, norm: Option<(T, T)>) {
+    // Whole packs through locals: element by element, LLVM cannot rule out that `acc`
+    // overlaps the weights and writes scalars, which the next vector load cannot be
+    // forwarded from.
+    match norm {
+        Some((mean, r)) => {
+            let shift = -(r * mean);
+            for ((a, b), w1) in acc.iter_mut().zip(&layer.bias).zip(&layer.row_sum) {
+                let (x, b, w1) = (*a, *b, *w1);
+                *a = std::array::from_fn(|t| F::mul_add(r, x[t], F::mul_add(shift, w1[t], b[t])));
+            }
+        }
+        None => {
+            for (a, b) in acc.iter_mut().zip(&layer.bias) {
+                let (x, b) = (*a, *b);
+                *a = std::array::from_fn(|t| x[t] + b[t]);
             }
         }
     }
-    let mean = sum(v) * inv_width;
-    for v in v.iter_mut() {
-        for t in 0..PACK {
-            v[t] = v[t] - mean;
-        }
-    }
-    if let Some(mask) = mask {
-        for (v, m) in v.iter_mut().zip(mask) {
-            for t in 0..PACK {
-                v[t] *= m[t];
-            }
-        }
-    }
-    let inv_std = T::ONE / (dot::<F, T>(v, v) * inv_width + eps).root();
-    for v in v.iter_mut() {
-        for t in 0..PACK {
-            v[t] = v[t] * inv_std;
-        }
-    }
-    inv_std
 }
 
 impl<T: Real> Predictor<T> {
@@ -59,23 +88,30 @@ impl<T: Real> Predictor<T> {
 
         let np = self.packs;
         let net = &self.net;
+        let mask = net.mask.as_deref();
+        // LayerNorm statistics of the previous layer, applied after this layer's product so
+        // that the product need not wait for them.
+        let mut norm: Option<(T, T)> = None;
         for (l, layer) in net.hidden.iter().enumerate() {
             let (done, rest) = ws.y.split_at_mut(l * np);
             let input: &[T] = if l == 0 { &ws.z } else { &done[(l - 1) * np..].as_flattened()[..layer.cols] };
             let out = &mut rest[..np];
             let pre = &mut ws.pre[..np];
-            pre.copy_from_slice(&layer.bias);
+            pre.fill([T::ZERO; PACK]);
             matvec::<F, T>(pre, input, &layer.fwd, np);
+            finish::<F, T>(pre, layer, norm);
             let d = if keep { Some(&mut ws.d[l * np..(l + 1) * np]) } else { None };
             activate::<F, T>(self.activation, pre, out, d);
-            if let Some(eps) = net.norm_eps[l] {
-                ws.inv_std[l] = layer_norm::<F, T>(out, eps, net.inv_width, net.mask.as_deref());
+            norm = net.norm_eps[l].map(|eps| norm_stats::<F, T>(out, eps, net.inv_width, mask));
+            if let (true, Some(stats)) = (keep, norm) {
+                ws.inv_std[l] = stats.1;
+                normalised(out, &mut ws.xhat[l * np..(l + 1) * np], stats, mask);
             }
         }
         let y = &ws.y[(net.hidden.len() - 1) * np..].as_flattened()[..net.output.cols];
         let mut o = [[T::ZERO; PACK]; packs(NX)];
-        o.copy_from_slice(&net.output.bias);
         matvec::<F, T>(&mut o, y, &net.output.fwd, packs(NX));
+        finish::<F, T>(&mut o, &net.output, norm);
         std::array::from_fn(|k| o.as_flattened()[k].to_f64())
     }
 
@@ -89,7 +125,7 @@ impl<T: Real> Predictor<T> {
         ws.g[..NX * np].copy_from_slice(&net.output.rev[..NX * np]);
         for (l, layer) in net.hidden.iter().enumerate().rev() {
             let d = &ws.d[l * np..(l + 1) * np];
-            let xhat = &ws.y[l * np..(l + 1) * np];
+            let xhat = &ws.xhat[l * np..(l + 1) * np];
             for k in 0..NX {
                 let g = &mut ws.g[k * np..(k + 1) * np];
                 if net.norm_eps[l].is_some() {
@@ -97,15 +133,13 @@ impl<T: Real> Predictor<T> {
                     let inv_std = ws.inv_std[l];
                     let (m1, m2) = (sum(g) * net.inv_width, dot::<F, T>(g, xhat) * net.inv_width);
                     for (g, (v, d)) in g.iter_mut().zip(xhat.iter().zip(d)) {
-                        for t in 0..PACK {
-                            g[t] = inv_std * (g[t] - m1 - v[t] * m2) * d[t];
-                        }
+                        let (x, v, d) = (*g, *v, *d);
+                        *g = std::array::from_fn(|t| inv_std * (x[t] - m1 - v[t] * m2) * d[t]);
                     }
                 } else {
                     for (g, d) in g.iter_mut().zip(d) {
-                        for t in 0..PACK {
-                            g[t] *= d[t];
-                        }
+                        let (x, d) = (*g, *d);
+                        *g = std::array::from_fn(|t| x[t] * d[t]);
                     }
                 }
             }

@@ -132,7 +132,7 @@ impl<T: Real> Predictor<T> {
 /// Scratch memory for one thread's calls into a [`Predictor`].
 ///
 /// # Memory allocation
-/// `Workspace::new` allocates about `(2 L + 1 + 2 * 9) * width + inputs + L` floats for `L`
+/// `Workspace::new` allocates about `(3 L + 1 + 2 * 9) * width + inputs + L` floats for `L`
 /// hidden layers (widths rounded up to packs of 8); no call that takes a workspace
 /// allocates afterwards.
 #[derive(Debug, Clone)]
@@ -141,10 +141,13 @@ pub struct Workspace<T: Real = f32> {
     pub(crate) z: Vec<T>,
     /// Pre-activations of the current layer.
     pub(crate) pre: Vec<Pack<T>>,
-    /// Output of every hidden layer (after activation and LayerNorm), `L * packs`.
+    /// Activation output of every hidden layer (LayerNorm is applied inside the next
+    /// layer's product), `L * packs`.
     pub(crate) y: Vec<Pack<T>>,
     /// Activation derivative of every hidden unit, `L * packs`.
     pub(crate) d: Vec<Pack<T>>,
+    /// Normalised outputs of LayerNorm layers, `L * packs` (linearisation only).
+    pub(crate) xhat: Vec<Pack<T>>,
     /// `1 / sqrt(var + eps)` of each LayerNorm layer.
     pub(crate) inv_std: Vec<T>,
     /// Reverse-mode rows (9 of them), `9 * max(packs, input packs)` packs each.
@@ -164,6 +167,7 @@ impl<T: Real> Workspace<T> {
             pre: vec![[T::ZERO; PACK]; p.packs],
             y: vec![[T::ZERO; PACK]; l * p.packs],
             d: vec![[T::ZERO; PACK]; l * p.packs],
+            xhat: vec![[T::ZERO; PACK]; l * p.packs],
             inv_std: vec![T::ZERO; l],
             g: vec![[T::ZERO; PACK]; NX * rows],
             g2: vec![[T::ZERO; PACK]; NX * rows],
