@@ -14,6 +14,13 @@ fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), Ru
     if expected == found { Ok(()) } else { Err(RuntimeError::LengthMismatch { what, expected, found }) }
 }
 
+/// Whether every value is finite (a sum is NaN if any value is NaN or infinite; a plain
+/// loop, as a chained iterator did not inline).
+#[inline(always)]
+fn all_finite(v: &[f64]) -> bool {
+    v.iter().fold(0.0, |acc, &x| acc + (x - x)) == 0.0
+}
+
 pub(super) fn check_dt(dt: f64) -> Result<(), RuntimeError> {
     if dt.is_finite() && dt > 0.0 { Ok(()) } else { Err(RuntimeError::BadTimeStep(dt)) }
 }
@@ -171,7 +178,7 @@ impl<T: Real> Predictor<T> {
             let x = traj[k];
             self.check_args(ws, k, &x, u)?;
             let next = self.linearise_kernel::<F>(ws, &x, u, self.dt, &mut a[k], &mut b[k]);
-            if next.iter().chain(a[k].iter()).chain(b[k].iter()).any(|v| !v.is_finite()) {
+            if !(all_finite(next.as_slice()) && all_finite(a[k].as_slice()) && all_finite(b[k].as_slice())) {
                 return Err(RuntimeError::NonFiniteOutput { step: k });
             }
             traj[k + 1] = next;

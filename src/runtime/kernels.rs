@@ -118,6 +118,60 @@ fn block<F: MulAdd, T: Real, const B: usize>(
     }
 }
 
+/// [`matvec`] for two coefficient vectors against the same matrix (two rows of a
+/// reverse pass): each loaded matrix pack feeds two multiply-adds.
+#[inline(always)]
+pub(crate) fn matvec_pair<F: MulAdd, T: Real>(
+    out_a: &mut [Pack<T>],
+    out_b: &mut [Pack<T>],
+    coef: [&[T]; 2],
+    mat: &[Pack<T>],
+    stride: usize,
+) {
+    let n = out_a.len();
+    let mut p = 0;
+    while n - p >= T::BLOCK {
+        if T::BLOCK == 4 {
+            block_pair::<F, T, 4>(out_a, out_b, coef, mat, stride, p);
+        } else {
+            block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p);
+        }
+        p += T::BLOCK;
+    }
+    if n - p >= 2 {
+        block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p);
+        p += 2;
+    }
+    if n - p == 1 {
+        block_pair::<F, T, 1>(out_a, out_b, coef, mat, stride, p);
+    }
+}
+
+#[inline(always)]
+fn block_pair<F: MulAdd, T: Real, const B: usize>(
+    out_a: &mut [Pack<T>],
+    out_b: &mut [Pack<T>],
+    coef: [&[T]; 2],
+    mat: &[Pack<T>],
+    stride: usize,
+    p: usize,
+) {
+    let n = coef[0].len();
+    assert!(p + B <= stride && coef[1].len() == n && n * stride <= mat.len(), "matrix block out of range");
+    let mut a: [Pack<T>; B] = out_a[p..p + B].try_into().expect("block in range");
+    let mut b: [Pack<T>; B] = out_b[p..p + B].try_into().expect("block in range");
+    for ((&ca, &cb), row) in coef[0].iter().zip(coef[1]).zip(mat.chunks_exact(stride)) {
+        for k in 0..B {
+            for t in 0..PACK {
+                a[k][t] = F::mul_add(ca, row[p + k][t], a[k][t]);
+                b[k][t] = F::mul_add(cb, row[p + k][t], b[k][t]);
+            }
+        }
+    }
+    out_a[p..p + B].copy_from_slice(&a);
+    out_b[p..p + B].copy_from_slice(&b);
+}
+
 /// Sum of the lanes of a pack, as a tree (three dependent adds, not seven).
 #[inline(always)]
 pub(crate) fn lane_sum<T: Real>(a: Pack<T>) -> T {

@@ -3,7 +3,7 @@
 
 use super::activation::activate;
 use super::fold::Dense;
-use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, packs, sum};
+use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, matvec_pair, packs, sum};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
@@ -144,12 +144,16 @@ impl<T: Real> Predictor<T> {
                 }
             }
             // Row k of the next g is row k of g times W (rows of `W` in the reverse layout).
+            // Rows two at a time, sharing the loads of W.
             let q = layer.in_packs();
-            for k in 0..NX {
-                let out = &mut ws.g2[k * q..(k + 1) * q];
-                out.fill([T::ZERO; PACK]);
-                matvec::<F, T>(out, ws.g[k * np..(k + 1) * np].as_flattened(), &layer.rev, q);
+            ws.g2[..NX * q].fill([T::ZERO; PACK]);
+            let (g, g2) = (&ws.g, &mut ws.g2);
+            let row = |k: usize| g[k * np..(k + 1) * np].as_flattened();
+            for k in (0..NX - 1).step_by(2) {
+                let (a, b) = g2[k * q..(k + 2) * q].split_at_mut(q);
+                matvec_pair::<F, T>(a, b, [row(k), row(k + 1)], &layer.rev, q);
             }
+            matvec::<F, T>(&mut g2[(NX - 1) * q..NX * q], row(NX - 1), &layer.rev, q);
             std::mem::swap(&mut ws.g, &mut ws.g2);
         }
     }
