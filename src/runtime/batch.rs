@@ -5,9 +5,10 @@ use super::RuntimeError;
 use super::activation::activate;
 use super::calls::check_dt;
 use super::envelope::EnvelopeStatus;
+use super::fold::Dense;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
-use super::kernels::{MulAdd, PACK, Pack, Portable, matvec};
+use super::kernels::{MulAdd, PACK, Pack, Portable, matvec, matvec_pair};
 use super::predictor::Predictor;
 use super::real::Real;
 use crate::types::{Input, NU, NX, State};
@@ -21,7 +22,7 @@ const LANE_PACKS: usize = LANES / PACK;
 /// Scratch memory for [`Predictor::rollout_batch`], component-major over [`LANES`] lanes.
 ///
 /// # Memory allocation
-/// `BatchWorkspace::new` allocates `(inputs + 2 width + 3 * 9 + 2) * 32` floats (widths
+/// `BatchWorkspace::new` allocates `(inputs + 2 width + 3 * 9) * 32` floats (widths
 /// rounded up to packs of 8); rollouts allocate nothing.
 #[derive(Debug, Clone)]
 pub struct BatchWorkspace<T: Real = f32> {
@@ -30,8 +31,6 @@ pub struct BatchWorkspace<T: Real = f32> {
     hb: Vec<Pack<T>>,
     x: Vec<f64>,
     o: Vec<Pack<T>>,
-    mean: Vec<Pack<T>>,
-    var: Vec<Pack<T>>,
     envelope: EnvelopeStatus,
 }
 
@@ -46,8 +45,6 @@ impl<T: Real> BatchWorkspace<T> {
             hb: vec![zero; units * LANE_PACKS],
             x: vec![0.0; NX * LANES],
             o: vec![zero; NX * LANE_PACKS],
-            mean: vec![zero; LANE_PACKS],
-            var: vec![zero; LANE_PACKS],
             envelope: EnvelopeStatus::default(),
         }
     }
@@ -192,6 +189,9 @@ impl<T: Real> Predictor<T> {
                     }
                 }
 
+                // As in the single path, a LayerNorm is applied inside the next product,
+                // with per-lane statistics.
+                let mut norm: Option<LaneNorm<T>> = None;
                 for (l, layer) in net.hidden.iter().enumerate() {
                     let (input, h) = if l == 0 {
                         (&ws.z[..], &mut ws.ha)
@@ -200,33 +200,19 @@ impl<T: Real> Predictor<T> {
                     } else {
                         (&ws.hb[..], &mut ws.ha)
                     };
-                    let q = layer.in_packs();
-                    for (j, hj) in h.chunks_exact_mut(P).enumerate() {
-                        // Product first, bias after: the order of the single-trajectory path.
-                        let bias = layer.bias[j / PACK][j % PACK];
-                        let mut pre = [[T::ZERO; PACK]; P];
-                        let row = &layer.rev[j * q..(j + 1) * q].as_flattened()[..layer.cols];
-                        matvec::<F, T>(&mut pre, row, input, P);
-                        for v in pre.iter_mut().flatten() {
-                            *v += bias;
-                        }
-                        activate::<F, T>(self.activation, &pre, hj, None);
+                    // Units two at a time: each loaded input pack feeds two multiply-adds.
+                    for (jj, hjj) in h.chunks_exact_mut(2 * P).enumerate() {
+                        let pre = units::<F, T>(layer, 2 * jj, input, norm.as_ref());
+                        activate::<F, T>(self.activation, pre.as_flattened(), hjj, None);
                     }
-                    if let Some(eps) = net.norm_eps[l] {
-                        self.batch_layer_norm::<F>(h, &mut ws.mean, &mut ws.var, eps);
-                    }
+                    norm = net.norm_eps[l].map(|eps| lane_norm::<F, T>(&h[..net.width * P], eps, net.inv_width));
                 }
                 let y = if net.hidden.len() % 2 == 1 { &ws.ha } else { &ws.hb };
-                let q = net.output.in_packs();
-                for (kk, ok) in ws.o.chunks_exact_mut(P).enumerate() {
-                    let bias = net.output.bias[kk / PACK][kk % PACK];
-                    ok.fill([T::ZERO; PACK]);
-                    let row = &net.output.rev[kk * q..(kk + 1) * q].as_flattened()[..net.output.cols];
-                    matvec::<F, T>(ok, row, y, P);
-                    for v in ok.iter_mut().flatten() {
-                        *v += bias;
-                    }
+                for (kk, ok) in ws.o.chunks_exact_mut(2 * P).enumerate() {
+                    ok.copy_from_slice(units::<F, T>(&net.output, 2 * kk, y, norm.as_ref()).as_flattened());
                 }
+                let last = &mut ws.o[(NX - 1) * P..NX * P];
+                last.copy_from_slice(&units::<F, T>(&net.output, NX - 1, y, norm.as_ref())[0]);
                 let o_flat = ws.o.as_flattened();
                 for b in 0..m {
                     let mut x = State::zeros();
@@ -249,39 +235,91 @@ impl<T: Real> Predictor<T> {
         }
         Ok(())
     }
+}
 
-    /// LayerNorm (no gain or bias, folded into the next layer) of every lane over the
-    /// real units of a component-major layer.
-    #[inline(always)]
-    fn batch_layer_norm<F: MulAdd>(&self, h: &mut [Pack<T>], mean: &mut [Pack<T>], var: &mut [Pack<T>], eps: T) {
-        const P: usize = LANE_PACKS;
-        let units = &mut h[..self.net.width * P];
-        let inv_w = self.net.inv_width;
-        mean.fill([T::ZERO; PACK]);
-        var.fill([T::ZERO; PACK]);
-        for hj in units.chunks_exact(P) {
-            for (s, v) in mean.iter_mut().zip(hj) {
-                for t in 0..PACK {
-                    s[t] += v[t];
+/// Per-lane LayerNorm statistics of a layer: `1 / sqrt(var + eps)` and `-mean / sqrt(..)`.
+struct LaneNorm<T> {
+    inv_std: [Pack<T>; LANE_PACKS],
+    shift: [Pack<T>; LANE_PACKS],
+}
+
+/// Outputs `j` and `j + 1` of `layer` in every lane (`j + 1` only if the layer has it):
+/// `W[j] . input + b[j]`, or after a LayerNorm of the input,
+/// `r (W[j] . input) - r mean (W[j] . 1) + b[j]` (the single path's arithmetic).
+#[inline(always)]
+fn units<F: MulAdd, T: Real>(
+    layer: &Dense<T>,
+    j: usize,
+    input: &[Pack<T>],
+    norm: Option<&LaneNorm<T>>,
+) -> [[Pack<T>; LANE_PACKS]; 2] {
+    let q = layer.in_packs();
+    let rows = layer.rev.len() / q;
+    let row = |j: usize| &layer.rev[j * q..(j + 1) * q].as_flattened()[..layer.cols];
+    let mut acc = [[[T::ZERO; PACK]; LANE_PACKS]; 2];
+    let [a, b] = &mut acc;
+    if j + 1 < rows {
+        matvec_pair::<F, T>(a, b, [row(j), row(j + 1)], input, LANE_PACKS);
+    } else {
+        matvec::<F, T>(a, row(j), input, LANE_PACKS);
+    }
+    for (u, acc) in acc.iter_mut().enumerate().take(rows - j) {
+        let (jj, b) = (j + u, PACK);
+        let bias = layer.bias[jj / b][jj % b];
+        match norm {
+            Some(n) => {
+                let w1 = layer.row_sum[jj / b][jj % b];
+                for k in 0..LANE_PACKS {
+                    for t in 0..PACK {
+                        acc[k][t] = F::mul_add(n.inv_std[k][t], acc[k][t], F::mul_add(n.shift[k][t], w1, bias));
+                    }
                 }
             }
-        }
-        mean.iter_mut().for_each(|s| s.iter_mut().for_each(|s| *s *= inv_w));
-        for hj in units.chunks_exact(P) {
-            for ((s, v), mu) in var.iter_mut().zip(hj).zip(mean.iter()) {
-                for t in 0..PACK {
-                    let dev = v[t] - mu[t];
-                    s[t] = F::mul_add(dev, dev, s[t]);
-                }
-            }
-        }
-        var.iter_mut().for_each(|s| s.iter_mut().for_each(|s| *s = T::ONE / (*s * inv_w + eps).root()));
-        for hj in units.chunks_exact_mut(P) {
-            for ((v, mu), is) in hj.iter_mut().zip(mean.iter()).zip(var.iter()) {
-                for t in 0..PACK {
-                    v[t] = (v[t] - mu[t]) * is[t];
+            None => {
+                for k in 0..LANE_PACKS {
+                    for t in 0..PACK {
+                        acc[k][t] += bias;
+                    }
                 }
             }
         }
     }
+    acc
+}
+
+/// LayerNorm statistics of every lane over the (real) units of a component-major layer.
+#[inline(always)]
+fn lane_norm<F: MulAdd, T: Real>(h: &[Pack<T>], eps: T, inv_width: T) -> LaneNorm<T> {
+    const P: usize = LANE_PACKS;
+    let mut mean = [[T::ZERO; PACK]; P];
+    for hj in h.chunks_exact(P) {
+        for k in 0..P {
+            for t in 0..PACK {
+                mean[k][t] += hj[k][t];
+            }
+        }
+    }
+    let mut var = [[T::ZERO; PACK]; P];
+    for k in 0..P {
+        for t in 0..PACK {
+            mean[k][t] = mean[k][t] * inv_width;
+        }
+    }
+    for hj in h.chunks_exact(P) {
+        for k in 0..P {
+            for t in 0..PACK {
+                let dev = hj[k][t] - mean[k][t];
+                var[k][t] = F::mul_add(dev, dev, var[k][t]);
+            }
+        }
+    }
+    let mut n = LaneNorm { inv_std: var, shift: mean };
+    for k in 0..P {
+        for t in 0..PACK {
+            let r = T::ONE / (var[k][t] * inv_width + eps).root();
+            n.inv_std[k][t] = r;
+            n.shift[k][t] = -(r * mean[k][t]);
+        }
+    }
+    n
 }

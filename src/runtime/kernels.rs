@@ -53,7 +53,7 @@ pub(crate) fn fused_available() -> bool {
     }
 }
 
-/// `out[p] += sum_i coef[i] * mat[i * stride + p]` for every pack `p < out.len()`: a
+/// `out[p] = sum_i coef[i] * mat[i * stride + p]` for every pack `p < out.len()`: a
 /// matrix-vector product whose matrix holds one row of `stride` packs per coefficient.
 /// Blocks of output packs stay in registers across all coefficients.
 #[inline(always)]
@@ -90,7 +90,9 @@ fn block<F: MulAdd, T: Real, const B: usize>(
 ) {
     // Checked once here, so that the loop below carries no bounds checks.
     assert!(p + B <= stride && coef.len() * stride <= mat.len(), "matrix block out of range");
-    let mut even: [Pack<T>; B] = out[p..p + B].try_into().expect("block in range");
+    // Accumulators start at zero, not from `out`: loading them made LLVM split one of the
+    // register blocks into scalar pieces.
+    let mut even = [[T::ZERO; PACK]; B];
     let mut odd = [[T::ZERO; PACK]; B];
     let pairs = coef.chunks_exact(2);
     let last = pairs.remainder().first().map(|&c| (c, coef.len() - 1));
@@ -158,8 +160,7 @@ fn block_pair<F: MulAdd, T: Real, const B: usize>(
 ) {
     let n = coef[0].len();
     assert!(p + B <= stride && coef[1].len() == n && n * stride <= mat.len(), "matrix block out of range");
-    let mut a: [Pack<T>; B] = out_a[p..p + B].try_into().expect("block in range");
-    let mut b: [Pack<T>; B] = out_b[p..p + B].try_into().expect("block in range");
+    let (mut a, mut b) = ([[T::ZERO; PACK]; B], [[T::ZERO; PACK]; B]);
     for ((&ca, &cb), row) in coef[0].iter().zip(coef[1]).zip(mat.chunks_exact(stride)) {
         for k in 0..B {
             for t in 0..PACK {

@@ -97,7 +97,6 @@ impl<T: Real> Predictor<T> {
             let input: &[T] = if l == 0 { &ws.z } else { &done[(l - 1) * np..].as_flattened()[..layer.cols] };
             let out = &mut rest[..np];
             let pre = &mut ws.pre[..np];
-            pre.fill([T::ZERO; PACK]);
             matvec::<F, T>(pre, input, &layer.fwd, np);
             finish::<F, T>(pre, layer, norm);
             let d = if keep { Some(&mut ws.d[l * np..(l + 1) * np]) } else { None };
@@ -146,7 +145,6 @@ impl<T: Real> Predictor<T> {
             // Row k of the next g is row k of g times W (rows of `W` in the reverse layout).
             // Rows two at a time, sharing the loads of W.
             let q = layer.in_packs();
-            ws.g2[..NX * q].fill([T::ZERO; PACK]);
             let (g, g2) = (&ws.g, &mut ws.g2);
             let row = |k: usize| g[k * np..(k + 1) * np].as_flattened();
             for k in (0..NX - 1).step_by(2) {
