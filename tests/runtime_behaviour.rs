@@ -55,14 +55,30 @@ fn step_with<T: Real>(model: &pinc::model::PincModel, portable: bool, x: &State,
 
 #[test]
 fn batch_rollout_equals_single_rollouts() {
-    // f32: LayerNorm statistics are summed in another order across lanes, so the two drift
-    // apart by rounding only.
-    batch_equals_single::<f32>(1e-4);
-    batch_equals_single::<f64>(1e-12);
+    // f64: the same arithmetic up to summation order, so equal to 1e-12. f32: the batch
+    // sums in another order, and 30 steps of a random network amplify rounding; the bound
+    // is twice the variant's rounding scale: the largest distance of an f32 single rollout
+    // from the f64 one over the same 70 trajectories.
+    batch_equals_single::<f32>(|model| 2.0 * rounding_scale(model));
+    batch_equals_single::<f64>(|_| 1e-12);
 }
 
-fn batch_equals_single<T: Real>(tol: f64) {
+fn rounding_scale(model: &pinc::model::PincModel) -> f64 {
+    let (p32, p64) = (Predictor::<f32>::with_precision(model), Predictor::<f64>::with_precision(model));
+    let (mut a, mut b) = (vec![State::zeros(); STEPS + 1], vec![State::zeros(); STEPS + 1]);
+    let mut worst = 0.0_f64;
+    for i in 0..70 {
+        let (x0, inputs) = case(i);
+        p32.rollout(&mut p32.workspace(), &x0, &inputs, &mut a).unwrap();
+        p64.rollout(&mut p64.workspace(), &x0, &inputs, &mut b).unwrap();
+        worst = a.iter().zip(&b).map(|(a, b)| (a - b).amax()).fold(worst, f64::max);
+    }
+    worst
+}
+
+fn batch_equals_single<T: Real>(tol: impl Fn(&pinc::model::PincModel) -> f64) {
     for (name, model) in common::variants() {
+        let tol = tol(&model);
         for portable in [false, true] {
             let mut p = Predictor::<T>::with_precision(&model);
             if portable {
@@ -80,7 +96,7 @@ fn batch_equals_single<T: Real>(tol: f64) {
                 p.rollout(&mut ws, &x0[i], &inputs[i], &mut single).unwrap();
                 for k in 0..=STEPS {
                     let err = (out[i * (STEPS + 1) + k] - single[k]).amax();
-                    assert!(err < tol, "{name} (portable {portable}) trajectory {i} step {k}: {err:e}");
+                    assert!(err < tol, "{name} (portable {portable}) trajectory {i} step {k}: {err:e} (bound {tol:e})");
                 }
             }
         }
