@@ -33,7 +33,7 @@ fn tanh<T: Real>(y: T) -> (T, T) {
 
 /// Applies `f` to every value of `pre`, writing values into `out` and derivatives into `d`
 /// if given. Out of place on purpose: in place, "keep y above the threshold" compiles to a
-/// masked store, which the next layer's loads cannot be forwarded from (+50 % per step).
+/// masked store, which the next layer's loads cannot be forwarded from (5 % of a rollout here).
 /// Packs go four at a time: the activation is a long dependency chain, and four
 /// independent chains side by side keep the FMA units busy (one pack at a time, the step
 /// waits on its latency).

@@ -18,14 +18,17 @@ pub(crate) const fn packs(n: usize) -> usize {
     n.div_ceil(PACK)
 }
 
-/// How `a * b + c` is evaluated.
+/// How `a * b + c` is evaluated, and how wide the registers of the code using it are.
 pub(crate) trait MulAdd {
+    /// Registers hold 32 bytes (AVX2) rather than 16 (baseline x86-64 SSE2).
+    const WIDE_REGISTERS: bool;
     fn mul_add<T: Real>(a: T, b: T, c: T) -> T;
 }
 
 /// Separate multiply and add: any CPU.
 pub(crate) struct Portable;
 impl MulAdd for Portable {
+    const WIDE_REGISTERS: bool = false;
     #[inline(always)]
     fn mul_add<T: Real>(a: T, b: T, c: T) -> T {
         a * b + c
@@ -35,6 +38,7 @@ impl MulAdd for Portable {
 /// Fused multiply-add: only inside functions compiled with the `fma` target feature.
 pub(crate) struct Fused;
 impl MulAdd for Fused {
+    const WIDE_REGISTERS: bool = true;
     #[inline(always)]
     fn mul_add<T: Real>(a: T, b: T, c: T) -> T {
         a.fma(b, c)
@@ -60,13 +64,13 @@ pub(crate) fn fused_available() -> bool {
 pub(crate) fn matvec<F: MulAdd, T: Real>(out: &mut [Pack<T>], coef: &[T], mat: &[Pack<T>], stride: usize) {
     let n = out.len();
     let mut p = 0;
-    while n - p >= T::BLOCK {
-        if T::BLOCK == 4 {
-            block::<F, T, 4>(out, coef, mat, stride, p);
-        } else {
-            block::<F, T, 2>(out, coef, mat, stride, p);
+    while n - p >= block_packs::<F, T>() {
+        match block_packs::<F, T>() {
+            4 => block::<F, T, 4>(out, coef, mat, stride, p),
+            2 => block::<F, T, 2>(out, coef, mat, stride, p),
+            _ => block::<F, T, 1>(out, coef, mat, stride, p),
         }
-        p += T::BLOCK;
+        p += block_packs::<F, T>();
     }
     if n - p >= 2 {
         block::<F, T, 2>(out, coef, mat, stride, p);
@@ -74,6 +78,18 @@ pub(crate) fn matvec<F: MulAdd, T: Real>(out: &mut [Pack<T>], coef: &[T], mat: &
     }
     if n - p == 1 {
         block::<F, T, 1>(out, coef, mat, stride, p);
+    }
+}
+
+/// Packs of output kept in registers: two sets of accumulators must fit in the sixteen
+/// vector registers, which hold half as much without AVX2.
+const fn block_packs<F: MulAdd, T: Real>() -> usize {
+    if F::WIDE_REGISTERS {
+        T::BLOCK
+    } else if T::BLOCK > 1 {
+        T::BLOCK / 2
+    } else {
+        1
     }
 }
 
@@ -132,13 +148,13 @@ pub(crate) fn matvec_pair<F: MulAdd, T: Real>(
 ) {
     let n = out_a.len();
     let mut p = 0;
-    while n - p >= T::BLOCK {
-        if T::BLOCK == 4 {
-            block_pair::<F, T, 4>(out_a, out_b, coef, mat, stride, p);
-        } else {
-            block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p);
+    while n - p >= block_packs::<F, T>() {
+        match block_packs::<F, T>() {
+            4 => block_pair::<F, T, 4>(out_a, out_b, coef, mat, stride, p),
+            2 => block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p),
+            _ => block_pair::<F, T, 1>(out_a, out_b, coef, mat, stride, p),
         }
-        p += T::BLOCK;
+        p += block_packs::<F, T>();
     }
     if n - p >= 2 {
         block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p);
