@@ -302,7 +302,7 @@ fn lane_norm<F: MulAdd, T: Real>(h: &[Pack<T>], eps: T, inv_width: T) -> LaneNor
     let mut var = [[T::ZERO; PACK]; P];
     for k in 0..P {
         for t in 0..PACK {
-            mean[k][t] = mean[k][t] * inv_width;
+            mean[k][t] *= inv_width;
         }
     }
     for hj in h.chunks_exact(P) {

@@ -14,11 +14,11 @@ fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), Ru
     if expected == found { Ok(()) } else { Err(RuntimeError::LengthMismatch { what, expected, found }) }
 }
 
-/// Whether every value is finite (a sum is NaN if any value is NaN or infinite; a plain
+/// Whether every value is finite (`x * 0` is NaN for an infinite or NaN `x`; a plain
 /// loop, as a chained iterator did not inline).
 #[inline(always)]
 fn all_finite(v: &[f64]) -> bool {
-    v.iter().fold(0.0, |acc, &x| acc + (x - x)) == 0.0
+    v.iter().fold(0.0, |acc, &x| acc + x * 0.0) == 0.0
 }
 
 pub(super) fn check_dt(dt: f64) -> Result<(), RuntimeError> {

@@ -138,7 +138,7 @@ impl<T: Real> Folded<T> {
             }
         }
         let width = arch.width;
-        let mask = (width % PACK != 0).then(|| {
+        let mask = (!width.is_multiple_of(PACK)).then(|| {
             (0..packs(width))
                 .map(|p| std::array::from_fn(|t| if p * PACK + t < width { T::ONE } else { T::ZERO }))
                 .collect()
