@@ -131,7 +131,8 @@ fn rollouts<T: crate::runtime::Real>(
                 let traj = &mut out[i * (steps + 1)..(i + 1) * (steps + 1)];
                 let u = &inputs[i * steps..(i + 1) * steps];
                 if let Err(RuntimeError::NonFiniteOutput { step }) = p.rollout_dt(&mut single, x, u, dt, traj) {
-                    traj[step.max(1)..].iter_mut().for_each(|s| s.fill(f64::INFINITY));
+                    // `step` computed traj[step + 1] from the still finite traj[step].
+                    traj[step + 1..].iter_mut().for_each(|s| s.fill(f64::INFINITY));
                 }
             }
             Ok(out)

@@ -1,0 +1,60 @@
+//! The evaluator's rollouts when a prediction stops being finite: the trajectory keeps every
+//! finite prediction and reads as infinite from the first non-finite one; the others are
+//! unaffected.
+#![cfg(feature = "tools")]
+
+mod common;
+
+use pinc::dataset::TrajectorySet;
+use pinc::eval::full_rollouts;
+use pinc::model::Architecture;
+use pinc::runtime::{Predictor, RuntimeError};
+use pinc::{Input, State};
+
+#[test]
+fn a_diverging_trajectory_is_infinite_from_its_first_non_finite_prediction() {
+    // One softplus unit in its linear range carries z (+ 30) to the output, with gain 1e10:
+    // from z = 0, z grows tenfold-billionfold per step until it overflows f64 (~step 31).
+    // From z = -1e6 the unit is off (softplus underflows to 0) and z stays put.
+    let mut arch = Architecture::paper(1, 8);
+    arch.layer_norm = vec![false];
+    let z_col = arch.state_inputs.iter().position(|&i| i == 2).unwrap();
+    let mut model = common::random_model(arch, 11);
+    let (hidden, output) = (&mut model.weights.hidden[0], &mut model.weights.output);
+    hidden.beta = 1.0;
+    hidden.linear.weight.fill(0.0);
+    hidden.linear.bias.fill(0.0);
+    hidden.linear.weight[z_col] = 1.0;
+    hidden.linear.bias[0] = 30.0;
+    output.weight.fill(0.0);
+    output.bias.fill(0.0);
+    output.weight[2 * output.cols] = 1e10;
+    let points = 50;
+    let x0 = |z: f64| State::from([0.0, 0.0, z, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let inputs = vec![Input::zeros(); points - 1];
+    let set = TrajectorySet {
+        name: "diverging".into(),
+        dt: 0.08,
+        count: 2,
+        points,
+        collocation_points: 0,
+        states: [x0(0.0), x0(-1e6)].iter().flat_map(|&x| vec![x; points]).collect(),
+        inputs: [inputs.clone(), inputs.clone()].concat(),
+        collocation: Vec::new(),
+    };
+    let p = Predictor::<f64>::with_precision(&model);
+    let mut ws = p.workspace();
+    let mut single = vec![State::zeros(); points];
+    // Where the single rollout stops: step k fails, so predictions 1..=k are finite.
+    let err = p.rollout(&mut ws, &x0(0.0), &inputs, &mut single).unwrap_err();
+    let RuntimeError::NonFiniteOutput { step } = err else { panic!("{err}") };
+    assert!(step > 1 && step + 1 < points, "diverges inside the horizon, at step {step}");
+
+    let out = full_rollouts(&p, &set).unwrap();
+    let (diverged, kept) = out.split_at(points);
+    assert_eq!(&diverged[..=step], &single[..=step], "every finite prediction is kept");
+    assert!(diverged[step + 1..].iter().all(|s| s.iter().all(|&v| v == f64::INFINITY)), "infinite after step {step}");
+
+    p.rollout(&mut ws, &x0(-1e6), &inputs, &mut single).unwrap();
+    assert_eq!(kept, &single[..], "the finite trajectory is its single rollout");
+}
