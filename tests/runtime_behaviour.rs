@@ -148,6 +148,21 @@ fn non_finite_arguments_are_errors_naming_the_component() {
 }
 
 #[test]
+fn a_state_beyond_the_network_precision_is_an_error_not_a_finite_guess() {
+    // 1e39 is finite in f64 but infinite in the f32 network; the NaNs it makes inside (inf -
+    // inf) must reach the output as an error, in the single and in the batch path. (Before,
+    // the softplus's max(y, 0) turned them into 0 and the step returned a finite state.)
+    let p = Predictor::new(&common::paper_4x32(4));
+    let (mut x, inputs) = case(1);
+    x[2] = 1e39;
+    let err = p.step(&mut p.workspace(), &x, &inputs[0], &mut State::zeros()).unwrap_err();
+    assert_eq!(err, RuntimeError::NonFiniteOutput { step: 0 });
+    let mut out = vec![State::zeros(); 2];
+    let err = p.rollout_batch(&mut BatchWorkspace::new(&p), &[x], &inputs[..1], &mut out).unwrap_err();
+    assert_eq!(err, RuntimeError::NonFiniteOutput { step: 0 }, "batch");
+}
+
+#[test]
 fn leaving_the_training_envelope_is_flagged_not_refused() {
     let model = common::with_extras(common::paper_4x32(2));
     let p = Predictor::new(&model);

@@ -18,7 +18,9 @@ pub const SOFTPLUS_THRESHOLD: f64 = 20.0;
 #[inline(always)]
 fn softplus<F: MulAdd, T: Real>(y: T) -> (T, T) {
     let e = T::exp_nonpositive(-y.absolute(), F::mul_add);
-    let sp = y.maximum(T::ZERO) + T::log1p_unit(e, F::mul_add);
+    // max(y, 0) as (y + |y|) / 2 (exact for finite y): `maximum` would turn a NaN (from an
+    // input beyond the network's precision) into 0 and a garbage prediction into a finite one.
+    let sp = T::of(0.5) * (y + y.absolute()) + T::log1p_unit(e, F::mul_add);
     let sigmoid = if y >= T::ZERO { T::ONE } else { e } / (T::ONE + e);
     let linear = y > T::of(SOFTPLUS_THRESHOLD);
     (if linear { y } else { sp }, if linear { T::ONE } else { sigmoid })
