@@ -2,7 +2,7 @@
 //! controller can run either (learned-model MPC and true-model "oracle" MPC are the same
 //! code).
 
-use crate::runtime::{EnvelopeStatus, Predictor, Real, RuntimeError, Workspace};
+use crate::runtime::{EnvelopeStatus, Predictor, Real, RuntimeError, Workspace, check_input, check_len, check_state};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 use crate::vehicle::Rk4Vehicle;
 
@@ -98,13 +98,8 @@ impl<T: Real> DiscreteModel for Predictor<T> {
 }
 
 fn check_finite(step: usize, x: &State, u: &Input) -> Result<(), RuntimeError> {
-    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
-        return Err(RuntimeError::NonFiniteState { step, index, value: x[index] });
-    }
-    if let Some(index) = u.iter().position(|v| !v.is_finite()) {
-        return Err(RuntimeError::NonFiniteInput { step, index, value: u[index] });
-    }
-    Ok(())
+    check_state(step, x)?;
+    check_input(step, u)
 }
 
 impl DiscreteModel for Rk4Vehicle {
@@ -143,13 +138,9 @@ impl DiscreteModel for Rk4Vehicle {
         b: &mut [InputMatrix],
     ) -> Result<(), RuntimeError> {
         let n = inputs.len();
-        for (what, expected, found) in
-            [("trajectory", n + 1, traj.len()), ("A matrices", n, a.len()), ("B matrices", n, b.len())]
-        {
-            if expected != found {
-                return Err(RuntimeError::LengthMismatch { what, expected, found });
-            }
-        }
+        check_len("trajectory", n + 1, traj.len())?;
+        check_len("A matrices", n, a.len())?;
+        check_len("B matrices", n, b.len())?;
         traj[0] = *x0;
         for (k, u) in inputs.iter().enumerate() {
             check_finite(k, &traj[k], u)?;

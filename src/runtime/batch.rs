@@ -5,6 +5,7 @@ use super::RuntimeError;
 use super::activation::activate;
 use super::calls::check_dt;
 use super::envelope::EnvelopeStatus;
+use super::error::{check_input, check_len, check_state};
 use super::fold::Dense;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
@@ -96,30 +97,13 @@ impl<T: Real> Predictor<T> {
             };
         }
         let steps = inputs.len() / n;
-        if steps * n != inputs.len() {
-            return Err(RuntimeError::LengthMismatch {
-                what: "batch inputs",
-                expected: n * steps,
-                found: inputs.len(),
-            });
-        }
-        if out.len() != n * (steps + 1) {
-            return Err(RuntimeError::LengthMismatch {
-                what: "batch output",
-                expected: n * (steps + 1),
-                found: out.len(),
-            });
-        }
-        for (i, x) in x0.iter().enumerate() {
-            if let Some(index) = x.iter().position(|v| !v.is_finite()) {
-                let _ = i;
-                return Err(RuntimeError::NonFiniteState { step: 0, index, value: x[index] });
-            }
+        check_len("batch inputs", n * steps, inputs.len())?;
+        check_len("batch output", n * (steps + 1), out.len())?;
+        for x in x0 {
+            check_state(0, x)?;
         }
         for (j, u) in inputs.iter().enumerate() {
-            if let Some(index) = u.iter().position(|v| !v.is_finite()) {
-                return Err(RuntimeError::NonFiniteInput { step: j % steps, index, value: u[index] });
-            }
+            check_input(j % steps, u)?;
         }
         ws.envelope = EnvelopeStatus::default();
         #[cfg(target_arch = "x86_64")]

@@ -3,16 +3,13 @@
 //! chosen once at construction. None allocates.
 
 use super::RuntimeError;
+use super::error::check_len;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
 use super::kernels::{MulAdd, Portable};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 use crate::types::{Input, InputMatrix, State, StateMatrix};
-
-fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
-    if expected == found { Ok(()) } else { Err(RuntimeError::LengthMismatch { what, expected, found }) }
-}
 
 /// Whether every value is finite (`x * 0` is NaN for an infinite or NaN `x`; a plain
 /// loop, as a chained iterator did not inline).

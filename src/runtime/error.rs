@@ -1,5 +1,7 @@
 //! Errors of the runtime's hot calls: bad input is refused, never turned into garbage.
 
+use crate::types::{Input, State};
+
 /// Why a step, rollout or linearisation was refused or failed.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum RuntimeError {
@@ -42,4 +44,25 @@ pub enum RuntimeError {
         /// Given length.
         found: usize,
     },
+}
+
+/// Refuses a NaN or infinite state component.
+pub(crate) fn check_state(step: usize, x: &State) -> Result<(), RuntimeError> {
+    match x.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(RuntimeError::NonFiniteState { step, index, value: x[index] }),
+        None => Ok(()),
+    }
+}
+
+/// Refuses a NaN or infinite input component.
+pub(crate) fn check_input(step: usize, u: &Input) -> Result<(), RuntimeError> {
+    match u.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(RuntimeError::NonFiniteInput { step, index, value: u[index] }),
+        None => Ok(()),
+    }
+}
+
+/// Refuses a buffer of the wrong length.
+pub(crate) fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
+    if expected == found { Ok(()) } else { Err(RuntimeError::LengthMismatch { what, expected, found }) }
 }

@@ -16,5 +16,6 @@ pub use activation::SOFTPLUS_THRESHOLD;
 pub use batch::{BatchWorkspace, LANES};
 pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
 pub use error::RuntimeError;
+pub(crate) use error::{check_input, check_len, check_state};
 pub use predictor::{Predictor, Workspace};
 pub use real::Real;

@@ -3,6 +3,7 @@
 
 use super::RuntimeError;
 use super::envelope::{EnvelopeCheck, EnvelopeStatus};
+use super::error::{check_input, check_state};
 use super::fold::Folded;
 use super::kernels::{PACK, Pack, fused_available, packs};
 use super::real::Real;
@@ -118,12 +119,8 @@ impl<T: Real> Predictor<T> {
         x: &State,
         u: &Input,
     ) -> Result<(), RuntimeError> {
-        if let Some(index) = x.iter().position(|v| !v.is_finite()) {
-            return Err(RuntimeError::NonFiniteState { step, index, value: x[index] });
-        }
-        if let Some(index) = u.iter().position(|v| !v.is_finite()) {
-            return Err(RuntimeError::NonFiniteInput { step, index, value: u[index] });
-        }
+        check_state(step, x)?;
+        check_input(step, u)?;
         self.envelope.check(&mut ws.envelope, step, x, u);
         Ok(())
     }
