@@ -11,6 +11,8 @@ mod kernels;
 mod network;
 mod predictor;
 mod real;
+#[cfg(target_arch = "x86_64")]
+mod registers;
 
 pub use activation::SOFTPLUS_THRESHOLD;
 pub use batch::{BatchWorkspace, LANES};

@@ -6,7 +6,11 @@ use super::fold::Dense;
 use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, matvec_pair, packs, sum};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
+#[cfg(target_arch = "x86_64")]
+use super::registers;
 use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
+#[cfg(target_arch = "x86_64")]
+use std::any::Any;
 
 /// Raw network output (in state units, widened to f64), before the residual and rotation.
 pub(crate) type NetOut = [f64; NX];
@@ -77,6 +81,16 @@ impl<T: Real> Predictor<T> {
     /// in the workspace for [`Predictor::network_jacobian`].
     #[inline(always)]
     pub(crate) fn network<F: MulAdd>(&self, ws: &mut Workspace<T>, x: &State, u: &Input, t: f64, keep: bool) -> NetOut {
+        #[cfg(target_arch = "x86_64")]
+        if F::WIDE_REGISTERS
+            && let Some(p) = (self as &dyn Any).downcast_ref::<Predictor<f32>>()
+            && let Some(ws) = (ws as &mut dyn Any).downcast_mut::<Workspace<f32>>()
+            && registers::eligible(p)
+        {
+            // SAFETY: `eligible` holds, and `WIDE_REGISTERS` kernels only run inside functions
+            // compiled for AVX2 + FMA, which are only called where the CPU has them.
+            return unsafe { registers::network(p, ws, x, u, t, keep) };
+        }
         let ns = self.seen.len();
         for (k, &i) in self.seen.iter().enumerate() {
             ws.z[k] = T::of(x[i]);

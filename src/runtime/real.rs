@@ -187,41 +187,51 @@ real_impl!(
         mul_add(2.0 * s, p, j)
     }
 );
-// f32: polynomials fitted for f32 accuracy, evaluated with short dependency chains.
+// f32: polynomials fitted for f32 accuracy, evaluated with short dependency chains (shared
+// with the register kernel, which evaluates the same operations eight lanes at a time).
+
+/// `exp(r)` on `|r| <= ln2 / 2`: degree 6, fitted for relative error (2e-9 before rounding).
+pub(crate) const F32_EXP: [f32; 7] =
+    [1.0, 1.0, 0.499_999_9, 0.166_664_2, 0.041_668_225, 0.008_374_816, 0.001_383_683_5];
+/// `ln 2` split so that `k ln2_hi` is exact for the `k` an `f32` exponent can take.
+pub(crate) const F32_LN2: (f32, f32) = (6.931_457_5e-1, 1.428_606_8e-6);
+/// Below this `exp` would leave the normal range; arguments are clamped to it.
+pub(crate) const F32_EXP_MIN: f32 = -87.0;
+/// `ln(1 + e) = e P(e)` on `[0, 1]`: `P` of degree 8, fitted for relative error (2e-8 before
+/// rounding).
+pub(crate) const F32_LOG1P: [f32; 9] = [
+    0.999_999_94,
+    -0.499_994_93,
+    0.333_190_98,
+    -0.248_429_85,
+    0.191_060_14,
+    -0.136_632_58,
+    0.078_226_045,
+    -0.029_505_279,
+    0.005_232_701,
+];
 real_impl!(
     f32,
     u32,
     23,
     127,
-    -87.0,
+    F32_EXP_MIN,
     exp(r, mul_add) {
-        // Degree 6, fitted for relative error on |r| <= ln2 / 2 (2e-9 before rounding), by
         // Estrin's scheme: a chain of four operations after r instead of seven.
-        const C: [f32; 7] = [1.0, 1.0, 0.499_999_9, 0.166_664_2, 0.041_668_225, 0.008_374_816, 0.001_383_683_5];
+        const C: [f32; 7] = F32_EXP;
         let r2 = r * r;
         let r4 = r2 * r2;
         let lo = mul_add(mul_add(C[3], r, C[2]), r2, r + C[0]);
         let hi = mul_add(C[6], r2, mul_add(C[5], r, C[4]));
         mul_add(hi, r4, lo)
     },
-    6.931_457_5e-1,
-    1.428_606_8e-6,
+    F32_LN2.0,
+    F32_LN2.1,
     4,
     log1p(e, mul_add) {
-        // ln(1 + e) = e P(e), P of degree 8 fitted for relative error (2e-8 before rounding),
-        // evaluated by Estrin's scheme: no division and a dependency chain of five operations
-        // instead of a Horner chain of nine. The softplus of every hidden unit runs this.
-        const C: [f32; 9] = [
-            0.999_999_94,
-            -0.499_994_93,
-            0.333_190_98,
-            -0.248_429_85,
-            0.191_060_14,
-            -0.136_632_58,
-            0.078_226_045,
-            -0.029_505_279,
-            0.005_232_701,
-        ];
+        // ln(1 + e) = e P(e) by Estrin's scheme: no division and a dependency chain of five
+        // operations instead of a Horner chain of nine. Every hidden unit's softplus runs this.
+        const C: [f32; 9] = F32_LOG1P;
         let e2 = e * e;
         let e4 = e2 * e2;
         let q0 = mul_add(C[1], e, C[0]);
