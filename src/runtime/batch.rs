@@ -162,8 +162,11 @@ impl<T: Real> Predictor<T> {
                 let u_of = |b: usize| &inputs[(start + b) * steps + k];
                 // Raw network input, component-major.
                 for (q, &i) in self.seen.iter().enumerate() {
-                    for b in 0..L {
-                        lane(&mut ws.z, q, b, T::of(ws.x[i * L + b]));
+                    // Whole components at once (element by element, the conversion did not
+                    // vectorise).
+                    let dst = ws.z[q * P..(q + 1) * P].as_flattened_mut();
+                    for (d, &x) in dst.iter_mut().zip(&ws.x[i * L..(i + 1) * L]) {
+                        *d = T::of(x);
                     }
                 }
                 for b in 0..m {

@@ -133,11 +133,14 @@ unsafe fn forward<const NP: usize, const ZQ: usize>(
             pre = dense::<NP, NP>(next, &s, scale);
         }
     }
-    let o: [__m256; 2] = dense::<NP, 2>(&net.output, &s, scale);
-    let mut out = [0.0_f32; 2 * PACK];
-    store((&mut out[..PACK]).try_into().expect("one pack"), o[0]);
-    store((&mut out[PACK..]).try_into().expect("one pack"), o[1]);
-    std::array::from_fn(|k| f64::from(out[k]))
+    // Output rows 0..8 as a group, row 8 on its own (not with seven padding rows).
+    let [o] = dense::<NP, 1>(&net.output, &s, scale);
+    let last: &[Pack<f32>; NP] = net.output.rev[PACK * NP..(PACK + 1) * NP].try_into().expect("output row 8");
+    let centred = _mm256_fnmadd_ps(scale.1, load(&net.output.row_sum[1]), lane_sum(row_dot(last, &s)));
+    let o8 = _mm256_cvtss_f32(_mm256_fmadd_ps(scale.0, centred, load(&net.output.bias[1])));
+    let mut out = [0.0_f32; PACK];
+    store(&mut out, o);
+    std::array::from_fn(|k| f64::from(if k < PACK { out[k] } else { o8 }))
 }
 
 /// `r (W v - mean (W 1)) + b` for the first `8 NO` rows of `layer` (reverse layout, `Q`
@@ -182,18 +185,26 @@ unsafe fn row_dot<const Q: usize>(w: &[Pack<f32>; Q], v: &[__m256; Q]) -> __m256
     _mm256_add_ps(even, odd)
 }
 
-/// The lane sums of eight registers, as one register.
+/// The lane sums of eight registers, as one register: a transposition by single-uop
+/// shuffles with adds in between (horizontal adds were slower per layer here).
 #[inline(always)]
 unsafe fn reduce8(a: [__m256; 8]) -> __m256 {
-    // Within each 128-bit half: pairs, then quadruples; then the two halves.
-    let t = [
-        _mm256_hadd_ps(a[0], a[1]),
-        _mm256_hadd_ps(a[2], a[3]),
-        _mm256_hadd_ps(a[4], a[5]),
-        _mm256_hadd_ps(a[6], a[7]),
-    ];
-    let (u0, u1) = (_mm256_hadd_ps(t[0], t[1]), _mm256_hadd_ps(t[2], t[3]));
+    let t = [pairs(a[0], a[1]), pairs(a[2], a[3]), pairs(a[4], a[5]), pairs(a[6], a[7])];
+    let (u0, u1) = (quads(t[0], t[1]), quads(t[2], t[3]));
+    // The two 128-bit halves.
     _mm256_add_ps(_mm256_permute2f128_ps::<0x20>(u0, u1), _mm256_permute2f128_ps::<0x31>(u0, u1))
+}
+
+/// Per 128-bit half: `[x0 + x2, y0 + y2, x1 + x3, y1 + y3]`.
+#[inline(always)]
+unsafe fn pairs(x: __m256, y: __m256) -> __m256 {
+    _mm256_add_ps(_mm256_unpacklo_ps(x, y), _mm256_unpackhi_ps(x, y))
+}
+
+/// Per 128-bit half, from two [`pairs`] results: the four sums of all four lanes.
+#[inline(always)]
+unsafe fn quads(x: __m256, y: __m256) -> __m256 {
+    _mm256_add_ps(_mm256_shuffle_ps::<0b01_00_01_00>(x, y), _mm256_shuffle_ps::<0b11_10_11_10>(x, y))
 }
 
 /// `v[0] + v[1] + ...` lane-wise, as a tree.
