@@ -5,7 +5,7 @@
 //! The generic kernels broadcast every input unit in turn against a column of the matrix:
 //! a chain of `width / 2` multiply-adds per layer behind a store and reload of the hidden
 //! vector. Here each output unit is a dot product of its weight row with the registers
-//! (a chain of two multiply-adds), eight rows are summed horizontally at once, and nothing
+//! (two chains of two multiply-adds), eight rows are summed by one transposition, and nothing
 //! goes through memory but the weights.
 //!
 //! Every function here is `unsafe` for one reason only: it must run on a CPU with AVX2 and
@@ -102,24 +102,25 @@ unsafe fn forward<const NP: usize, const ZQ: usize>(
         }
         scale = (one, _mm256_setzero_ps());
         if let Some(eps) = eps {
-            // Two passes (mean, then squared deviations), as PyTorch does. This chain, not
-            // the next layer's product, is the critical path, hence the sums as trees.
-            let mut masked = s;
+            // Two passes (mean, then squared deviations), as PyTorch does; sums as trees,
+            // since this chain runs beside the next layer's product and may outlast it.
+            // `terms` holds the summands of each pass (padding units masked out).
+            let mut terms = s;
             let mut dev = s;
             if let Some(mask) = mask {
                 for q in 0..NP {
-                    masked[q] = _mm256_mul_ps(s[q], mask[q]);
+                    terms[q] = _mm256_mul_ps(s[q], mask[q]);
                 }
             }
-            let mean = _mm256_mul_ps(lane_sum(tree_sum(masked)), inv_width);
+            let mean = _mm256_mul_ps(lane_sum(tree_sum(terms)), inv_width);
             for q in 0..NP {
                 dev[q] = _mm256_sub_ps(s[q], mean);
                 if let Some(mask) = mask {
                     dev[q] = _mm256_mul_ps(dev[q], mask[q]);
                 }
-                masked[q] = _mm256_mul_ps(dev[q], dev[q]);
+                terms[q] = _mm256_mul_ps(dev[q], dev[q]);
             }
-            let var = _mm256_add_ps(_mm256_mul_ps(lane_sum(tree_sum(masked)), inv_width), _mm256_set1_ps(*eps));
+            let var = _mm256_add_ps(_mm256_mul_ps(lane_sum(tree_sum(terms)), inv_width), _mm256_set1_ps(*eps));
             let r = _mm256_div_ps(one, _mm256_sqrt_ps(var));
             scale = (r, mean);
             if keep {
