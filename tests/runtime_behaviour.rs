@@ -204,3 +204,50 @@ fn envelope_covers_only_what_the_network_sees() {
     p.step(&mut ws, &x0, &inputs[0], &mut out).unwrap();
     assert_eq!(ws.envelope_status().first.unwrap().quantity, Quantity::State(5));
 }
+
+#[test]
+fn batch_envelope_flags_match_the_single_rollouts() {
+    // The batch checks the envelope lane-wise and looks at single lanes only where something
+    // left it; what it records must be what 40 single rollouts record (two blocks of lanes):
+    // every exit counted (the random network also drifts out), the first in the batch's order
+    // (block, then step, then trajectory).
+    let p = Predictor::new(&common::with_extras(common::paper_4x32(2)));
+    let n = 40;
+    let mut x0 = Vec::new();
+    let mut inputs = Vec::new();
+    for i in 0..n {
+        let (mut x, mut u) = case(i % 7);
+        match i {
+            3 => u[9][3] = 1.5,                     // Mz above its training range at step 9
+            17 => u[4][0] = -11.0,                  // X below it at step 4
+            21 => (u[4][1], u[12][2]) = (9.0, 9.0), // two steps of one trajectory
+            33 => x[5] = 3.0,                       // a seen state at step 0, second block
+            _ => {}
+        }
+        x0.push(x);
+        inputs.extend(u);
+    }
+    let (mut exits, mut first) = (0, None);
+    let mut ws = p.workspace();
+    let mut traj = vec![State::zeros(); STEPS + 1];
+    for (i, x) in x0.iter().enumerate() {
+        p.rollout(&mut ws, x, &inputs[i * STEPS..(i + 1) * STEPS], &mut traj).unwrap();
+        let status = ws.envelope_status();
+        exits += status.exits;
+        if let Some(exit) = status.first {
+            let key = (i / 32, exit.step, i);
+            if first.is_none_or(|(k, _)| key < k) {
+                first = Some((key, exit));
+            }
+        }
+    }
+    assert!(exits > 5, "the planted exits and those of the drifting random network: {exits}");
+    let mut bws = BatchWorkspace::new(&p);
+    let mut out = vec![State::zeros(); n * (STEPS + 1)];
+    p.rollout_batch(&mut bws, &x0, &inputs, &mut out).unwrap();
+    let status = bws.envelope_status();
+    assert_eq!(status.exits, exits);
+    let (_, want) = first.unwrap();
+    assert_eq!(status.first, Some(want));
+    assert_eq!((want.step, want.quantity), (4, Quantity::Input(0)));
+}

@@ -9,9 +9,10 @@ use super::error::{check_input, check_len, check_state};
 use super::fold::Dense;
 #[cfg(target_arch = "x86_64")]
 use super::kernels::Fused;
-use super::kernels::{MulAdd, PACK, Pack, Portable, matvec, matvec_pair};
+use super::kernels::{MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows};
 use super::predictor::Predictor;
 use super::real::Real;
+use crate::model::Activation;
 use crate::types::{Input, NU, NX, State};
 
 /// Trajectories advanced together; 32 keeps a 32-wide layer block in L1.
@@ -30,7 +31,7 @@ pub struct BatchWorkspace<T: Real = f32> {
     z: Vec<Pack<T>>,
     ha: Vec<Pack<T>>,
     hb: Vec<Pack<T>>,
-    x: Vec<f64>,
+    x: Vec<[f64; LANES]>,
     o: Vec<Pack<T>>,
     envelope: EnvelopeStatus,
 }
@@ -44,7 +45,7 @@ impl<T: Real> BatchWorkspace<T> {
             z: vec![zero; p.n_in * LANE_PACKS],
             ha: vec![zero; units * LANE_PACKS],
             hb: vec![zero; units * LANE_PACKS],
-            x: vec![0.0; NX * LANES],
+            x: vec![[0.0; LANES]; NX],
             o: vec![zero; NX * LANE_PACKS],
             envelope: EnvelopeStatus::default(),
         }
@@ -143,36 +144,34 @@ impl<T: Real> Predictor<T> {
         let ns = self.seen.len();
         let net = &self.net;
         // Lane b of component c is element b of the P packs starting at c * P.
-        let lane = |v: &mut [Pack<T>], c: usize, b: usize, value: T| v[c * P + b / PACK][b % PACK] = value;
         for start in (0..x0.len()).step_by(L) {
             let m = L.min(x0.len() - start);
             // Lanes past the last trajectory compute on zeros and are never read.
-            ws.x.fill(0.0);
+            ws.x.fill([0.0; L]);
             ws.z.fill([T::ZERO; PACK]);
             for b in 0..m {
                 for c in 0..NX {
-                    ws.x[c * L + b] = x0[start + b][c];
+                    ws.x[c][b] = x0[start + b][c];
                 }
                 out[(start + b) * (steps + 1)] = x0[start + b];
             }
-            for b in 0..L {
-                lane(&mut ws.z, ns + NU, b, T::of(dt));
-            }
+            ws.z[(ns + NU) * P..(ns + NU + 1) * P].fill([T::of(dt); PACK]);
+            let x: &mut [[f64; L]; NX] = (&mut ws.x[..]).try_into().expect("NX components");
             for k in 0..steps {
-                let u_of = |b: usize| &inputs[(start + b) * steps + k];
-                // Raw network input, component-major.
-                for (q, &i) in self.seen.iter().enumerate() {
-                    // Whole components at once (element by element, the conversion did not
-                    // vectorise).
-                    let dst = ws.z[q * P..(q + 1) * P].as_flattened_mut();
-                    for (d, &x) in dst.iter_mut().zip(&ws.x[i * L..(i + 1) * L]) {
-                        *d = T::of(x);
+                // This step's inputs, component-major (padding lanes stay 0).
+                let mut u = [[0.0; L]; NU];
+                for b in 0..m {
+                    let ub = &inputs[(start + b) * steps + k];
+                    for c in 0..NU {
+                        u[c][b] = ub[c];
                     }
                 }
-                for b in 0..m {
-                    let u = u_of(b);
-                    for c in 0..NU {
-                        lane(&mut ws.z, ns + c, b, T::of(u[c]));
+                // Raw network input, component-major, converted a whole component at a time
+                // (element by element, the conversion did not vectorise).
+                let components = self.seen.iter().map(|&i| &x[i]).chain(&u);
+                for (q, v) in components.enumerate() {
+                    for (d, &v) in ws.z[q * P..(q + 1) * P].as_flattened_mut().iter_mut().zip(v) {
+                        *d = T::of(v);
                     }
                 }
 
@@ -187,36 +186,36 @@ impl<T: Real> Predictor<T> {
                     } else {
                         (&ws.hb[..], &mut ws.ha)
                     };
-                    // Units two at a time: each loaded input pack feeds two multiply-adds.
-                    for (jj, hjj) in h.chunks_exact_mut(2 * P).enumerate() {
-                        let pre = units::<F, T>(layer, 2 * jj, input, norm.as_ref());
-                        activate::<F, T>(self.activation, pre.as_flattened(), hjj, None);
+                    if quads::<F, T>() {
+                        hidden_layer::<F, T, 4>(self.activation, layer, input, norm.as_ref(), h);
+                    } else {
+                        hidden_layer::<F, T, 2>(self.activation, layer, input, norm.as_ref(), h);
                     }
                     norm = net.norm_eps[l].map(|eps| lane_norm::<F, T>(&h[..net.width * P], eps, net.inv_width));
                 }
                 let y = if net.hidden.len() % 2 == 1 { &ws.ha } else { &ws.hb };
-                for (kk, ok) in ws.o.chunks_exact_mut(2 * P).enumerate() {
-                    ok.copy_from_slice(units::<F, T>(&net.output, 2 * kk, y, norm.as_ref()).as_flattened());
+                if quads::<F, T>() {
+                    output_layer::<F, T, 4>(&net.output, y, norm.as_ref(), &mut ws.o);
+                } else {
+                    output_layer::<F, T, 2>(&net.output, y, norm.as_ref(), &mut ws.o);
                 }
-                let last = &mut ws.o[(NX - 1) * P..NX * P];
-                last.copy_from_slice(&units::<F, T>(&net.output, NX - 1, y, norm.as_ref())[0]);
                 let o_flat = ws.o.as_flattened();
+                let o: [[f64; L]; NX] = std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * L + b].to_f64()));
+                // The envelope per lane only where some value left it.
+                let mut outside = [false; L];
+                if self.envelope.mark_lanes(x, &u, &mut outside) {
+                    for b in (0..m).filter(|&b| outside[b]) {
+                        let xb = State::from_fn(|c, _| x[c][b]);
+                        self.envelope.check(&mut ws.envelope, k, &xb, &inputs[(start + b) * steps + k]);
+                    }
+                }
+                self.compose_lanes(x, &o);
+                let finite = x.iter().all(|c| c[..m].iter().fold(true, |all, v| all & v.is_finite()));
+                if !finite {
+                    return Err(RuntimeError::NonFiniteOutput { step: k });
+                }
                 for b in 0..m {
-                    let mut x = State::zeros();
-                    let mut o = [0.0; NX];
-                    for c in 0..NX {
-                        x[c] = ws.x[c * L + b];
-                        o[c] = o_flat[c * L + b].to_f64();
-                    }
-                    self.envelope.check(&mut ws.envelope, k, &x, u_of(b));
-                    let next = self.compose(&x, &o);
-                    if next.iter().any(|v| !v.is_finite()) {
-                        return Err(RuntimeError::NonFiniteOutput { step: k });
-                    }
-                    for c in 0..NX {
-                        ws.x[c * L + b] = next[c];
-                    }
-                    out[(start + b) * (steps + 1) + k + 1] = next;
+                    out[(start + b) * (steps + 1) + k + 1] = State::from_fn(|c, _| x[c][b]);
                 }
             }
         }
@@ -230,25 +229,70 @@ struct LaneNorm<T> {
     shift: [Pack<T>; LANE_PACKS],
 }
 
-/// Outputs `j` and `j + 1` of `layer` in every lane (`j + 1` only if the layer has it):
+/// Whether the batch layers take units four at a time (each loaded input pack feeds four
+/// multiply-adds, over half the lanes) rather than two: where four accumulator sets of a
+/// block still fit the registers.
+const fn quads<F: MulAdd, T: Real>() -> bool {
+    block_packs::<F, T>() >= 2
+}
+
+/// A hidden layer in every lane, `R` units at a time, activated into `h`.
+#[inline(always)]
+fn hidden_layer<F: MulAdd, T: Real, const R: usize>(
+    activation: Activation,
+    layer: &Dense<T>,
+    input: &[Pack<T>],
+    norm: Option<&LaneNorm<T>>,
+    h: &mut [Pack<T>],
+) {
+    for (j, hj) in h.chunks_exact_mut(R * LANE_PACKS).enumerate() {
+        let pre = units::<F, T, R>(layer, R * j, input, norm);
+        activate::<F, T>(activation, pre.as_flattened(), hj, None);
+    }
+}
+
+/// The output layer's nine units in every lane, `R` at a time, into `o`.
+#[inline(always)]
+fn output_layer<F: MulAdd, T: Real, const R: usize>(
+    layer: &Dense<T>,
+    y: &[Pack<T>],
+    norm: Option<&LaneNorm<T>>,
+    o: &mut [Pack<T>],
+) {
+    let (groups, last) = o.split_at_mut((NX - 1) / R * R * LANE_PACKS);
+    for (j, oj) in groups.chunks_exact_mut(R * LANE_PACKS).enumerate() {
+        oj.copy_from_slice(units::<F, T, R>(layer, R * j, y, norm).as_flattened());
+    }
+    for (j, oj) in last.chunks_exact_mut(LANE_PACKS).enumerate() {
+        oj.copy_from_slice(&units::<F, T, 1>(layer, (NX - 1) / R * R + j, y, norm)[0]);
+    }
+}
+
+/// Outputs `j..j + R` of `layer` in every lane (those the layer has):
 /// `W[j] . input + b[j]`, or after a LayerNorm of the input,
 /// `r (W[j] . input) - r mean (W[j] . 1) + b[j]` (the single path's arithmetic).
 #[inline(always)]
-fn units<F: MulAdd, T: Real>(
+fn units<F: MulAdd, T: Real, const R: usize>(
     layer: &Dense<T>,
     j: usize,
     input: &[Pack<T>],
     norm: Option<&LaneNorm<T>>,
-) -> [[Pack<T>; LANE_PACKS]; 2] {
+) -> [[Pack<T>; LANE_PACKS]; R] {
     let q = layer.in_packs();
     let rows = layer.rev.len() / q;
     let row = |j: usize| &layer.rev[j * q..(j + 1) * q].as_flattened()[..layer.cols];
-    let mut acc = [[[T::ZERO; PACK]; LANE_PACKS]; 2];
-    let [a, b] = &mut acc;
-    if j + 1 < rows {
-        matvec_pair::<F, T>(a, b, [row(j), row(j + 1)], input, LANE_PACKS);
+    let mut acc = [[[T::ZERO; PACK]; LANE_PACKS]; R];
+    if j + R <= rows {
+        matvec_rows::<F, T, R>(
+            acc.each_mut().map(|a| &mut a[..]),
+            std::array::from_fn(|r| row(j + r)),
+            input,
+            LANE_PACKS,
+        );
     } else {
-        matvec::<F, T>(a, row(j), input, LANE_PACKS);
+        for (r, a) in acc.iter_mut().enumerate().take(rows - j) {
+            matvec::<F, T>(a, row(j + r), input, LANE_PACKS);
+        }
     }
     for (u, acc) in acc.iter_mut().enumerate().take(rows - j) {
         let (jj, b) = (j + u, PACK);

@@ -63,6 +63,32 @@ impl EnvelopeCheck {
         self.envelope.as_ref()
     }
 
+    /// Marks in `outside` the lanes of component-major `x`, `u` that [`Self::check`] would
+    /// record (lanes past the used ones are marked too and must be ignored); true if any.
+    /// Vectorises, so that the batch rollout checks per lane only where something left.
+    #[inline]
+    pub(crate) fn mark_lanes<const L: usize>(
+        &self,
+        x: &[[f64; L]; NX],
+        u: &[[f64; L]; NU],
+        outside: &mut [bool; L],
+    ) -> bool {
+        let Some(e) = &self.envelope else { return false };
+        *outside = [false; L];
+        let mut mark = |v: &[f64; L], min: f64, max: f64| {
+            for (o, &v) in outside.iter_mut().zip(v) {
+                *o |= !(v >= min && v <= max);
+            }
+        };
+        for i in (0..NX).filter(|&i| self.seen[i]) {
+            mark(&x[i], e.state_min[i], e.state_max[i]);
+        }
+        for i in 0..NU {
+            mark(&u[i], e.input_min[i], e.input_max[i]);
+        }
+        outside.iter().any(|&o| o)
+    }
+
     /// Records in `status` if `x` or `u` is outside the envelope at `step`.
     #[inline]
     pub(crate) fn check(&self, status: &mut EnvelopeStatus, step: usize, x: &State, u: &Input) {

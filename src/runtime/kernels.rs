@@ -83,7 +83,7 @@ pub(crate) fn matvec<F: MulAdd, T: Real>(out: &mut [Pack<T>], coef: &[T], mat: &
 
 /// Packs of output kept in registers: two sets of accumulators must fit in the sixteen
 /// vector registers, which hold half as much without AVX2.
-const fn block_packs<F: MulAdd, T: Real>() -> usize {
+pub(crate) const fn block_packs<F: MulAdd, T: Real>() -> usize {
     if F::WIDE_REGISTERS {
         T::BLOCK
     } else if T::BLOCK > 1 {
@@ -136,57 +136,63 @@ fn block<F: MulAdd, T: Real, const B: usize>(
     }
 }
 
-/// [`matvec`] for two coefficient vectors against the same matrix (two rows of a
-/// reverse pass): each loaded matrix pack feeds two multiply-adds.
+/// [`matvec`] for `R` coefficient vectors against the same matrix (rows of a reverse pass,
+/// units of a batch layer): each loaded matrix pack feeds `R` multiply-adds. The block of
+/// output packs shrinks as `R` grows, so that the `R` accumulator sets still fit the
+/// registers that two sets of [`matvec`] fill.
 #[inline(always)]
-pub(crate) fn matvec_pair<F: MulAdd, T: Real>(
-    out_a: &mut [Pack<T>],
-    out_b: &mut [Pack<T>],
-    coef: [&[T]; 2],
+pub(crate) fn matvec_rows<F: MulAdd, T: Real, const R: usize>(
+    mut out: [&mut [Pack<T>]; R],
+    coef: [&[T]; R],
     mat: &[Pack<T>],
     stride: usize,
 ) {
-    let n = out_a.len();
+    let n = out[0].len();
+    let wide = (2 * block_packs::<F, T>() / R).max(1);
     let mut p = 0;
-    while n - p >= block_packs::<F, T>() {
-        match block_packs::<F, T>() {
-            4 => block_pair::<F, T, 4>(out_a, out_b, coef, mat, stride, p),
-            2 => block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p),
-            _ => block_pair::<F, T, 1>(out_a, out_b, coef, mat, stride, p),
+    while n - p >= wide {
+        match wide {
+            4 => block_rows::<F, T, R, 4>(&mut out, coef, mat, stride, p),
+            2 => block_rows::<F, T, R, 2>(&mut out, coef, mat, stride, p),
+            _ => block_rows::<F, T, R, 1>(&mut out, coef, mat, stride, p),
         }
-        p += block_packs::<F, T>();
+        p += wide;
     }
-    if n - p >= 2 {
-        block_pair::<F, T, 2>(out_a, out_b, coef, mat, stride, p);
+    if n - p >= 2 && wide > 2 {
+        block_rows::<F, T, R, 2>(&mut out, coef, mat, stride, p);
         p += 2;
     }
-    if n - p == 1 {
-        block_pair::<F, T, 1>(out_a, out_b, coef, mat, stride, p);
+    while p < n {
+        block_rows::<F, T, R, 1>(&mut out, coef, mat, stride, p);
+        p += 1;
     }
 }
 
 #[inline(always)]
-fn block_pair<F: MulAdd, T: Real, const B: usize>(
-    out_a: &mut [Pack<T>],
-    out_b: &mut [Pack<T>],
-    coef: [&[T]; 2],
+fn block_rows<F: MulAdd, T: Real, const R: usize, const B: usize>(
+    out: &mut [&mut [Pack<T>]; R],
+    coef: [&[T]; R],
     mat: &[Pack<T>],
     stride: usize,
     p: usize,
 ) {
     let n = coef[0].len();
-    assert!(p + B <= stride && coef[1].len() == n && n * stride <= mat.len(), "matrix block out of range");
-    let (mut a, mut b) = ([[T::ZERO; PACK]; B], [[T::ZERO; PACK]; B]);
-    for ((&ca, &cb), row) in coef[0].iter().zip(coef[1]).zip(mat.chunks_exact(stride)) {
+    assert!(p + B <= stride && n * stride <= mat.len(), "matrix block out of range");
+    assert!(coef.iter().all(|c| c.len() == n) && out.iter().all(|o| o.len() >= p + B), "rows of unequal length");
+    let mut acc = [[[T::ZERO; PACK]; B]; R];
+    for (i, row) in mat.chunks_exact(stride).take(n).enumerate() {
+        let c: [T; R] = std::array::from_fn(|r| coef[r][i]);
         for k in 0..B {
             for t in 0..PACK {
-                a[k][t] = F::mul_add(ca, row[p + k][t], a[k][t]);
-                b[k][t] = F::mul_add(cb, row[p + k][t], b[k][t]);
+                for r in 0..R {
+                    acc[r][k][t] = F::mul_add(c[r], row[p + k][t], acc[r][k][t]);
+                }
             }
         }
     }
-    out_a[p..p + B].copy_from_slice(&a);
-    out_b[p..p + B].copy_from_slice(&b);
+    for (o, a) in out.iter_mut().zip(&acc) {
+        o[p..p + B].copy_from_slice(a);
+    }
 }
 
 /// Sum of the lanes of a pack, as a tree (three dependent adds, not seven).

@@ -3,7 +3,7 @@
 
 use super::activation::activate;
 use super::fold::Dense;
-use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, matvec_pair, packs, sum};
+use super::kernels::{MulAdd, PACK, Pack, dot, lane_sum, matvec, matvec_rows, packs, sum};
 use super::predictor::{Predictor, Workspace};
 use super::real::Real;
 #[cfg(target_arch = "x86_64")]
@@ -163,7 +163,7 @@ impl<T: Real> Predictor<T> {
             let row = |k: usize| g[k * np..(k + 1) * np].as_flattened();
             for k in (0..NX - 1).step_by(2) {
                 let (a, b) = g2[k * q..(k + 2) * q].split_at_mut(q);
-                matvec_pair::<F, T>(a, b, [row(k), row(k + 1)], &layer.rev, q);
+                matvec_rows::<F, T, 2>([a, b], [row(k), row(k + 1)], &layer.rev, q);
             }
             matvec::<F, T>(&mut g2[(NX - 1) * q..NX * q], row(NX - 1), &layer.rev, q);
             std::mem::swap(&mut ws.g, &mut ws.g2);
@@ -174,20 +174,34 @@ impl<T: Real> Predictor<T> {
     /// by the predicted yaw, optional renormalisation.
     #[inline(always)]
     pub(crate) fn compose(&self, x: &State, o: &NetOut) -> State {
-        let mut next = if self.residual { *x } else { State::zeros() };
-        let (c, s) = (next[3] + o[3], next[4] + o[4]);
-        let (dx, dy) = if self.rotate { (c * o[0] - s * o[1], s * o[0] + c * o[1]) } else { (o[0], o[1]) };
-        next[0] += dx;
-        next[1] += dy;
-        for k in 2..NX {
-            next[k] += o[k];
+        let mut lanes: [[f64; 1]; NX] = std::array::from_fn(|c| [x[c]]);
+        self.compose_lanes(&mut lanes, &std::array::from_fn(|c| [o[c]]));
+        State::from_fn(|c, _| lanes[c][0])
+    }
+
+    /// [`Predictor::compose`] for `L` lanes at once, component-major, in place: the batch
+    /// rollout's arithmetic is the single step's, lane by lane, and vectorises.
+    #[inline(always)]
+    pub(crate) fn compose_lanes<const L: usize>(&self, x: &mut [[f64; L]; NX], o: &[[f64; L]; NX]) {
+        for b in 0..L {
+            let before: [f64; NX] = std::array::from_fn(|c| x[c][b]);
+            let base = |c: usize| if self.residual { before[c] } else { 0.0 };
+            let (c, s) = (base(3) + o[3][b], base(4) + o[4][b]);
+            let (dx, dy) =
+                if self.rotate { (c * o[0][b] - s * o[1][b], s * o[0][b] + c * o[1][b]) } else { (o[0][b], o[1][b]) };
+            x[0][b] = base(0) + dx;
+            x[1][b] = base(1) + dy;
+            for k in 2..NX {
+                x[k][b] = base(k) + o[k][b];
+            }
         }
         if self.renormalise_yaw {
-            let n = next[3].hypot(next[4]);
-            next[3] /= n;
-            next[4] /= n;
+            for b in 0..L {
+                let n = x[3][b].hypot(x[4][b]);
+                x[3][b] /= n;
+                x[4][b] /= n;
+            }
         }
-        next
     }
 
     /// Jacobians of [`Predictor::compose`] given `d out / d z` in `ws.g`.
