@@ -147,9 +147,20 @@ fn non_finite_arguments_are_errors_naming_the_component() {
     let mut bws = BatchWorkspace::new(&p);
     let mut bout = vec![State::zeros(); 2 * (STEPS + 1)];
     assert!(matches!(
-        p.rollout_batch(&mut bws, &[x0, x0], &[inputs.clone(), inputs].concat(), &mut bout),
+        p.rollout_batch(&mut bws, &[x0, x0], &[inputs.clone(), inputs.clone()].concat(), &mut bout),
         Err(RuntimeError::NonFiniteInput { step: 20, index: 2, .. })
     ));
+    // No trajectories: whichever buffer is not empty is named.
+    let none: [State; 0] = [];
+    assert_eq!(
+        p.rollout_batch(&mut bws, &none, &[], &mut bout[..3]).unwrap_err(),
+        RuntimeError::LengthMismatch { what: "batch output", expected: 0, found: 3 }
+    );
+    assert_eq!(
+        p.rollout_batch(&mut bws, &none, &inputs[..2], &mut []).unwrap_err(),
+        RuntimeError::LengthMismatch { what: "batch inputs", expected: 0, found: 2 }
+    );
+    assert_eq!(p.rollout_batch(&mut bws, &none, &[], &mut []), Ok(()));
 }
 
 #[test]

@@ -91,11 +91,9 @@ impl<T: Real> Predictor<T> {
         check_dt(dt)?;
         let n = x0.len();
         if n == 0 {
-            return if inputs.is_empty() && out.is_empty() {
-                Ok(())
-            } else {
-                Err(RuntimeError::LengthMismatch { what: "batch inputs", expected: 0, found: inputs.len() })
-            };
+            // No trajectories: nothing to read or write, and no step count to infer.
+            check_len("batch inputs", 0, inputs.len())?;
+            return check_len("batch output", 0, out.len());
         }
         let steps = inputs.len() / n;
         check_len("batch inputs", n * steps, inputs.len())?;
