@@ -124,17 +124,9 @@ fn rollouts<T: crate::runtime::Real>(
     let mut ws = BatchWorkspace::new(p);
     match p.rollout_batch_dt(&mut ws, x0, inputs, dt, &mut out) {
         Ok(()) => Ok(out),
-        Err(RuntimeError::NonFiniteOutput { .. }) => {
-            // Find which trajectories diverged, one at a time.
-            let mut single = p.workspace();
-            for (i, x) in x0.iter().enumerate() {
-                let traj = &mut out[i * (steps + 1)..(i + 1) * (steps + 1)];
-                let u = &inputs[i * steps..(i + 1) * steps];
-                if let Err(RuntimeError::NonFiniteOutput { step }) = p.rollout_dt(&mut single, x, u, dt, traj) {
-                    // `step` computed traj[step + 1] from the still finite traj[step].
-                    traj[step + 1..].iter_mut().for_each(|s| s.fill(f64::INFINITY));
-                }
-            }
+        Err(RuntimeError::BatchDiverged { .. }) => {
+            // The diverged trajectories hold NaN from their first non-finite prediction on.
+            out.iter_mut().filter(|s| s.iter().any(|v| !v.is_finite())).for_each(|s| s.fill(f64::INFINITY));
             Ok(out)
         }
         Err(e) => Err(e),

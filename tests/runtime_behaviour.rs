@@ -175,7 +175,30 @@ fn a_state_beyond_the_network_precision_is_an_error_not_a_finite_guess() {
     assert_eq!(err, RuntimeError::NonFiniteOutput { step: 0 });
     let mut out = vec![State::zeros(); 2];
     let err = p.rollout_batch(&mut BatchWorkspace::new(&p), &[x], &inputs[..1], &mut out).unwrap_err();
-    assert_eq!(err, RuntimeError::NonFiniteOutput { step: 0 }, "batch");
+    assert_eq!(err, RuntimeError::BatchDiverged { count: 1, trajectory: 0, step: 0 }, "batch");
+}
+
+#[test]
+fn a_diverging_trajectory_does_not_cost_the_rest_of_the_batch() {
+    // Trajectory 1 of 3 diverges at its first step; 0 and 2 must come out as they do in a
+    // batch without it (lanes are computed independently, so bit for bit), and 1 keeps its
+    // initial state with NaN after it.
+    let p = Predictor::new(&common::paper_4x32(4));
+    let (a, ua) = case(1);
+    let (c, uc) = case(2);
+    let mut bad = a;
+    bad[2] = 1e39;
+    let mut bws = BatchWorkspace::new(&p);
+    let mut out = vec![State::zeros(); 3 * (STEPS + 1)];
+    let err = p.rollout_batch(&mut bws, &[a, bad, c], &[ua.clone(), ua.clone(), uc.clone()].concat(), &mut out);
+    assert_eq!(err, Err(RuntimeError::BatchDiverged { count: 1, trajectory: 1, step: 0 }));
+    let mut clean = vec![State::zeros(); 2 * (STEPS + 1)];
+    p.rollout_batch(&mut bws, &[a, c], &[ua, uc].concat(), &mut clean).unwrap();
+    let n = STEPS + 1;
+    assert_eq!(out[..n], clean[..n]);
+    assert_eq!(out[2 * n..], clean[n..]);
+    assert_eq!(out[n], bad);
+    assert!(out[n + 1..2 * n].iter().all(|s| s.iter().all(|v| v.is_nan())));
 }
 
 #[test]

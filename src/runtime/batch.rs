@@ -64,7 +64,9 @@ impl<T: Real> Predictor<T> {
     ///
     /// # Errors
     /// Lengths that do not fit, non-finite initial states or inputs (checked before
-    /// anything runs), or a non-finite prediction.
+    /// anything runs), or [`RuntimeError::BatchDiverged`] if some predictions stop being
+    /// finite: every other trajectory is then complete in `out`, and a diverged one holds
+    /// NaN from its first non-finite prediction on.
     pub fn rollout_batch(
         &self,
         ws: &mut BatchWorkspace<T>,
@@ -141,7 +143,8 @@ impl<T: Real> Predictor<T> {
         const P: usize = LANE_PACKS;
         let ns = self.seen.len();
         let net = &self.net;
-        // Lane b of component c is element b of the P packs starting at c * P.
+        // Trajectories whose prediction stopped being finite, and the first found.
+        let (mut diverged, mut first_diverged) = (0, None);
         for start in (0..x0.len()).step_by(L) {
             let m = L.min(x0.len() - start);
             // Lanes past the last trajectory compute on zeros and are never read.
@@ -155,6 +158,9 @@ impl<T: Real> Predictor<T> {
             }
             ws.z[(ns + NU) * P..(ns + NU + 1) * P].fill([T::of(dt); PACK]);
             let x: &mut [[f64; L]; NX] = (&mut ws.x[..]).try_into().expect("NX components");
+            // Lanes whose prediction stopped being finite: they go on computing (from zeros)
+            // but are no longer checked or written.
+            let mut dead = [false; L];
             for k in 0..steps {
                 // This step's inputs, component-major (padding lanes stay 0).
                 let mut u = [[0.0; L]; NU];
@@ -202,22 +208,39 @@ impl<T: Real> Predictor<T> {
                 // The envelope per lane only where some value left it.
                 let mut outside = [false; L];
                 if self.envelope.mark_lanes(x, &u, &mut outside) {
-                    for b in (0..m).filter(|&b| outside[b]) {
+                    for b in (0..m).filter(|&b| outside[b] && !dead[b]) {
                         let xb = State::from_fn(|c, _| x[c][b]);
                         self.envelope.check(&mut ws.envelope, k, &xb, &inputs[(start + b) * steps + k]);
                     }
                 }
                 self.compose_lanes(x, &o);
-                let finite = x.iter().all(|c| c[..m].iter().fold(true, |all, v| all & v.is_finite()));
-                if !finite {
-                    return Err(RuntimeError::NonFiniteOutput { step: k });
+                let mut finite = [true; L];
+                for c in x.iter() {
+                    for (f, v) in finite.iter_mut().zip(c) {
+                        *f &= v.is_finite();
+                    }
                 }
                 for b in 0..m {
-                    out[(start + b) * (steps + 1) + k + 1] = State::from_fn(|c, _| x[c][b]);
+                    let traj = start + b;
+                    if !finite[b] && !dead[b] {
+                        dead[b] = true;
+                        diverged += 1;
+                        first_diverged.get_or_insert((traj, k));
+                        // The trajectory's remaining states are NaN.
+                        out[traj * (steps + 1) + k + 1..(traj + 1) * (steps + 1)].fill(State::repeat(f64::NAN));
+                    }
+                    if dead[b] {
+                        x.iter_mut().for_each(|c| c[b] = 0.0);
+                    } else {
+                        out[traj * (steps + 1) + k + 1] = State::from_fn(|c, _| x[c][b]);
+                    }
                 }
             }
         }
-        Ok(())
+        match first_diverged {
+            Some((trajectory, step)) => Err(RuntimeError::BatchDiverged { count: diverged, trajectory, step }),
+            None => Ok(()),
+        }
     }
 }
 

@@ -31,6 +31,18 @@ pub enum RuntimeError {
         /// Step of the rollout.
         step: usize,
     },
+    /// In a batch rollout, some trajectories' predictions stopped being finite (from finite
+    /// arguments). The other trajectories are complete; each diverged one holds its states
+    /// up to the last finite one and NaN after it.
+    #[error("{count} trajectories of the batch diverged, the first one found trajectory {trajectory} at step {step}")]
+    BatchDiverged {
+        /// How many trajectories diverged.
+        count: usize,
+        /// The first found: lanes go in blocks of 32 trajectories, each block step by step.
+        trajectory: usize,
+        /// The step whose prediction was not finite.
+        step: usize,
+    },
     /// The time step is not a positive finite number.
     #[error("dt = {0} is not a positive finite number of seconds")]
     BadTimeStep(f64),
