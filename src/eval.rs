@@ -192,17 +192,27 @@ pub fn physics_mse(p: &Predictor<f64>, params: &VehicleParams, set: &TrajectoryS
     let mut n = 0usize;
     for i in 0..set.count {
         let (xs, us) = set.trajectory(i);
-        for (x, u) in xs.iter().zip(us) {
-            let ok = p.step_dt(&mut ws, x, u, set.dt, &mut at).is_ok()
-                && p.step_dt(&mut ws, x, u, set.dt + H, &mut plus).is_ok()
-                && p.step_dt(&mut ws, x, u, set.dt - H, &mut minus).is_ok();
+        for (k, (x, u)) in xs.iter().zip(us).enumerate() {
+            // A prediction that is not finite counts as an infinite error, as in the rollout
+            // losses; a non-finite state or input of the set is an error at its sample.
+            let finite = |r: Result<(), RuntimeError>| match r {
+                Ok(()) => Ok(true),
+                Err(RuntimeError::NonFiniteOutput { .. }) => Ok(false),
+                Err(RuntimeError::NonFiniteState { index, value, .. }) => {
+                    Err(RuntimeError::NonFiniteState { step: k, index, value })
+                }
+                Err(RuntimeError::NonFiniteInput { index, value, .. }) => {
+                    Err(RuntimeError::NonFiniteInput { step: k, index, value })
+                }
+                Err(e) => Err(e),
+            };
+            let ok = finite(p.step_dt(&mut ws, x, u, set.dt, &mut at))?
+                && finite(p.step_dt(&mut ws, x, u, set.dt + H, &mut plus))?
+                && finite(p.step_dt(&mut ws, x, u, set.dt - H, &mut minus))?;
             sum += if ok {
-                let rate = (plus - minus) / (2.0 * H);
-                squared_error(&rate, &vehicle::rhs(params, &at, u))
-            } else if x.iter().chain(u.iter()).all(|v| v.is_finite()) {
-                f64::INFINITY
+                squared_error(&((plus - minus) / (2.0 * H)), &vehicle::rhs(params, &at, u))
             } else {
-                return Err(RuntimeError::NonFiniteState { step: 0, index: 0, value: f64::NAN });
+                f64::INFINITY
             };
             n += 1;
         }

@@ -58,3 +58,32 @@ fn a_diverging_trajectory_is_infinite_from_its_first_non_finite_prediction() {
     p.rollout(&mut ws, &x0(-1e6), &inputs, &mut single).unwrap();
     assert_eq!(kept, &single[..], "the finite trajectory is its single rollout");
 }
+
+#[test]
+fn a_non_finite_sample_in_a_set_is_an_error_at_that_sample() {
+    // The physics residual steps the network from every true state; a NaN there is the
+    // set's fault and is named at its sample (before, it was reported as state[0] = NaN at
+    // step 0 whatever it was).
+    let model = common::random_model(Architecture::paper(1, 8), 3);
+    let points = 6;
+    let mut set = TrajectorySet {
+        name: "bad".into(),
+        dt: 0.08,
+        count: 2,
+        points,
+        collocation_points: 0,
+        states: vec![State::from([0.0, 0.0, 0.5, 1.0, 0.0, 0.1, 0.0, 0.0, 0.0]); 2 * points],
+        inputs: vec![Input::new(1.0, 0.0, 2.0, 0.0); 2 * (points - 1)],
+        collocation: Vec::new(),
+    };
+    let p = Predictor::<f64>::with_precision(&model);
+    let params = pinc::vehicle::VehicleParams::default();
+    assert!(pinc::eval::physics_mse(&p, &params, &set).unwrap().is_finite());
+    set.states[points + 3][7] = f64::NAN;
+    let err = pinc::eval::physics_mse(&p, &params, &set).unwrap_err();
+    assert!(matches!(err, RuntimeError::NonFiniteState { step: 3, index: 7, value } if value.is_nan()), "{err}");
+    set.states[points + 3][7] = 0.0;
+    set.inputs[points - 1 + 2][1] = f64::INFINITY;
+    let err = pinc::eval::physics_mse(&p, &params, &set).unwrap_err();
+    assert_eq!(err, RuntimeError::NonFiniteInput { step: 2, index: 1, value: f64::INFINITY });
+}
