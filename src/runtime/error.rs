@@ -34,7 +34,7 @@ pub enum RuntimeError {
     /// In a batch rollout, some trajectories' predictions stopped being finite (from finite
     /// arguments). The other trajectories are complete; each diverged one holds its states
     /// up to the last finite one and NaN after it.
-    #[error("{count} trajectories of the batch diverged, the first one found trajectory {trajectory} at step {step}")]
+    #[error("{count} trajectories of the batch diverged (the first found: trajectory {trajectory} at step {step})")]
     BatchDiverged {
         /// How many trajectories diverged.
         count: usize,
