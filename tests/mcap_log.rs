@@ -3,6 +3,8 @@
 //! fallbacks. The runs stop early (as Ctrl-C does), so these are also the early-stop files.
 #![cfg(feature = "mpc")]
 
+mod common;
+
 use mcap::MessageStream;
 use pinc::closed_loop::{Sample, Scenario, run, summarise};
 use pinc::mcap_log::{LogStats, McapLog, RunInfo, file_sha256};
@@ -67,10 +69,8 @@ fn metadata(bytes: &[u8], name: &str) -> BTreeMap<String, String> {
 
 #[test]
 fn a_log_holds_every_topic_once_per_sample_with_the_run_in_its_json() {
-    // No solver time limit: on a loaded machine a solve can outlast the 40 ms default and
-    // become a fallback, which this test does not expect (the next one makes them on purpose).
-    let (samples, stats, bytes) =
-        logged_run(MpcConfig { solver_time_limit: f64::INFINITY, ..MpcConfig::default() }, 4.0);
+    // No fallbacks expected here (the next test makes them on purpose).
+    let (samples, stats, bytes) = logged_run(common::untimed(), 4.0);
     let n = samples.len();
     assert_eq!(n, 51);
     let all = messages(&bytes);

@@ -4,6 +4,8 @@
 //! keeps running on its fallback plan within the bounds.
 #![cfg(feature = "mpc")]
 
+mod common;
+
 use pinc::closed_loop::{Scenario, run, summarise};
 use pinc::model::PincModel;
 use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};
@@ -17,20 +19,13 @@ fn bounds() -> (Input, Input) {
     (Input::new(-10.0, -5.0, -5.0, -1.0), Input::new(10.0, 5.0, 20.0, 1.0))
 }
 
-/// The default configuration without Clarabel's time limit: a loaded machine can stretch a
-/// 1 ms solve past the 40 ms default (seen once: 41.7 ms) and turn it into a fallback. These
-/// tests are about tracking and solver failures; timing is measured in `benches/mpc.rs`.
-fn untimed() -> MpcConfig {
-    MpcConfig { solver_time_limit: f64::INFINITY, ..MpcConfig::default() }
-}
-
 fn oracle(cfg: MpcConfig) -> Mpc<Rk4Vehicle> {
     Mpc::new(Rk4Vehicle::default(), MpcConfig { bounds: Some(bounds()), ..cfg }).unwrap()
 }
 
 #[test]
 fn the_oracle_loop_settles_the_first_depth_step_and_tracks_heading() {
-    let mut mpc = oracle(untimed());
+    let mut mpc = oracle(common::untimed());
     let samples = run(&mut mpc, Scenario::Default, |_| true);
     let s = summarise(&samples, Scenario::Default, 1.6);
     assert_eq!(s.samples, 750);
@@ -74,7 +69,7 @@ fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     let model = PincModel::load("models/mpc_pinc.pinc").unwrap();
     let pinc = Predictor::<f64>::with_precision(&model);
     let bounds = pinc.input_bounds().unwrap();
-    let cfg = MpcConfig { bounds: Some(bounds), ..untimed() };
+    let cfg = MpcConfig { bounds: Some(bounds), ..common::untimed() };
     let samples = run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, |_| true);
     let s = summarise(&samples, Scenario::Default, 1.6);
     let o = summarise(
@@ -125,7 +120,7 @@ impl DiscreteModel for WithPosition {
 #[test]
 fn leaving_position_out_of_the_qp_changes_nothing_but_its_size() {
     assert!(Rk4Vehicle::default().position_free() && !WithPosition(Rk4Vehicle::default()).position_free());
-    let cfg = MpcConfig { bounds: Some(bounds()), ..untimed() };
+    let cfg = MpcConfig { bounds: Some(bounds()), ..common::untimed() };
     let mut reduced = Mpc::new(Rk4Vehicle::default(), cfg.clone()).unwrap();
     let mut full = Mpc::new(WithPosition(Rk4Vehicle::default()), cfg).unwrap();
     let refs = vec![Reference { depth: 1.5, heading: 0.8 }; 20];
