@@ -26,8 +26,8 @@ fn bench_model<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M, bounds_f
 fn mpc_iteration(c: &mut Criterion) {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc");
     let model = PincModel::load(path).unwrap();
-    let p = Predictor::<f64>::with_precision(&model);
-    bench_model(c, "mpc_iteration_h20", Predictor::<f64>::with_precision(&model), &p);
+    let p = Predictor::reference(&model);
+    bench_model(c, "mpc_iteration_h20", Predictor::reference(&model), &p);
     bench_model(c, "mpc_iteration_h20_oracle", Rk4Vehicle::with_dt(model.dt), &p);
 }
 

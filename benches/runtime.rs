@@ -18,14 +18,14 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use pinc::model::{Activation, import_state_dict};
-use pinc::runtime::{BatchWorkspace, Predictor, Real};
+use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
 use std::hint::black_box;
 
 fn predictor<T: Real>() -> Predictor<T> {
     let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
-    Predictor::with_precision(&import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap())
+    Predictor::from_model(&import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap())
 }
 
 fn x0() -> State {
@@ -54,12 +54,9 @@ fn bench_predictor<T: Real>(c: &mut Criterion, suffix: &str, p: Predictor<T>) {
         c.bench_function(&format!("rollout_65{suffix}"), |b| {
             b.iter(|| p.rollout(&mut ws, black_box(&x), black_box(&u), &mut traj).unwrap())
         });
-        let (mut t20, mut a, mut bm) =
-            (vec![State::zeros(); 21], vec![StateMatrix::zeros(); 20], vec![InputMatrix::zeros(); 20]);
+        let mut lin = HorizonLinearisation::new(20);
         c.bench_function(&format!("linearise_h20{suffix}"), |b| {
-            b.iter(|| {
-                p.linearise_horizon(&mut ws, black_box(&x), black_box(&u[..20]), &mut t20, &mut a, &mut bm).unwrap()
-            })
+            b.iter(|| p.linearise_horizon(&mut ws, black_box(&x), black_box(&u[..20]), &mut lin).unwrap())
         });
         let mut bws = BatchWorkspace::new(&p);
         let x0s: Vec<State> = (0..1000)

@@ -12,8 +12,8 @@
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
+use pinc::closed_loop::{LogError, McapLog, RunInfo};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
-use pinc::mcap_log::{LogError, McapLog, RunInfo};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::plot::{Panel, Series, figure};
@@ -70,7 +70,7 @@ fn try_main(a: Args) -> Result<(), String> {
         ScenarioName::Disturbed => Scenario::Disturbed,
     };
     let model = PincModel::load(&a.model).map_err(|e| format!("{}: {e}", a.model.display()))?;
-    let predictor = Predictor::<f64>::with_precision(&model);
+    let predictor = Predictor::reference(&model);
     let bounds = predictor
         .input_bounds()
         .ok_or_else(|| format!("{}: no training envelope to bound the inputs", a.model.display()))?;

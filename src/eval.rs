@@ -93,7 +93,7 @@ impl EvalSets {
 /// counts as an infinite error).
 pub fn evaluate(model: &PincModel, sets: &EvalSets) -> Result<Metrics, RuntimeError> {
     let p = Predictor::<f32>::new(model);
-    let p64 = Predictor::<f64>::with_precision(model);
+    let p64 = Predictor::reference(model);
     let params = VehicleParams::default();
     Ok(Metrics {
         l1: one_step_mse(&p, &sets.dev)?.log10(),

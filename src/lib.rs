@@ -11,8 +11,6 @@
 
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
-#[cfg(feature = "mpc")]
-pub mod mcap_log;
 pub mod model;
 #[cfg(feature = "mpc")]
 pub mod mpc;
@@ -29,7 +27,5 @@ pub mod dataset;
 pub mod eval;
 #[cfg(feature = "tools")]
 pub mod plot;
-#[cfg(feature = "tools")]
-pub mod trajectory_csv;
 
 pub use types::*;

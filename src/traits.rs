@@ -2,8 +2,10 @@
 //! controller can run either (learned-model MPC and true-model "oracle" MPC are the same
 //! code).
 
-use crate::runtime::{EnvelopeStatus, Predictor, Real, RuntimeError, Workspace, check_input, check_len, check_state};
-use crate::types::{Input, InputMatrix, State, StateMatrix};
+use crate::runtime::{
+    EnvelopeStatus, HorizonLinearisation, Predictor, Real, RuntimeError, Workspace, check_input, check_state,
+};
+use crate::types::{Input, State};
 use crate::vehicle::Rk4Vehicle;
 
 /// A model of the 9-state over one held-input sample period.
@@ -26,19 +28,17 @@ pub trait DiscreteModel {
     /// Non-finite arguments or prediction.
     fn step(&self, ws: &mut Self::Workspace, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError>;
 
-    /// Rolls out from `x0` under `inputs` and linearises along the trajectory: `traj` gets
-    /// `N + 1` states, `a[k] = d x_{k+1} / d x_k`, `b[k] = d x_{k+1} / d u_k`.
+    /// Rolls out from `x0` under `inputs` and linearises along the trajectory, into `lin`:
+    /// its `N + 1` states, `A_k = d x_{k+1} / d x_k` and `B_k = d x_{k+1} / d u_k`.
     ///
     /// # Errors
-    /// Buffer lengths that do not match, non-finite arguments or predictions.
+    /// `inputs` not as long as `lin`'s horizon, non-finite arguments or predictions.
     fn linearise_horizon(
         &self,
         ws: &mut Self::Workspace,
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
+        lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError>;
 
     /// Training-envelope exits seen by the last call on `ws` (a model without an envelope,
@@ -79,11 +79,9 @@ impl<T: Real> DiscreteModel for Predictor<T> {
         ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
+        lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError> {
-        Predictor::linearise_horizon(self, ws, x0, inputs, traj, a, b)
+        Predictor::linearise_horizon(self, ws, x0, inputs, lin)
     }
 
     fn envelope_status(&self, ws: &Workspace<T>) -> EnvelopeStatus {
@@ -133,14 +131,9 @@ impl DiscreteModel for Rk4Vehicle {
         _: &mut (),
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
+        lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError> {
-        let n = inputs.len();
-        check_len("trajectory", n + 1, traj.len())?;
-        check_len("A matrices", n, a.len())?;
-        check_len("B matrices", n, b.len())?;
+        let (traj, a, b) = lin.buffers_for(inputs)?;
         traj[0] = *x0;
         for (k, u) in inputs.iter().enumerate() {
             check_finite(k, &traj[k], u)?;

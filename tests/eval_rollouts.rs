@@ -42,7 +42,7 @@ fn a_diverging_trajectory_is_infinite_from_its_first_non_finite_prediction() {
         inputs: [inputs.clone(), inputs.clone()].concat(),
         collocation: Vec::new(),
     };
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let mut ws = p.workspace();
     let mut single = vec![State::zeros(); points];
     // Where the single rollout stops: step k fails, so predictions 1..=k are finite.
@@ -76,7 +76,7 @@ fn a_non_finite_sample_in_a_set_is_an_error_at_that_sample() {
         inputs: vec![Input::new(1.0, 0.0, 2.0, 0.0); 2 * (points - 1)],
         collocation: Vec::new(),
     };
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let params = pinc::vehicle::VehicleParams::default();
     assert!(pinc::eval::physics_mse(&p, &params, &set).unwrap().is_finite());
     set.states[points + 3][7] = f64::NAN;

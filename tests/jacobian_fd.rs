@@ -2,7 +2,7 @@
 
 mod common;
 
-use pinc::runtime::Predictor;
+use pinc::runtime::{HorizonLinearisation, Predictor};
 use pinc::{Input, InputMatrix, State, StateMatrix};
 
 fn x0() -> State {
@@ -46,18 +46,16 @@ fn horizon_jacobians_match_central_differences_for_every_variant() {
     let mut worst_all = 0.0_f64;
     for (name, model) in common::variants() {
         for (renorm, portable) in [(false, false), (true, false), (false, true)] {
-            let mut p = Predictor::<f64>::with_precision(&model).with_yaw_renormalisation(renorm);
+            let mut p = Predictor::reference(&model).with_yaw_renormalisation(renorm);
             if portable {
                 p = p.with_portable_kernels();
             }
             let n = 20;
             let u = inputs(n);
             let mut ws = p.workspace();
-            let mut traj = vec![State::zeros(); n + 1];
-            let mut a = vec![StateMatrix::zeros(); n];
-            let mut b = vec![InputMatrix::zeros(); n];
-            p.linearise_horizon(&mut ws, &x0(), &u, &mut traj, &mut a, &mut b)
-                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            let mut lin = HorizonLinearisation::new(n);
+            p.linearise_horizon(&mut ws, &x0(), &u, &mut lin).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let (traj, a, b) = (lin.trajectory(), lin.a(), lin.b());
             // The nominal trajectory is the rollout.
             let mut roll = vec![State::zeros(); n + 1];
             p.rollout(&mut ws, &x0(), &u, &mut roll).unwrap();
@@ -79,7 +77,7 @@ fn horizon_jacobians_match_central_differences_for_every_variant() {
 #[test]
 fn single_linearise_agrees_with_horizon_and_step() {
     let model = common::paper_4x32(11);
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let mut ws = p.workspace();
     let (x, u) = (x0(), inputs(1)[0]);
     let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
@@ -92,7 +90,7 @@ fn single_linearise_agrees_with_horizon_and_step() {
 #[test]
 fn position_free_network_has_identity_position_columns() {
     let (_, model) = common::variants().into_iter().find(|(n, _)| *n == "position-free 2x24").unwrap();
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let mut ws = p.workspace();
     let (x, u) = (x0(), inputs(1)[0]);
     let (mut next, mut a, mut b) = (State::zeros(), StateMatrix::zeros(), InputMatrix::zeros());
@@ -110,15 +108,15 @@ fn position_free_network_has_identity_position_columns() {
 #[test]
 fn f32_jacobians_agree_with_the_f64_reference() {
     for (name, model) in common::variants() {
-        let p64 = Predictor::<f64>::with_precision(&model);
+        let p64 = Predictor::reference(&model);
         let p32 = Predictor::new(&model);
         let n = 20;
         let u = inputs(n);
-        let (mut t64, mut a64, mut b64) =
-            (vec![State::zeros(); n + 1], vec![StateMatrix::zeros(); n], vec![InputMatrix::zeros(); n]);
-        let (mut t32, mut a32, mut b32) = (t64.clone(), a64.clone(), b64.clone());
-        p64.linearise_horizon(&mut p64.workspace(), &x0(), &u, &mut t64, &mut a64, &mut b64).unwrap();
-        p32.linearise_horizon(&mut p32.workspace(), &x0(), &u, &mut t32, &mut a32, &mut b32).unwrap();
+        let (mut l64, mut l32) = (HorizonLinearisation::new(n), HorizonLinearisation::new(n));
+        p64.linearise_horizon(&mut p64.workspace(), &x0(), &u, &mut l64).unwrap();
+        p32.linearise_horizon(&mut p32.workspace(), &x0(), &u, &mut l32).unwrap();
+        let (t64, a64, b64) = (l64.trajectory(), l64.a(), l64.b());
+        let (t32, a32, b32) = (l32.trajectory(), l32.a(), l32.b());
         for k in 0..n {
             let scale = a64[k].amax().max(b64[k].amax()).max(1.0);
             let err = (a32[k] - a64[k]).amax().max((b32[k] - b64[k]).amax()) / scale;

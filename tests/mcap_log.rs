@@ -6,8 +6,8 @@
 mod common;
 
 use mcap::MessageStream;
+use pinc::closed_loop::{LogStats, McapLog, RunInfo, file_sha256};
 use pinc::closed_loop::{Sample, Scenario, run, summarise};
-use pinc::mcap_log::{LogStats, McapLog, RunInfo, file_sha256};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::runtime::Predictor;
@@ -22,7 +22,7 @@ const MODEL: &str = "models/mpc_pinc.pinc";
 /// writer's counts and the file's bytes.
 fn logged_run(cfg: MpcConfig, seconds: f64) -> (Vec<Sample>, LogStats, Vec<u8>) {
     let model = PincModel::load(Path::new(MODEL)).unwrap();
-    let predictor = Predictor::<f64>::with_precision(&model);
+    let predictor = Predictor::reference(&model);
     let bounds = predictor.input_bounds().unwrap();
     let cfg = MpcConfig { bounds: Some(bounds), ..cfg };
     let dir = tempfile::tempdir().unwrap();

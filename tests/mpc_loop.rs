@@ -9,10 +9,10 @@ mod common;
 use pinc::closed_loop::{Scenario, run, summarise};
 use pinc::model::PincModel;
 use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};
-use pinc::runtime::{EnvelopeStatus, Predictor, RuntimeError};
+use pinc::runtime::{EnvelopeStatus, HorizonLinearisation, Predictor, RuntimeError};
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::{Rk4Vehicle, to_network};
-use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
+use pinc::{Input, SimState, State};
 
 /// The controller envelope of the `mpc` dataset preset.
 fn bounds() -> (Input, Input) {
@@ -67,7 +67,7 @@ fn a_controller_without_bounds_or_with_bad_weights_is_refused() {
 #[test]
 fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     let model = PincModel::load("models/mpc_pinc.pinc").unwrap();
-    let pinc = Predictor::<f64>::with_precision(&model);
+    let pinc = Predictor::reference(&model);
     let bounds = pinc.input_bounds().unwrap();
     let cfg = MpcConfig { bounds: Some(bounds), ..common::untimed() };
     let samples = run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, |_| true);
@@ -106,11 +106,9 @@ impl DiscreteModel for WithPosition {
         ws: &mut (),
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
+        lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError> {
-        self.0.linearise_horizon(ws, x0, inputs, traj, a, b)
+        self.0.linearise_horizon(ws, x0, inputs, lin)
     }
     fn envelope_status(&self, _: &()) -> EnvelopeStatus {
         EnvelopeStatus::default()
@@ -145,7 +143,7 @@ fn envelope_exits_are_reported_and_fall_back_only_when_asked() {
     let refs = [Reference { depth: 1.0, heading: 0.2 }];
     for ask in [false, true] {
         let cfg = MpcConfig { envelope_fallback: ask, ..MpcConfig::default() };
-        let mut mpc = Mpc::new(Predictor::<f64>::with_precision(&model), cfg).unwrap();
+        let mut mpc = Mpc::new(Predictor::reference(&model), cfg).unwrap();
         let r = mpc.step(&x, &refs);
         let exit = r.envelope.first.expect("the rollout starts outside the envelope");
         assert_eq!((exit.step, exit.quantity), (0, pinc::runtime::Quantity::State(7)), "{r:?}");

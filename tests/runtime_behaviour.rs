@@ -44,7 +44,7 @@ fn steps_match_a_plain_reference_for_every_variant() {
 }
 
 fn step_with<T: Real>(model: &pinc::model::PincModel, portable: bool, x: &State, u: &Input, t: f64) -> State {
-    let mut p = Predictor::<T>::with_precision(model);
+    let mut p = Predictor::<T>::from_model(model);
     if portable {
         p = p.with_portable_kernels();
     }
@@ -64,13 +64,11 @@ fn batch_rollout_equals_single_rollouts() {
 }
 
 fn rounding_scale(model: &pinc::model::PincModel) -> f64 {
-    let p64 = Predictor::<f64>::with_precision(model);
+    let p64 = Predictor::reference(model);
     let (mut a, mut b) = (vec![State::zeros(); STEPS + 1], vec![State::zeros(); STEPS + 1]);
     let mut worst = 0.0_f64;
     // Both f32 kernels: they sum in different orders, and either is compared below.
-    for p32 in
-        [Predictor::<f32>::with_precision(model), Predictor::<f32>::with_precision(model).with_portable_kernels()]
-    {
+    for p32 in [Predictor::new(model), Predictor::new(model).with_portable_kernels()] {
         for i in 0..70 {
             let (x0, inputs) = case(i);
             p32.rollout(&mut p32.workspace(), &x0, &inputs, &mut a).unwrap();
@@ -85,7 +83,7 @@ fn batch_equals_single<T: Real>(tol: impl Fn(&pinc::model::PincModel) -> f64) {
     for (name, model) in common::variants() {
         let tol = tol(&model);
         for portable in [false, true] {
-            let mut p = Predictor::<T>::with_precision(&model);
+            let mut p = Predictor::<T>::from_model(&model);
             if portable {
                 p = p.with_portable_kernels();
             }
@@ -114,8 +112,8 @@ fn fused_and_portable_kernels_agree() {
     let (x0, inputs) = case(5);
     let mut a = vec![State::zeros(); STEPS + 1];
     let mut b = vec![State::zeros(); STEPS + 1];
-    let fused = Predictor::<f64>::with_precision(&model);
-    let portable = Predictor::<f64>::with_precision(&model).with_portable_kernels();
+    let fused = Predictor::reference(&model);
+    let portable = Predictor::reference(&model).with_portable_kernels();
     fused.rollout(&mut fused.workspace(), &x0, &inputs, &mut a).unwrap();
     portable.rollout(&mut portable.workspace(), &x0, &inputs, &mut b).unwrap();
     for (x, y) in a.iter().zip(&b) {

@@ -3,7 +3,7 @@
 
 mod common;
 
-use pinc::runtime::{BatchWorkspace, Predictor, Real};
+use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::Rk4Vehicle;
 use pinc::{Input, InputMatrix, State, StateMatrix};
@@ -54,7 +54,7 @@ fn predictor_hot_calls_do_not_allocate() {
 fn hot_calls_do_not_allocate<T: Real>() {
     for (name, model) in common::variants() {
         for portable in [false, true] {
-            let mut p = Predictor::<T>::with_precision(&model).with_yaw_renormalisation(true);
+            let mut p = Predictor::<T>::from_model(&model).with_yaw_renormalisation(true);
             if portable {
                 p = p.with_portable_kernels();
             }
@@ -64,8 +64,7 @@ fn hot_calls_do_not_allocate<T: Real>() {
             let x0 = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
             let inputs = vec![Input::new(2.0, 0.1, 5.0, 0.05); n];
             let mut traj = vec![State::zeros(); n + 1];
-            let mut a = vec![StateMatrix::zeros(); n];
-            let mut b = vec![InputMatrix::zeros(); n];
+            let mut lin = HorizonLinearisation::new(n);
             let batch_x0 = vec![x0; 37];
             let batch_inputs = vec![Input::new(1.0, 0.0, 3.0, 0.0); 37 * n];
             let mut batch_out = vec![State::zeros(); 37 * (n + 1)];
@@ -75,7 +74,7 @@ fn hot_calls_do_not_allocate<T: Real>() {
                 p.step_dt(&mut ws, &x0, &inputs[0], 0.06, &mut next).unwrap();
                 p.rollout(&mut ws, &x0, &inputs, &mut traj).unwrap();
                 p.linearise(&mut ws, &x0, &inputs[0], &mut next, &mut a1, &mut b1).unwrap();
-                p.linearise_horizon(&mut ws, &x0, &inputs, &mut traj, &mut a, &mut b).unwrap();
+                p.linearise_horizon(&mut ws, &x0, &inputs, &mut lin).unwrap();
                 p.rollout_batch(&mut bws, &batch_x0, &batch_inputs, &mut batch_out).unwrap();
                 // Errors are returned without allocating too.
                 let bad = State::from_element(f64::NAN);
@@ -95,13 +94,11 @@ fn analytic_vehicle_hot_calls_do_not_allocate() {
     let n = 20;
     let x0 = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
     let inputs = vec![Input::new(2.0, 0.1, 5.0, 0.05); n];
-    let mut traj = vec![State::zeros(); n + 1];
-    let mut a = vec![StateMatrix::zeros(); n];
-    let mut b = vec![InputMatrix::zeros(); n];
+    let mut lin = HorizonLinearisation::new(n);
     let mut next = State::zeros();
     let count = allocations_during(|| {
         DiscreteModel::step(&v, &mut ws, &x0, &inputs[0], &mut next).unwrap();
-        v.linearise_horizon(&mut ws, &x0, &inputs, &mut traj, &mut a, &mut b).unwrap();
+        v.linearise_horizon(&mut ws, &x0, &inputs, &mut lin).unwrap();
     });
     assert_eq!(count, 0);
 }

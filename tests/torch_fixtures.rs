@@ -39,7 +39,7 @@ fn check_fixture_in<T: Real>(name: &str, layers: usize, width: usize) {
         "LayerNorm after hidden layers 1, 3, .."
     );
     for portable in [false, true] {
-        let mut p = Predictor::<T>::with_precision(&f.model);
+        let mut p = Predictor::<T>::from_model(&f.model);
         if portable {
             p = p.with_portable_kernels();
         }

@@ -13,7 +13,7 @@ fn burn_forward_matches_the_runtime_within_1e5() {
     let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
     let model = import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap();
     let net = PincNet::from_model(&model, &device);
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let mut ws = p.workspace();
     let n = 64;
     let mut rows = Vec::new();

@@ -46,7 +46,7 @@ fn every_loss_matches_the_runtime() {
     let set = small_set();
     let model = common::paper_4x32(21);
     let net = PincNet::from_model(&model, &device);
-    let p = Predictor::<f64>::with_precision(&model);
+    let p = Predictor::reference(&model);
     let params = VehicleParams::default();
     let mut cfg = TrainConfig::paper();
     cfg.rollout_steps = STEPS;

@@ -1,17 +1,12 @@
 //! Batch rollout: many trajectories at once, vectorised across trajectories (each layer
 //! is an axpy over a block of lanes), for evaluators and sampling-based planners.
 
-use super::RuntimeError;
-use super::activation::activate;
-use super::calls::check_dt;
 use super::envelope::EnvelopeStatus;
-use super::error::{check_input, check_len, check_state};
-use super::fold::Dense;
-#[cfg(target_arch = "x86_64")]
-use super::kernels::Fused;
-use super::kernels::{MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows};
+use super::error::{RuntimeError, check_dt, check_input, check_len, check_state};
+use super::kernels::{
+    Avx2Fma, Dense, Fused, MulAdd, PACK, Pack, Portable, Real, Shape, activate, block_packs, matvec, matvec_rows,
+};
 use super::predictor::Predictor;
-use super::real::Real;
 use crate::model::Activation;
 use crate::types::{Input, NU, NX, State};
 
@@ -28,11 +23,18 @@ const LANE_PACKS: usize = LANES / PACK;
 /// rounded up to packs of 8); rollouts allocate nothing.
 #[derive(Debug, Clone)]
 pub struct BatchWorkspace<T: Real = f32> {
-    z: Vec<Pack<T>>,
-    ha: Vec<Pack<T>>,
-    hb: Vec<Pack<T>>,
-    x: Vec<[f64; LANES]>,
-    o: Vec<Pack<T>>,
+    /// The network shape the buffers were sized for.
+    shape: Shape,
+    /// Raw network input `[x_seen, u, t]`, component-major over the lanes.
+    net_input: Vec<Pack<T>>,
+    /// Hidden activations; layers alternate between the two (one is read while the other
+    /// is written).
+    hidden_even: Vec<Pack<T>>,
+    hidden_odd: Vec<Pack<T>>,
+    /// The states of the lanes, component-major, in f64.
+    states: Vec<[f64; LANES]>,
+    /// Raw network output, component-major.
+    net_output: Vec<Pack<T>>,
     envelope: EnvelopeStatus,
 }
 
@@ -40,13 +42,14 @@ impl<T: Real> BatchWorkspace<T> {
     /// Sizes every buffer for `p`.
     pub fn new(p: &Predictor<T>) -> Self {
         let zero = [T::ZERO; PACK];
-        let units = p.packs * PACK;
+        let units = p.net.packs * PACK;
         Self {
-            z: vec![zero; p.n_in * LANE_PACKS],
-            ha: vec![zero; units * LANE_PACKS],
-            hb: vec![zero; units * LANE_PACKS],
-            x: vec![[0.0; LANES]; NX],
-            o: vec![zero; NX * LANE_PACKS],
+            shape: p.net.shape(),
+            net_input: vec![zero; p.net.n_in * LANE_PACKS],
+            hidden_even: vec![zero; units * LANE_PACKS],
+            hidden_odd: vec![zero; units * LANE_PACKS],
+            states: vec![[0.0; LANES]; NX],
+            net_output: vec![zero; NX * LANE_PACKS],
             envelope: EnvelopeStatus::default(),
         }
     }
@@ -106,19 +109,21 @@ impl<T: Real> Predictor<T> {
         for (j, u) in inputs.iter().enumerate() {
             check_input(j % steps, u)?;
         }
-        ws.envelope = EnvelopeStatus::default();
-        #[cfg(target_arch = "x86_64")]
-        if self.fused {
-            // SAFETY: `fused` is only set when the CPU reports AVX2 and FMA.
-            return unsafe { self.batch_fused(ws, x0, inputs, steps, dt, out) };
+        if ws.shape != self.net.shape() {
+            return Err(RuntimeError::WorkspaceMismatch { what: "batch workspace" });
         }
-        self.batch_generic::<Portable>(ws, x0, inputs, steps, dt, out)
+        ws.envelope = EnvelopeStatus::default();
+        match self.cpu {
+            Some(cpu) => self.batch_avx2(cpu, ws, x0, inputs, steps, dt, out),
+            None => self.batch_generic::<Portable>(ws, x0, inputs, steps, dt, out),
+        }
     }
 
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn batch_fused(
+    /// [`batch_generic`](Self::batch_generic) compiled for AVX2 + FMA.
+    #[inline(always)]
+    fn batch_avx2(
         &self,
+        _cpu: Avx2Fma,
         ws: &mut BatchWorkspace<T>,
         x0: &[State],
         inputs: &[Input],
@@ -126,9 +131,23 @@ impl<T: Real> Predictor<T> {
         dt: f64,
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
-        self.batch_generic::<Fused>(ws, x0, inputs, steps, dt, out)
+        #[target_feature(enable = "avx2,fma")]
+        fn compiled<T: Real>(
+            p: &Predictor<T>,
+            ws: &mut BatchWorkspace<T>,
+            x0: &[State],
+            inputs: &[Input],
+            steps: usize,
+            dt: f64,
+            out: &mut [State],
+        ) -> Result<(), RuntimeError> {
+            p.batch_generic::<Fused>(ws, x0, inputs, steps, dt, out)
+        }
+        // SAFETY: the token proves that the CPU has AVX2 and FMA.
+        unsafe { compiled(self, ws, x0, inputs, steps, dt, out) }
     }
 
+    /// The batch, one block of [`LANES`] trajectories at a time.
     #[inline(always)]
     fn batch_generic<F: MulAdd>(
         &self,
@@ -139,107 +158,175 @@ impl<T: Real> Predictor<T> {
         dt: f64,
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
-        const L: usize = LANES;
-        const P: usize = LANE_PACKS;
-        let ns = self.seen.len();
-        let net = &self.net;
-        // Trajectories whose prediction stopped being finite, and the first found.
-        let (mut diverged, mut first_diverged) = (0, None);
-        for start in (0..x0.len()).step_by(L) {
-            let m = L.min(x0.len() - start);
-            // Lanes past the last trajectory compute on zeros and are never read.
-            ws.x.fill([0.0; L]);
-            ws.z.fill([T::ZERO; PACK]);
-            for b in 0..m {
-                for c in 0..NX {
-                    ws.x[c][b] = x0[start + b][c];
-                }
-                out[(start + b) * (steps + 1)] = x0[start + b];
-            }
-            ws.z[(ns + NU) * P..(ns + NU + 1) * P].fill([T::of(dt); PACK]);
-            let x: &mut [[f64; L]; NX] = (&mut ws.x[..]).try_into().expect("NX components");
+        let mut divergence = Divergence::default();
+        for start in (0..x0.len()).step_by(LANES) {
+            let block = Block { start, lanes: LANES.min(x0.len() - start), steps };
+            self.load_block(ws, &block, x0, dt, out);
             // Lanes whose prediction stopped being finite: they go on computing (from zeros)
             // but are no longer checked or written.
-            let mut dead = [false; L];
-            for k in 0..steps {
-                // This step's inputs, component-major (padding lanes stay 0).
-                let mut u = [[0.0; L]; NU];
-                for b in 0..m {
-                    let ub = &inputs[(start + b) * steps + k];
-                    for c in 0..NU {
-                        u[c][b] = ub[c];
-                    }
-                }
-                // Raw network input, component-major, converted a whole component at a time
-                // (element by element, the conversion did not vectorise).
-                let components = self.seen.iter().map(|&i| &x[i]).chain(&u);
-                for (q, v) in components.enumerate() {
-                    for (d, &v) in ws.z[q * P..(q + 1) * P].as_flattened_mut().iter_mut().zip(v) {
-                        *d = T::of(v);
-                    }
-                }
-
-                // As in the single path, a LayerNorm is applied inside the next product,
-                // with per-lane statistics.
-                let mut norm: Option<LaneNorm<T>> = None;
-                for (l, layer) in net.hidden.iter().enumerate() {
-                    let (input, h) = if l == 0 {
-                        (&ws.z[..], &mut ws.ha)
-                    } else if l % 2 == 1 {
-                        (&ws.ha[..], &mut ws.hb)
-                    } else {
-                        (&ws.hb[..], &mut ws.ha)
-                    };
-                    if quads::<F, T>() {
-                        hidden_layer::<F, T, 4>(self.activation, layer, input, norm.as_ref(), h);
-                    } else {
-                        hidden_layer::<F, T, 2>(self.activation, layer, input, norm.as_ref(), h);
-                    }
-                    norm = net.norm_eps[l].map(|eps| lane_norm::<F, T>(&h[..net.width * P], eps, net.inv_width));
-                }
-                let y = if net.hidden.len() % 2 == 1 { &ws.ha } else { &ws.hb };
-                if quads::<F, T>() {
-                    output_layer::<F, T, 4>(&net.output, y, norm.as_ref(), &mut ws.o);
-                } else {
-                    output_layer::<F, T, 2>(&net.output, y, norm.as_ref(), &mut ws.o);
-                }
-                let o_flat = ws.o.as_flattened();
-                let o: [[f64; L]; NX] = std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * L + b].to_f64()));
-                // The envelope per lane only where some value left it.
-                let mut outside = [false; L];
-                if self.envelope.mark_lanes(x, &u, &mut outside) {
-                    for b in (0..m).filter(|&b| outside[b] && !dead[b]) {
-                        let xb = State::from_fn(|c, _| x[c][b]);
-                        self.envelope.check(&mut ws.envelope, k, &xb, &inputs[(start + b) * steps + k]);
-                    }
-                }
-                self.compose_lanes(x, &o);
-                let mut finite = [true; L];
-                for c in x.iter() {
-                    for (f, v) in finite.iter_mut().zip(c) {
-                        *f &= v.is_finite();
-                    }
-                }
-                for b in 0..m {
-                    let traj = start + b;
-                    if !finite[b] && !dead[b] {
-                        dead[b] = true;
-                        diverged += 1;
-                        first_diverged.get_or_insert((traj, k));
-                        // The trajectory's remaining states are NaN.
-                        out[traj * (steps + 1) + k + 1..(traj + 1) * (steps + 1)].fill(State::repeat(f64::NAN));
-                    }
-                    if dead[b] {
-                        x.iter_mut().for_each(|c| c[b] = 0.0);
-                    } else {
-                        out[traj * (steps + 1) + k + 1] = State::from_fn(|c, _| x[c][b]);
-                    }
-                }
+            let mut dead = [false; LANES];
+            for k in 0..block.steps {
+                let u = self.load_step_inputs(ws, &block, inputs, k);
+                self.network_lanes::<F>(ws);
+                self.check_envelope_lanes(ws, &block, inputs, k, &u, &dead);
+                let o_flat = ws.net_output.as_flattened();
+                let o: [[f64; LANES]; NX] =
+                    std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * LANES + b].to_f64()));
+                let x: &mut [[f64; LANES]; NX] = (&mut ws.states[..]).try_into().expect("NX components");
+                self.output.apply_lanes(x, &o);
+                store_step(x, &block, k, &mut dead, &mut divergence, out);
             }
         }
-        match first_diverged {
-            Some((trajectory, step)) => Err(RuntimeError::BatchDiverged { count: diverged, trajectory, step }),
+        match divergence.first {
+            Some((trajectory, step)) => Err(RuntimeError::BatchDiverged { count: divergence.count, trajectory, step }),
             None => Ok(()),
+        }
+    }
+
+    /// The block's initial states into the lanes (and the output), the time input into
+    /// every lane. Lanes past the last trajectory compute on zeros and are never read.
+    #[inline(always)]
+    fn load_block(&self, ws: &mut BatchWorkspace<T>, block: &Block, x0: &[State], dt: f64, out: &mut [State]) {
+        let ns = self.net.seen.len();
+        ws.states.fill([0.0; LANES]);
+        ws.net_input.fill([T::ZERO; PACK]);
+        for b in 0..block.lanes {
+            let x = x0[block.start + b];
+            for c in 0..NX {
+                ws.states[c][b] = x[c];
+            }
+            out[(block.start + b) * (block.steps + 1)] = x;
+        }
+        ws.net_input[(ns + NU) * LANE_PACKS..(ns + NU + 1) * LANE_PACKS].fill([T::from_f64(dt); PACK]);
+    }
+
+    /// Step `k`'s inputs, component-major (padding lanes 0), and the raw network input
+    /// from the lanes' states and those inputs.
+    #[inline(always)]
+    fn load_step_inputs(
+        &self,
+        ws: &mut BatchWorkspace<T>,
+        block: &Block,
+        inputs: &[Input],
+        k: usize,
+    ) -> [[f64; LANES]; NU] {
+        let mut u = [[0.0; LANES]; NU];
+        for b in 0..block.lanes {
+            let ub = &inputs[(block.start + b) * block.steps + k];
+            for c in 0..NU {
+                u[c][b] = ub[c];
+            }
+        }
+        // Converted a whole component at a time (element by element, the conversion did
+        // not vectorise).
+        let components = self.net.seen.iter().map(|&i| &ws.states[i]).chain(&u);
+        for (q, v) in components.enumerate() {
+            for (d, &v) in ws.net_input[q * LANE_PACKS..(q + 1) * LANE_PACKS].as_flattened_mut().iter_mut().zip(v) {
+                *d = T::from_f64(v);
+            }
+        }
+        u
+    }
+
+    /// The network in every lane, from `net_input` to `net_output`. As in the single path,
+    /// a LayerNorm is applied inside the next product, with per-lane statistics.
+    #[inline(always)]
+    fn network_lanes<F: MulAdd>(&self, ws: &mut BatchWorkspace<T>) {
+        let net = &self.net.folded;
+        let mut norm: Option<LaneNorm<T>> = None;
+        for (l, layer) in net.hidden.iter().enumerate() {
+            let (input, h) = if l == 0 {
+                (&ws.net_input[..], &mut ws.hidden_even)
+            } else if l % 2 == 1 {
+                (&ws.hidden_even[..], &mut ws.hidden_odd)
+            } else {
+                (&ws.hidden_odd[..], &mut ws.hidden_even)
+            };
+            if quads::<F, T>() {
+                hidden_layer::<F, T, 4>(self.net.activation, layer, input, norm.as_ref(), h);
+            } else {
+                hidden_layer::<F, T, 2>(self.net.activation, layer, input, norm.as_ref(), h);
+            }
+            norm = net.norm_eps[l].map(|eps| lane_norm::<F, T>(&h[..net.width * LANE_PACKS], eps, net.inv_width));
+        }
+        let y = if net.hidden.len() % 2 == 1 { &ws.hidden_even } else { &ws.hidden_odd };
+        if quads::<F, T>() {
+            output_layer::<F, T, 4>(&net.output, y, norm.as_ref(), &mut ws.net_output);
+        } else {
+            output_layer::<F, T, 2>(&net.output, y, norm.as_ref(), &mut ws.net_output);
+        }
+    }
+
+    /// Envelope exits of step `k`, checked per lane only where some value left it.
+    #[inline(always)]
+    fn check_envelope_lanes(
+        &self,
+        ws: &mut BatchWorkspace<T>,
+        block: &Block,
+        inputs: &[Input],
+        k: usize,
+        u: &[[f64; LANES]; NU],
+        dead: &[bool; LANES],
+    ) {
+        let x: &[[f64; LANES]; NX] = (&ws.states[..]).try_into().expect("NX components");
+        let mut outside = [false; LANES];
+        if self.envelope.mark_lanes(x, u, &mut outside) {
+            for b in (0..block.lanes).filter(|&b| outside[b] && !dead[b]) {
+                let xb = State::from_fn(|c, _| x[c][b]);
+                self.envelope.check(&mut ws.envelope, k, &xb, &inputs[(block.start + b) * block.steps + k]);
+            }
+        }
+    }
+}
+
+/// Which trajectories a block of lanes holds.
+struct Block {
+    /// The first trajectory.
+    start: usize,
+    /// Trajectories in the block (the rest of the lanes are padding).
+    lanes: usize,
+    /// Steps per trajectory.
+    steps: usize,
+}
+
+/// Trajectories whose prediction stopped being finite: how many, and the first found
+/// `(trajectory, step)`.
+#[derive(Default)]
+struct Divergence {
+    count: usize,
+    first: Option<(usize, usize)>,
+}
+
+/// Writes step `k + 1` of every live lane; a lane whose new state is not finite is marked
+/// dead, its remaining states NaN, and it computes on zeros from then on.
+#[inline(always)]
+fn store_step(
+    x: &mut [[f64; LANES]; NX],
+    block: &Block,
+    k: usize,
+    dead: &mut [bool; LANES],
+    divergence: &mut Divergence,
+    out: &mut [State],
+) {
+    let mut finite = [true; LANES];
+    for c in x.iter() {
+        for (f, v) in finite.iter_mut().zip(c) {
+            *f &= v.is_finite();
+        }
+    }
+    let n = block.steps + 1;
+    for b in 0..block.lanes {
+        let traj = block.start + b;
+        if !finite[b] && !dead[b] {
+            dead[b] = true;
+            divergence.count += 1;
+            divergence.first.get_or_insert((traj, k));
+            out[traj * n + k + 1..(traj + 1) * n].fill(State::repeat(f64::NAN));
+        }
+        if dead[b] {
+            x.iter_mut().for_each(|c| c[b] = 0.0);
+        } else {
+            out[traj * n + k + 1] = State::from_fn(|c, _| x[c][b]);
         }
     }
 }
@@ -368,7 +455,7 @@ fn lane_norm<F: MulAdd, T: Real>(h: &[Pack<T>], eps: T, inv_width: T) -> LaneNor
     let mut n = LaneNorm { inv_std: var, shift: mean };
     for k in 0..P {
         for t in 0..PACK {
-            let r = T::ONE / (var[k][t] * inv_width + eps).root();
+            let r = T::ONE / (var[k][t] * inv_width + eps).sqrt();
             n.inv_std[k][t] = r;
             n.shift[k][t] = -(r * mean[k][t]);
         }

@@ -1,39 +1,38 @@
 //! The public hot calls of [`Predictor`]: step, rollout and horizon linearisation. Each
-//! runs its whole loop inside one function compiled either portably or with AVX2 + FMA,
-//! chosen once at construction. None allocates.
+//! runs its whole loop inside one function compiled either portably or, given an
+//! [`Avx2Fma`] token, for AVX2 + FMA. None allocates.
 
-use super::RuntimeError;
-use super::error::check_len;
-#[cfg(target_arch = "x86_64")]
-use super::kernels::Fused;
-use super::kernels::{MulAdd, Portable};
-use super::predictor::{Predictor, Workspace};
-use super::real::Real;
+use super::error::{RuntimeError, check_dt, check_len};
+use super::horizon::HorizonLinearisation;
+use super::kernels::{Avx2Fma, Fused, MulAdd, Portable, Real};
+use super::predictor::Predictor;
+use super::workspace::Workspace;
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 
-pub(super) fn check_dt(dt: f64) -> Result<(), RuntimeError> {
-    if dt.is_finite() && dt > 0.0 { Ok(()) } else { Err(RuntimeError::BadTimeStep(dt)) }
-}
-
-/// Calls the AVX2 + FMA instance of a kernel when the predictor selected it, else the
-/// portable one.
-macro_rules! dispatch {
-    ($self:ident, $generic:ident, $fused:ident, $($arg:expr),*) => {{
-        #[cfg(target_arch = "x86_64")]
-        if $self.fused {
-            // SAFETY: `fused` is only set when the CPU reports AVX2 and FMA.
-            return unsafe { $self.$fused($($arg),*) };
+/// For each `$name`: a safe method taking the token that calls `$body::<Fused>` inside a
+/// function compiled for AVX2 + FMA.
+macro_rules! avx2_entry {
+    ($name:ident => $generic:ident ($($arg:ident: $ty:ty),*)) => {
+        #[inline(always)]
+        fn $name(&self, cpu: Avx2Fma, $($arg: $ty),*) -> Result<(), RuntimeError> {
+            #[target_feature(enable = "avx2,fma")]
+            fn compiled<T: Real>(p: &Predictor<T>, $($arg: $ty),*) -> Result<(), RuntimeError> {
+                p.$generic::<Fused>($($arg),*)
+            }
+            let _ = cpu;
+            // SAFETY: `cpu` proves that the CPU has AVX2 and FMA.
+            unsafe { compiled(self, $($arg),*) }
         }
-        $self.$generic::<Portable>($($arg),*)
-    }};
+    };
 }
 
 impl<T: Real> Predictor<T> {
     /// One step of the model's own sample period: `out = x_hat(dt)` from `x` under `u`.
     ///
     /// # Errors
-    /// A non-finite `x` or `u` ([`RuntimeError::NonFiniteState`] / `NonFiniteInput`), or a
-    /// non-finite prediction. Envelope exits are recorded in the workspace, not errors.
+    /// A non-finite `x` or `u` ([`RuntimeError::NonFiniteState`] / `NonFiniteInput`), a
+    /// non-finite prediction, or a workspace made for another predictor. Envelope exits
+    /// are recorded in the workspace, not errors.
     pub fn step(&self, ws: &mut Workspace<T>, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {
         self.step_dt(ws, x, u, self.dt, out)
     }
@@ -84,8 +83,11 @@ impl<T: Real> Predictor<T> {
     ) -> Result<(), RuntimeError> {
         check_dt(dt)?;
         check_len("rollout output", inputs.len() + 1, out.len())?;
-        ws.envelope = Default::default();
-        dispatch!(self, rollout_generic, rollout_fused, ws, x0, inputs, dt, out)
+        ws.start_call(self)?;
+        match self.cpu {
+            Some(cpu) => self.rollout_avx2(cpu, ws, x0, inputs, dt, out),
+            None => self.rollout_generic::<Portable>(ws, x0, inputs, dt, out),
+        }
     }
 
     /// One step and its exact Jacobians `a = d x_next / d x`, `b = d x_next / d u`.
@@ -101,35 +103,47 @@ impl<T: Real> Predictor<T> {
         a: &mut StateMatrix,
         b: &mut InputMatrix,
     ) -> Result<(), RuntimeError> {
-        let mut traj = [*x, State::zeros()];
-        let (mut aa, mut bb) = ([StateMatrix::zeros()], [InputMatrix::zeros()]);
-        self.linearise_horizon(ws, x, std::slice::from_ref(u), &mut traj, &mut aa, &mut bb)?;
-        (*next, *a, *b) = (traj[1], aa[0], bb[0]);
-        Ok(())
+        ws.start_call(self)?;
+        let (traj, aa, bb) = (std::slice::from_mut(next), std::slice::from_mut(a), std::slice::from_mut(b));
+        let inputs = std::slice::from_ref(u);
+        match self.cpu {
+            Some(cpu) => self.linearise_avx2(cpu, ws, x, inputs, traj, aa, bb),
+            None => self.linearise_generic::<Portable>(ws, x, inputs, traj, aa, bb),
+        }
     }
 
-    /// Rolls out from `x0` under `inputs` and linearises along the way: `traj[k]` is the
-    /// nominal trajectory (`traj[0] = x0`), `a[k] = d traj[k+1] / d traj[k]`,
-    /// `b[k] = d traj[k+1] / d inputs[k]`, all exact.
+    /// Rolls out from `x0` under `inputs` and linearises along the way, into `lin`: the
+    /// nominal trajectory (`x0` first) and every `A_k`, `B_k`, all exact.
     ///
     /// # Errors
-    /// Buffer lengths other than `N + 1`, `N`, `N` for `N = inputs.len()`, or as
-    /// [`Predictor::step`] at any step.
+    /// `inputs.len()` other than the horizon `lin` was made for
+    /// ([`RuntimeError::HorizonMismatch`]), or as [`Predictor::step`] at any step.
     pub fn linearise_horizon(
         &self,
         ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
+        lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError> {
-        check_len("trajectory", inputs.len() + 1, traj.len())?;
-        check_len("A matrices", inputs.len(), a.len())?;
-        check_len("B matrices", inputs.len(), b.len())?;
-        ws.envelope = Default::default();
-        dispatch!(self, linearise_generic, linearise_fused, ws, x0, inputs, traj, a, b)
+        let (traj, a, b) = lin.buffers_for(inputs)?;
+        ws.start_call(self)?;
+        let (first, next) = traj.split_at_mut(1);
+        first[0] = *x0;
+        match self.cpu {
+            Some(cpu) => self.linearise_avx2(cpu, ws, x0, inputs, next, a, b),
+            None => self.linearise_generic::<Portable>(ws, x0, inputs, next, a, b),
+        }
     }
+
+    avx2_entry!(rollout_avx2 => rollout_generic(ws: &mut Workspace<T>, x0: &State, inputs: &[Input], dt: f64, out: &mut [State]));
+    avx2_entry!(linearise_avx2 => linearise_generic(
+        ws: &mut Workspace<T>,
+        x0: &State,
+        inputs: &[Input],
+        next: &mut [State],
+        a: &mut [StateMatrix],
+        b: &mut [InputMatrix]
+    ));
 
     #[inline(always)]
     fn rollout_generic<F: MulAdd>(
@@ -144,7 +158,8 @@ impl<T: Real> Predictor<T> {
         for (k, u) in inputs.iter().enumerate() {
             let x = out[k];
             self.check_args(ws, k, &x, u)?;
-            let next = self.step_kernel::<F>(ws, &x, u, dt);
+            let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false);
+            let next = self.output.apply(&x, &o);
             if next.iter().any(|v| !v.is_finite()) {
                 return Err(RuntimeError::NonFiniteOutput { step: k });
             }
@@ -153,56 +168,33 @@ impl<T: Real> Predictor<T> {
         Ok(())
     }
 
+    /// `next[k]` is the state after `inputs[k]`, from `x0` for `k = 0` and from
+    /// `next[k - 1]` after.
     #[inline(always)]
     fn linearise_generic<F: MulAdd>(
         &self,
         ws: &mut Workspace<T>,
         x0: &State,
         inputs: &[Input],
-        traj: &mut [State],
+        next: &mut [State],
         a: &mut [StateMatrix],
         b: &mut [InputMatrix],
     ) -> Result<(), RuntimeError> {
-        traj[0] = *x0;
         for (k, u) in inputs.iter().enumerate() {
-            let x = traj[k];
+            let x = if k == 0 { *x0 } else { next[k - 1] };
             self.check_args(ws, k, &x, u)?;
-            let next = self.linearise_kernel::<F>(ws, &x, u, self.dt, &mut a[k], &mut b[k]);
+            let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true);
+            self.net.reverse::<F>(&mut ws.net);
+            self.output.jacobians(&self.net, &ws.net, &x, &o, &mut a[k], &mut b[k]);
+            let x_next = self.output.apply(&x, &o);
             // Three plain loops: one chained iterator over the three did not inline (5 % of a
             // linearisation).
             let finite = |v: &[f64]| v.iter().all(|v| v.is_finite());
-            if !(finite(next.as_slice()) && finite(a[k].as_slice()) && finite(b[k].as_slice())) {
+            if !(finite(x_next.as_slice()) && finite(a[k].as_slice()) && finite(b[k].as_slice())) {
                 return Err(RuntimeError::NonFiniteOutput { step: k });
             }
-            traj[k + 1] = next;
+            next[k] = x_next;
         }
         Ok(())
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn rollout_fused(
-        &self,
-        ws: &mut Workspace<T>,
-        x0: &State,
-        inputs: &[Input],
-        dt: f64,
-        out: &mut [State],
-    ) -> Result<(), RuntimeError> {
-        self.rollout_generic::<Fused>(ws, x0, inputs, dt, out)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn linearise_fused(
-        &self,
-        ws: &mut Workspace<T>,
-        x0: &State,
-        inputs: &[Input],
-        traj: &mut [State],
-        a: &mut [StateMatrix],
-        b: &mut [InputMatrix],
-    ) -> Result<(), RuntimeError> {
-        self.linearise_generic::<Fused>(ws, x0, inputs, traj, a, b)
     }
 }

@@ -46,6 +46,20 @@ pub enum RuntimeError {
     /// The time step is not a positive finite number.
     #[error("dt = {0} is not a positive finite number of seconds")]
     BadTimeStep(f64),
+    /// A linearisation output made for another horizon.
+    #[error("horizon linearisation sized for {expected} steps, given {found} inputs")]
+    HorizonMismatch {
+        /// The horizon the output was made for.
+        expected: usize,
+        /// Inputs given.
+        found: usize,
+    },
+    /// A workspace made for a predictor with another network shape.
+    #[error("{what} was made for another predictor (its buffers are sized for a different network)")]
+    WorkspaceMismatch {
+        /// Which workspace.
+        what: &'static str,
+    },
     /// Buffers of the wrong length were passed.
     #[error("{what}: length {found}, expected {expected}")]
     LengthMismatch {
@@ -56,6 +70,11 @@ pub enum RuntimeError {
         /// Given length.
         found: usize,
     },
+}
+
+/// Refuses a time step that is not a positive finite number.
+pub(crate) fn check_dt(dt: f64) -> Result<(), RuntimeError> {
+    if dt.is_finite() && dt > 0.0 { Ok(()) } else { Err(RuntimeError::BadTimeStep(dt)) }
 }
 
 /// Refuses a NaN or infinite state component.

@@ -1,23 +1,24 @@
 //! The allocation-free inference core: a frozen PINC steps, rolls out (one trajectory or a
 //! batch) and linearises exactly along a horizon. Knows nothing of burn.
+//!
+//! What a user meets is at this level (the predictor, its workspaces, the horizon output,
+//! the envelope record and the errors); the arithmetic is in `kernels`.
 
-mod activation;
 mod batch;
 mod calls;
 mod envelope;
 mod error;
-mod fold;
+mod horizon;
 mod kernels;
-mod network;
+mod output_map;
 mod predictor;
-mod real;
-#[cfg(target_arch = "x86_64")]
-mod registers;
+mod workspace;
 
-pub use activation::SOFTPLUS_THRESHOLD;
 pub use batch::{BatchWorkspace, LANES};
 pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
 pub use error::RuntimeError;
-pub(crate) use error::{check_input, check_len, check_state};
-pub use predictor::{Predictor, Workspace};
-pub use real::Real;
+pub(crate) use error::{check_input, check_state};
+pub use horizon::HorizonLinearisation;
+pub use kernels::{Real, SOFTPLUS_THRESHOLD};
+pub use predictor::Predictor;
+pub use workspace::Workspace;

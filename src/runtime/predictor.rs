@@ -1,40 +1,58 @@
-//! The frozen PINC as an immutable [`Predictor`] (weights in both memory layouts the
-//! kernels want) and the per-thread [`Workspace`] it computes in.
+//! The frozen PINC as an immutable [`Predictor`]: the network in the layout the kernels
+//! want, what its output means, its sample period and its training envelope.
 
-use super::RuntimeError;
-use super::envelope::{EnvelopeCheck, EnvelopeStatus};
+use super::envelope::EnvelopeCheck;
 use super::error::{check_input, check_state};
-use super::fold::Folded;
-use super::kernels::{PACK, Pack, fused_available, packs};
-use super::real::Real;
-use crate::model::{Activation, Envelope, PincModel};
-use crate::types::{Input, NX, State};
+use super::kernels::{Avx2Fma, Network, Real};
+use super::output_map::OutputMap;
+use super::workspace::Workspace;
+use super::{BatchWorkspace, RuntimeError};
+use crate::model::{Envelope, PincModel};
+use crate::types::{Input, State};
 
 /// A frozen PINC ready to run: `x_hat(t) = x + N([x_seen, u, t])` with the planar
-/// increments rotated by the predicted yaw (SPEC section 3).
+/// increments rotated by the predicted yaw (docs/MODEL.md section 3).
 ///
 /// Immutable after construction; every call takes a [`Workspace`] so that one predictor
 /// can serve many threads.
 ///
 /// `T` is the precision of the network arithmetic: `f32` (the default, [`Predictor::new`])
 /// is the fast path and the precision the network was trained in; `f64`
-/// (`Predictor::<f64>::with_precision`) is the reference whose Jacobians are checked against
-/// finite differences. States, inputs and Jacobians are `f64` either way, and the residual
-/// and rotation are applied in `f64`.
+/// ([`Predictor::reference`]) is the reference whose Jacobians are checked against finite
+/// differences. States, inputs and Jacobians are `f64` either way, and the residual and
+/// rotation are applied in `f64`.
+///
+/// # Example
+/// Load the shipped controller model, predict one step and linearise a 20-step horizon:
+/// ```
+/// use pinc::model::PincModel;
+/// use pinc::runtime::{HorizonLinearisation, Predictor};
+/// use pinc::{Input, State};
+///
+/// let model = PincModel::load(concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc"))?;
+/// let p = Predictor::new(&model);
+/// let mut ws = p.workspace();
+/// // At rest, heading 0 ((cos, sin) = (1, 0)), pushing forward with 5 N.
+/// let x = State::from([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+/// let u = Input::new(5.0, 0.0, 0.0, 0.0);
+/// let mut next = State::zeros();
+/// p.step(&mut ws, &x, &u, &mut next)?;
+/// assert!(next[5] > 0.0, "surge speeds up");
+///
+/// let mut lin = HorizonLinearisation::new(20);
+/// p.linearise_horizon(&mut ws, &x, &[u; 20], &mut lin)?;
+/// assert_eq!(lin.trajectory()[1], next);
+/// assert!(lin.b()[0][(5, 0)] > 0.0, "d u_1 / d X");
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Debug, Clone)]
 pub struct Predictor<T: Real = f32> {
-    pub(crate) net: Folded<T>,
-    pub(crate) activation: Activation,
-    pub(crate) seen: Vec<usize>,
-    pub(crate) n_in: usize,
-    /// Packs per hidden layer.
-    pub(crate) packs: usize,
-    pub(crate) residual: bool,
-    pub(crate) rotate: bool,
-    pub(crate) renormalise_yaw: bool,
+    pub(crate) net: Network<T>,
+    pub(crate) output: OutputMap,
     pub(crate) dt: f64,
     pub(crate) envelope: EnvelopeCheck,
-    pub(crate) fused: bool,
+    /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
+    pub(crate) cpu: Option<Avx2Fma>,
 }
 
 impl Predictor {
@@ -43,31 +61,37 @@ impl Predictor {
     /// # Memory allocation
     /// Allocates the weights twice (two layouts), about `8 * parameters` bytes.
     pub fn new(model: &PincModel) -> Self {
-        Self::with_precision(model)
+        Self::from_model(model)
+    }
+}
+
+impl Predictor<f64> {
+    /// Builds the `f64` reference predictor: the same network computed in double precision,
+    /// about 2.5x slower, whose Jacobians the tests check against finite differences.
+    ///
+    /// # Memory allocation
+    /// Allocates the weights twice (two layouts), about `16 * parameters` bytes.
+    pub fn reference(model: &PincModel) -> Self {
+        Self::from_model(model)
     }
 }
 
 impl<T: Real> Predictor<T> {
-    /// Builds a predictor computing in `T` from a validated model.
+    /// Builds a predictor computing in `T` from a validated model (for code generic over the
+    /// precision; [`Predictor::new`] and [`Predictor::reference`] name the two).
     ///
     /// # Memory allocation
     /// Allocates the weights twice (two layouts, padded to whole packs of 8 units),
     /// about `2 * size_of::<T>() * parameters` bytes.
-    pub fn with_precision(model: &PincModel) -> Self {
+    pub fn from_model(model: &PincModel) -> Self {
         let a = &model.architecture;
-        let seen: Vec<usize> = a.state_inputs.iter().map(|&i| i as usize).collect();
+        let net = Network::new(model);
         Self {
-            net: Folded::new(model),
-            activation: a.activation,
-            envelope: EnvelopeCheck::new(model.envelope.clone(), &seen),
-            seen,
-            n_in: a.input_size(),
-            packs: packs(a.width),
-            residual: a.residual,
-            rotate: a.rotate_xy,
-            renormalise_yaw: false,
+            envelope: EnvelopeCheck::new(model.envelope.clone(), &net.seen),
+            net,
+            output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: false },
             dt: model.dt,
-            fused: fused_available(),
+            cpu: Avx2Fma::detect(),
         }
     }
 
@@ -75,20 +99,20 @@ impl<T: Real> Predictor<T> {
     /// trained network's semantics, and what PyTorch computes).
     #[must_use]
     pub fn with_yaw_renormalisation(mut self, on: bool) -> Self {
-        self.renormalise_yaw = on;
+        self.output.renormalise_yaw = on;
         self
     }
 
     /// Use the portable kernels even where AVX2 + FMA are available (for comparison).
     #[must_use]
     pub fn with_portable_kernels(mut self) -> Self {
-        self.fused = false;
+        self.cpu = None;
         self
     }
 
     /// Whether the AVX2 + FMA kernels are in use.
     pub fn uses_fused_kernels(&self) -> bool {
-        self.fused
+        self.cpu.is_some()
     }
 
     /// The sample period the model was trained for (s).
@@ -103,7 +127,7 @@ impl<T: Real> Predictor<T> {
 
     /// Indices of the 9-state components the network sees.
     pub fn state_inputs(&self) -> &[usize] {
-        &self.seen
+        &self.net.seen
     }
 
     /// A workspace sized for this predictor.
@@ -111,7 +135,13 @@ impl<T: Real> Predictor<T> {
         Workspace::new(self)
     }
 
+    /// A batch workspace sized for this predictor.
+    pub fn batch_workspace(&self) -> BatchWorkspace<T> {
+        BatchWorkspace::new(self)
+    }
+
     /// Refuses non-finite arguments; records envelope exits.
+    #[inline(always)]
     pub(crate) fn check_args(
         &self,
         ws: &mut Workspace<T>,
@@ -123,57 +153,5 @@ impl<T: Real> Predictor<T> {
         check_input(step, u)?;
         self.envelope.check(&mut ws.envelope, step, x, u);
         Ok(())
-    }
-}
-
-/// Scratch memory for one thread's calls into a [`Predictor`].
-///
-/// # Memory allocation
-/// `Workspace::new` allocates about `(3 L + 1 + 2 * 9) * width + inputs + L` floats for `L`
-/// hidden layers (widths rounded up to packs of 8); no call that takes a workspace
-/// allocates afterwards.
-#[derive(Debug, Clone)]
-pub struct Workspace<T: Real = f32> {
-    /// Raw network input `[x_seen, u, t]`.
-    pub(crate) z: Vec<T>,
-    /// Pre-activations of the current layer.
-    pub(crate) pre: Vec<Pack<T>>,
-    /// Activation output of every hidden layer (LayerNorm is applied inside the next
-    /// layer's product), `L * packs`.
-    pub(crate) y: Vec<Pack<T>>,
-    /// Activation derivative of every hidden unit, `L * packs`.
-    pub(crate) d: Vec<Pack<T>>,
-    /// Normalised outputs of LayerNorm layers, `L * packs` (linearisation only).
-    pub(crate) xhat: Vec<Pack<T>>,
-    /// `1 / sqrt(var + eps)` of each LayerNorm layer.
-    pub(crate) inv_std: Vec<T>,
-    /// Reverse-mode rows (9 of them), `9 * max(packs, input packs)` packs each.
-    pub(crate) g: Vec<Pack<T>>,
-    pub(crate) g2: Vec<Pack<T>>,
-    /// Envelope exits of the last call.
-    pub(crate) envelope: EnvelopeStatus,
-}
-
-impl<T: Real> Workspace<T> {
-    /// Sizes every buffer for `p`.
-    pub fn new(p: &Predictor<T>) -> Self {
-        let l = p.net.hidden.len();
-        let rows = p.packs.max(packs(p.n_in));
-        Self {
-            z: vec![T::ZERO; p.n_in],
-            pre: vec![[T::ZERO; PACK]; p.packs],
-            y: vec![[T::ZERO; PACK]; l * p.packs],
-            d: vec![[T::ZERO; PACK]; l * p.packs],
-            xhat: vec![[T::ZERO; PACK]; l * p.packs],
-            inv_std: vec![T::ZERO; l],
-            g: vec![[T::ZERO; PACK]; NX * rows],
-            g2: vec![[T::ZERO; PACK]; NX * rows],
-            envelope: EnvelopeStatus::default(),
-        }
-    }
-
-    /// Envelope exits seen during the last `step`, `rollout` or linearisation call.
-    pub fn envelope_status(&self) -> EnvelopeStatus {
-        self.envelope
     }
 }

@@ -6,16 +6,17 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{self, DatasetPreset};
 use pinc::model::{Activation, ModelError, ModelSummary, PincModel, import_state_dict};
 use pinc::runtime::Predictor;
-use pinc::trajectory_csv::{parse_sim_state, read_inputs, write_trajectory};
 use pinc::vehicle::{Rk4Vehicle, to_network, to_simulator};
 use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
+use trajectory_csv::{parse_sim_state, read_inputs, write_trajectory};
 
 mod eval_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
+mod trajectory_csv;
 
 #[derive(Parser)]
 #[command(name = "pinc", version, about = "Physics-informed neural network with control for a BlueROV2")]
@@ -96,6 +97,14 @@ enum Command {
     /// Writes OUT (the model), OUT with .csv (metrics per epoch) and .png (curves).
     #[cfg(feature = "train")]
     Train(train_cmd::TrainArgs),
+    /// Train a PINC: needs the `train` feature (burn), which this build does not have.
+    #[cfg(not(feature = "train"))]
+    #[command(disable_help_flag = true)]
+    Train {
+        /// Whatever was given; nothing runs without the feature.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// The paper's metrics L1..L5 and VPT1..3 on freshly generated sets, and a rollout plot.
     Eval(eval_cmd::EvalArgs),
 }
@@ -133,6 +142,14 @@ fn main() -> ExitCode {
         Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
         #[cfg(feature = "train")]
         Command::Train(args) => train_cmd::run_train(args),
+        #[cfg(not(feature = "train"))]
+        Command::Train { .. } => {
+            // Burn takes ~4x the rest of the build, so the default build leaves the trainer out.
+            eprintln!(
+                "error: this pinc was built without the trainer; run `cargo run --release --features train -- train ...`"
+            );
+            return ExitCode::from(2);
+        }
         Command::Eval(args) => eval_cmd::run_eval(args),
     };
     match result {

@@ -2,7 +2,7 @@
 //! layer vectorise: `exp` and `log1p` are evaluated with range reduction and polynomials
 //! accurate to a few ulps instead of calls into libm.
 
-use super::kernels::{MulAdd, PACK, Pack};
+use super::packs::{MulAdd, PACK, Pack};
 use super::real::Real;
 use crate::model::Activation;
 
@@ -17,19 +17,19 @@ pub const SOFTPLUS_THRESHOLD: f64 = 20.0;
 /// `ln(1 + e^y)` (`y` itself above PyTorch's threshold) and its derivative `sigmoid(y)`.
 #[inline(always)]
 fn softplus<F: MulAdd, T: Real>(y: T) -> (T, T) {
-    let e = T::exp_nonpositive(-y.absolute(), F::mul_add);
+    let e = T::exp_nonpositive(-y.abs(), F::mul_add);
     // max(y, 0) as (y + |y|) / 2 (exact for finite y): `maximum` would turn a NaN (from an
     // input beyond the network's precision) into 0 and a garbage prediction into a finite one.
-    let sp = T::of(0.5) * (y + y.absolute()) + T::log1p_unit(e, F::mul_add);
+    let sp = T::from_f64(0.5) * (y + y.abs()) + T::log1p_unit(e, F::mul_add);
     let sigmoid = if y >= T::ZERO { T::ONE } else { e } / (T::ONE + e);
-    let linear = y > T::of(SOFTPLUS_THRESHOLD);
+    let linear = y > T::from_f64(SOFTPLUS_THRESHOLD);
     (if linear { y } else { sp }, if linear { T::ONE } else { sigmoid })
 }
 
 /// `tanh(y)` and its derivative.
 #[inline(always)]
 fn tanh<T: Real>(y: T) -> (T, T) {
-    let t = y.hyperbolic_tangent();
+    let t = y.tanh();
     (t, T::ONE - t * t)
 }
 
@@ -111,15 +111,15 @@ mod tests {
         let mut worst = 0.0_f64;
         for i in 0..200_000 {
             let x = -(i as f64) * 0.0035; // 0 .. -700
-            if x < -86.0 && T::of(1e-50).to_f64() == 0.0 {
+            if x < -86.0 && T::from_f64(1e-50).to_f64() == 0.0 {
                 break; // f32 underflows below
             }
             let got = if fused {
-                T::exp_nonpositive(T::of(x), Fused::mul_add)
+                T::exp_nonpositive(T::from_f64(x), Fused::mul_add)
             } else {
-                T::exp_nonpositive(T::of(x), Portable::mul_add)
+                T::exp_nonpositive(T::from_f64(x), Portable::mul_add)
             };
-            let want = T::of(x).to_f64().exp();
+            let want = T::from_f64(x).to_f64().exp();
             worst = worst.max(((got.to_f64() - want) / want).abs());
         }
         worst
@@ -128,7 +128,7 @@ mod tests {
     fn worst_log1p<T: Real>(fused: bool) -> f64 {
         let mut worst = 0.0_f64;
         for i in 0..=100_000 {
-            let e = T::of(i as f64 / 100_000.0);
+            let e = T::from_f64(i as f64 / 100_000.0);
             let got = if fused { T::log1p_unit(e, Fused::mul_add) } else { T::log1p_unit(e, Portable::mul_add) };
             let want = e.to_f64().ln_1p();
             let rel = if want == 0.0 { got.to_f64().abs() } else { ((got.to_f64() - want) / want).abs() };

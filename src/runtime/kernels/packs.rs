@@ -1,4 +1,4 @@
-//! The inner loops of the runtime, generic over how a multiply-add is done so the same
+//! Vectors in packs of eight and the inner loops over them, generic over how a multiply-add is done so the same
 //! code compiles once portably and once with AVX2 + FMA (selected at run time).
 //!
 //! Vectors of hidden units are stored as packs of [`PACK`] values (one AVX2 register of
@@ -35,25 +35,15 @@ impl MulAdd for Portable {
     }
 }
 
-/// Fused multiply-add: only inside functions compiled with the `fma` target feature.
+/// Fused multiply-add, in code compiled with the `avx2` and `fma` target features (reached
+/// only through an [`Avx2Fma`](super::Avx2Fma) token). Elsewhere it would still be exact, but
+/// a library call per operation.
 pub(crate) struct Fused;
 impl MulAdd for Fused {
     const WIDE_REGISTERS: bool = true;
     #[inline(always)]
     fn mul_add<T: Real>(a: T, b: T, c: T) -> T {
-        a.fma(b, c)
-    }
-}
-
-/// Whether this CPU can run the AVX2 + FMA kernels.
-pub(crate) fn fused_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
+        a.mul_add(b, c)
     }
 }
 

@@ -10,7 +10,7 @@
 //! products, the bare activation and LayerNorm without gain or bias. The fold is exact
 //! in real arithmetic (done in f64); it changes the rounding of an f32 network by a few ulps.
 
-use super::kernels::{PACK, Pack, packs};
+use super::packs::{PACK, Pack, packs};
 use super::real::Real;
 use crate::model::{Activation, Linear, PincModel};
 use crate::types::NX;
@@ -42,13 +42,13 @@ impl<T: Real> Dense<T> {
         let mut bias = vec![[T::ZERO; PACK]; p];
         let mut row_sum = vec![[T::ZERO; PACK]; p];
         for j in 0..rows {
-            row_sum[j / PACK][j % PACK] = T::of(w[j * cols..(j + 1) * cols].iter().sum());
+            row_sum[j / PACK][j % PACK] = T::from_f64(w[j * cols..(j + 1) * cols].iter().sum());
             for i in 0..cols {
-                let v = T::of(w[j * cols + i]);
+                let v = T::from_f64(w[j * cols + i]);
                 fwd[i * p + j / PACK][j % PACK] = v;
                 rev[j * q + i / PACK][i % PACK] = v;
             }
-            bias[j / PACK][j % PACK] = T::of(b[j]);
+            bias[j / PACK][j % PACK] = T::from_f64(b[j]);
         }
         Self { cols, fwd, rev, bias, row_sum }
     }
@@ -118,7 +118,7 @@ impl<T: Real> Folded<T> {
             match &h.layer_norm {
                 Some(n) => {
                     // LN(post s) = sign(post) (s - mean s) / sqrt(var s + eps / post^2).
-                    norm_eps.push(Some(T::of(f64::from(n.eps) / (post * post))));
+                    norm_eps.push(Some(T::from_f64(f64::from(n.eps) / (post * post))));
                     alpha = n.gain.iter().map(|&g| f64::from(g) * post.signum()).collect();
                     c = n.bias.iter().map(|&v| f64::from(v)).collect();
                 }
@@ -149,7 +149,7 @@ impl<T: Real> Folded<T> {
             output: Dense::new(NX, o.cols, &w, &b),
             mask,
             width,
-            inv_width: T::of(1.0 / width as f64),
+            inv_width: T::from_f64(1.0 / width as f64),
         }
     }
 }

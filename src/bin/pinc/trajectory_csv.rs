@@ -1,7 +1,7 @@
 //! The CSV contracts of the command line: input sequences (`X,Y,Z,Mz`, one row per held
 //! sample interval) in, trajectories (`t,x,y,z,psi,u,v,w,r`) out.
 
-use crate::types::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, SimState};
+use pinc::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, SimState};
 use std::io::{Read, Write};
 
 /// What is wrong with an input CSV; every variant names the line (1-based, header = 1).
@@ -129,4 +129,15 @@ pub fn parse_sim_state(text: &str) -> Result<SimState, String> {
         s[i] = v;
     }
     Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn read_inputs_accepts_reordered_and_extra_columns() {
+        let u = read_inputs("t, Mz ,X,Z,Y\n0,4,1,3,2\n".as_bytes()).unwrap();
+        assert_eq!(u, vec![Input::new(1.0, 2.0, 3.0, 4.0)]);
+    }
 }

@@ -40,25 +40,38 @@ pub trait Real:
     #[doc(hidden)]
     const BLOCK: usize;
     /// Rounds an `f64` to this type.
-    fn of(v: f64) -> Self;
+    fn from_f64(v: f64) -> Self;
     /// Widens to `f64`.
     fn to_f64(self) -> f64;
     /// Fused `self * a + b`.
-    fn fma(self, a: Self, b: Self) -> Self;
+    fn mul_add(self, a: Self, b: Self) -> Self;
     /// IEEE maximum.
-    fn maximum(self, o: Self) -> Self;
+    fn max(self, o: Self) -> Self;
     /// Absolute value.
-    fn absolute(self) -> Self;
+    fn abs(self) -> Self;
     /// Square root.
-    fn root(self) -> Self;
+    fn sqrt(self) -> Self;
     /// Hyperbolic tangent.
-    fn hyperbolic_tangent(self) -> Self;
+    fn tanh(self) -> Self;
+    /// `Some(x)` where `Self` is `f32`, `None` otherwise: how the kernels select the `f32`-only
+    /// register forward pass at compile time, without a type-id check or a cast.
+    #[doc(hidden)]
+    fn as_f32<C: Family>(x: C::Of<'_, Self>) -> Option<C::Of<'_, f32>>;
     /// `exp(x)` for `x <= 0`, branch-free; `mul_add` says how multiply-adds are done.
     #[doc(hidden)]
     fn exp_nonpositive(x: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self;
     /// `ln(1 + e)` for `e` in `[0, 1]`, branch-free.
     #[doc(hidden)]
     fn log1p_unit(e: Self, mul_add: impl Fn(Self, Self, Self) -> Self) -> Self;
+}
+
+/// A family of types parameterised by the precision (for example "a network and its
+/// scratch memory in precision `T`"), so that [`Real::as_f32`] can hand the `f32` member
+/// of the family to code that exists for `f32` only.
+#[doc(hidden)]
+pub trait Family {
+    /// The member in precision `T`.
+    type Of<'a, T: Real>;
 }
 
 /// `1 / n!`.
@@ -78,13 +91,17 @@ const fn inv_odd(n: usize) -> f64 {
 }
 
 macro_rules! real_impl {
-    ($t:ty, $bits:ty, $mant:expr, $bias:expr, $min_x:expr, exp($r:ident, $ma:ident) $exp_poly:block, $ln2_hi:expr, $ln2_lo:expr, $block:expr, log1p($e:ident, $mul_add:ident) $log1p:block) => {
+    ($t:ty, $bits:ty, $mant:expr, $bias:expr, $min_x:expr, exp($r:ident, $ma:ident) $exp_poly:block, $ln2_hi:expr, $ln2_lo:expr, $block:expr, log1p($e:ident, $mul_add:ident) $log1p:block, as_f32($x:ident) $as_f32:expr) => {
         impl Real for $t {
+            #[inline(always)]
+            fn as_f32<C: Family>($x: C::Of<'_, Self>) -> Option<C::Of<'_, f32>> {
+                $as_f32
+            }
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
             const BLOCK: usize = $block;
             #[inline(always)]
-            fn of(v: f64) -> Self {
+            fn from_f64(v: f64) -> Self {
                 v as $t
             }
             #[inline(always)]
@@ -92,23 +109,23 @@ macro_rules! real_impl {
                 self as f64
             }
             #[inline(always)]
-            fn fma(self, a: Self, b: Self) -> Self {
+            fn mul_add(self, a: Self, b: Self) -> Self {
                 self.mul_add(a, b)
             }
             #[inline(always)]
-            fn maximum(self, o: Self) -> Self {
+            fn max(self, o: Self) -> Self {
                 self.max(o)
             }
             #[inline(always)]
-            fn absolute(self) -> Self {
+            fn abs(self) -> Self {
                 self.abs()
             }
             #[inline(always)]
-            fn root(self) -> Self {
+            fn sqrt(self) -> Self {
                 self.sqrt()
             }
             #[inline(always)]
-            fn hyperbolic_tangent(self) -> Self {
+            fn tanh(self) -> Self {
                 self.tanh()
             }
             #[inline(always)]
@@ -185,7 +202,8 @@ real_impl!(
             p = mul_add(p, s2, c);
         }
         mul_add(2.0 * s, p, j)
-    }
+    },
+    as_f32(_x) None
 );
 // f32: polynomials fitted for f32 accuracy, evaluated with short dependency chains (shared
 // with the register kernel, which evaluates the same operations eight lanes at a time).
@@ -242,5 +260,6 @@ real_impl!(
         let r1 = mul_add(q3, e2, q2);
         let r1 = mul_add(C[8], e4, r1);
         e * mul_add(r1, e4, r0)
-    }
+    },
+    as_f32(x) Some(x)
 );

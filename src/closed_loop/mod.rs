@@ -1,0 +1,14 @@
+//! The closed loop: the analytic vehicle as the plant (inputs held over each sample, RK4
+//! with 16 sub-steps), an [`Mpc`](crate::mpc::Mpc) on any model, the tracking scenarios,
+//! the summary of a run (tracking errors, overshoot, settling, solver timing, fallbacks,
+//! bound violations) and its MCAP log for Foxglove.
+
+mod log;
+mod run;
+mod scenario;
+mod summary;
+
+pub use log::{Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
+pub use run::{Sample, run};
+pub use scenario::{Plant, Scenario};
+pub use summary::{Summary, summarise};

@@ -1,0 +1,286 @@
+//! The controller: its model, plan, QP and persistent solver, and one control cycle in named
+//! phases (shift, linearise, write the QP's data, solve, accept the solution).
+
+use super::qp::{ALL_STATES, Qp, WITHOUT_POSITION};
+use super::settings::solver_settings;
+use super::{CycleReport, Fallback, MpcConfig, MpcError, Reference, Weights};
+use crate::runtime::{EnvelopeStatus, HorizonLinearisation};
+use crate::traits::DiscreteModel;
+use crate::types::{Input, NU, NX, State};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+use std::time::Instant;
+
+/// The real-time-iteration LTV-MPC: every sample it shifts its plan, rolls its model out
+/// and linearises exactly, writes the new data into a persistent Clarabel solver and solves
+/// one sparse QP. All buffers are allocated at construction.
+///
+/// # Example
+/// The oracle controller (the analytic vehicle as its model) on one cycle from rest:
+/// ```
+/// use pinc::mpc::{Mpc, MpcConfig, Reference};
+/// use pinc::vehicle::Rk4Vehicle;
+/// use pinc::{Input, State};
+///
+/// let bounds = (Input::new(-10.0, -5.0, -5.0, -1.0), Input::new(10.0, 5.0, 20.0, 1.0));
+/// let cfg = MpcConfig { bounds: Some(bounds), ..MpcConfig::default() };
+/// let mut mpc = Mpc::new(Rk4Vehicle::default(), cfg)?;
+/// let mut x = State::zeros();
+/// x[3] = 1.0; // heading 0: (cos, sin) = (1, 0)
+/// let dive = [Reference { depth: 1.0, heading: 0.0 }; 20];
+/// let report = mpc.step(&x, &dive);
+/// assert!(report.fallback.is_none());
+/// assert!(report.input[2] > 0.0, "pushes down (z is down) towards 1 m");
+/// # Ok::<(), pinc::mpc::MpcError>(())
+/// ```
+pub struct Mpc<M: DiscreteModel> {
+    model: M,
+    ws: M::Workspace,
+    cfg: MpcConfig,
+    lo: Input,
+    hi: Input,
+    state_weights: [f64; NX],
+    qp: Qp,
+    solver: DefaultSolver<f64>,
+    /// The input plan `u_0 .. u_{N-1}` of the last cycle.
+    plan: Vec<Input>,
+    /// The nominal plan of this cycle (shifted previous plan).
+    nominal: Vec<Input>,
+    /// The nominal rollout of `nominal` and its linearisation.
+    lin: HorizonLinearisation,
+    predicted: Vec<State>,
+    last_applied: Input,
+}
+
+impl<M: DiscreteModel> Mpc<M> {
+    /// A controller for `model`, starting from rest with a zero-force plan clipped to the bounds.
+    ///
+    /// # Errors
+    /// No input bounds, a zero horizon, negative weights, or a QP Clarabel refuses.
+    pub fn new(model: M, cfg: MpcConfig) -> Result<Self, MpcError> {
+        let (lo, hi) = cfg.bounds.or_else(|| model.input_bounds()).ok_or(MpcError::NoBounds)?;
+        cfg.validate()?;
+        if (0..NU).any(|j| !(lo[j].is_finite() && hi[j].is_finite() && lo[j] <= hi[j])) {
+            return Err(MpcError::Config(format!("input bounds {lo:?} .. {hi:?}")));
+        }
+        let mut state_weights = [0.0; NX];
+        state_weights[2] = cfg.depth;
+        state_weights[3] = cfg.heading;
+        state_weights[4] = cfg.heading;
+        state_weights[5..].copy_from_slice(&cfg.velocity);
+        let w = Weights { state: state_weights, terminal: cfg.terminal, input: cfg.input, input_rate: cfg.input_rate };
+        let n = cfg.horizon;
+        let states: &[usize] = if model.position_free() { &WITHOUT_POSITION } else { &ALL_STATES };
+        let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states);
+        let n_ineq = qp.b.len() - qp.n_eq;
+        let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
+        // A placeholder problem with the final pattern; every cycle overwrites its data.
+        let mut b = qp.b.clone();
+        b[qp.n_eq..].fill(1.0);
+        let solver = DefaultSolver::new(&qp.p, &qp.q, &qp.a, &b, &cones, solver_settings(&cfg)?)
+            .map_err(|e| MpcError::Setup(e.to_string()))?;
+        let rest = Input::from_fn(|j, _| 0.0f64.clamp(lo[j], hi[j]));
+        Ok(Self {
+            ws: model.workspace(),
+            model,
+            lo,
+            hi,
+            state_weights,
+            qp,
+            solver,
+            plan: vec![rest; n],
+            nominal: vec![rest; n],
+            lin: HorizonLinearisation::new(n),
+            predicted: vec![State::zeros(); n + 1],
+            last_applied: rest,
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MpcConfig {
+        &self.cfg
+    }
+
+    /// The input bounds in force `(min, max)`.
+    pub fn bounds(&self) -> (Input, Input) {
+        (self.lo, self.hi)
+    }
+
+    /// The model inside.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+
+    /// The predicted states `x_0 .. x_N` of the last successful cycle (the linearised
+    /// prediction `xbar_k + dx_k`).
+    pub fn prediction(&self) -> &[State] {
+        &self.predicted
+    }
+
+    /// The input plan of the last cycle.
+    pub fn plan(&self) -> &[Input] {
+        &self.plan
+    }
+
+    fn clip(&self, u: &Input) -> Input {
+        Input::from_fn(|j, _| u[j].clamp(self.lo[j], self.hi[j]))
+    }
+
+    /// One control cycle from the measured state `x` with references `refs[k]` for the
+    /// predicted states `k = 1..=N` (`refs.len() == horizon`; the last is reused if shorter).
+    ///
+    /// # Panics
+    /// If `refs` is empty.
+    pub fn step(&mut self, x: &State, refs: &[Reference]) -> CycleReport {
+        assert!(!refs.is_empty(), "at least one reference");
+        let t0 = Instant::now();
+        self.shift_plan();
+        let mut report = CycleReport::holding(self.nominal[0]);
+        let linearised = self.model.linearise_horizon(&mut self.ws, x, &self.nominal, &mut self.lin);
+        let t1 = Instant::now();
+        report.linearise_us = (t1 - t0).as_secs_f64() * 1e6;
+        report.envelope = self.model.envelope_status(&self.ws);
+        report.fallback = if linearised.is_err() {
+            Some(Fallback::Model)
+        } else if self.cfg.envelope_fallback && !report.envelope.inside() {
+            Some(Fallback::Envelope)
+        } else {
+            self.solve(refs, t1, &mut report)
+        };
+        if report.fallback.is_some() {
+            self.plan.copy_from_slice(&self.nominal);
+        }
+        self.finish_report(&mut report, t0);
+        report
+    }
+
+    /// The nominal plan of this cycle: the previous plan shifted by one sample (`u_k <-
+    /// u_{k+1}`, the last repeated), clipped to the bounds.
+    fn shift_plan(&mut self) {
+        let n = self.cfg.horizon;
+        for k in 0..n {
+            self.nominal[k] = self.clip(&self.plan[(k + 1).min(n - 1)]);
+        }
+    }
+
+    /// Writes this cycle's data into the solver, solves, and on success takes the solution
+    /// as the new plan and prediction. Returns why it fell back, if it did.
+    fn solve(&mut self, refs: &[Reference], t1: Instant, report: &mut CycleReport) -> Option<Fallback> {
+        self.fill_data(refs);
+        let written = self.solver.update_A(&self.qp.a_values).is_ok()
+            && self.solver.update_q(&self.qp.q).is_ok()
+            && self.solver.update_b(&self.qp.b).is_ok();
+        let t2 = Instant::now();
+        report.update_us = (t2 - t1).as_secs_f64() * 1e6;
+        if !written {
+            return Some(Fallback::Solver(SolverStatus::Unsolved));
+        }
+        self.solver.solve();
+        report.solve_us = t2.elapsed().as_secs_f64() * 1e6;
+        let sol = &self.solver.solution;
+        (report.status, report.iterations, report.objective) = (sol.status, sol.iterations, sol.obj_val);
+        let finite = sol.x.iter().all(|v| v.is_finite());
+        if !(matches!(sol.status, SolverStatus::Solved | SolverStatus::AlmostSolved) && finite) {
+            return Some(Fallback::Solver(sol.status));
+        }
+        self.accept_solution();
+        report.input = self.plan[0];
+        None
+    }
+
+    /// The new plan (nominal plus the QP's input deviations, clipped) and the prediction.
+    fn accept_solution(&mut self) {
+        let n = self.cfg.horizon;
+        let sol = &self.solver.solution.x;
+        let du = |k: usize| Input::from_fn(|j, _| sol[self.qp.u_index(k, j)]);
+        for k in 0..n {
+            self.plan[k] = self.clip(&(self.nominal[k] + du(k)));
+        }
+        // The QP's states from its solution, any left out (x, y) by propagating the
+        // linearised dynamics: both are the same linear prediction.
+        let (traj, a, b) = (self.lin.trajectory(), self.lin.a(), self.lin.b());
+        self.predicted[0] = traj[0];
+        let mut dx = State::zeros();
+        for k in 0..n {
+            let mut next = a[k] * dx + b[k] * du(k);
+            for (s, &i) in self.qp.states.iter().enumerate() {
+                next[i] = sol[self.qp.x_index(k + 1, s)];
+            }
+            dx = next;
+            self.predicted[k + 1] = traj[k + 1] + dx;
+        }
+    }
+
+    /// Saturation flags, the applied input, the cycle time and the deadline.
+    fn finish_report(&mut self, report: &mut CycleReport, t0: Instant) {
+        for j in 0..NU {
+            let span = (self.hi[j] - self.lo[j]).max(1e-12);
+            report.saturated[j] =
+                report.input[j] <= self.lo[j] + 1e-6 * span || report.input[j] >= self.hi[j] - 1e-6 * span;
+        }
+        self.last_applied = report.input;
+        report.cycle_us = t0.elapsed().as_secs_f64() * 1e6;
+        report.deadline_missed = report.cycle_us > self.cfg.deadline * 1e6;
+    }
+
+    /// The QP's linear cost, bounds and dynamics for this cycle's nominal trajectory.
+    fn fill_data(&mut self, refs: &[Reference]) {
+        let n = self.cfg.horizon;
+        let qp = &mut self.qp;
+        qp.set_dynamics(self.lin.a(), self.lin.b());
+        let traj = self.lin.trajectory();
+        for k in 1..=n {
+            let r = refs[(k - 1).min(refs.len() - 1)];
+            let mut target = [0.0; NX];
+            (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
+            let f = if k == n { self.cfg.terminal } else { 1.0 };
+            for (s, &i) in qp.states.iter().enumerate() {
+                let at = qp.x_index(k, s);
+                qp.q[at] = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
+            }
+        }
+        for k in 0..n {
+            let prev = if k == 0 { self.last_applied } else { self.nominal[k - 1] };
+            for j in 0..NU {
+                let ubar = self.nominal[k][j];
+                let rate_w = 2.0 * self.cfg.input_rate[j];
+                let d_here = ubar - prev[j];
+                let mut q = 2.0 * self.cfg.input[j] * ubar + rate_w * d_here;
+                if k + 1 < n {
+                    q -= rate_w * (self.nominal[k + 1][j] - ubar);
+                }
+                let at = qp.u_index(k, j);
+                qp.q[at] = q;
+                let (ub, lb) = (qp.bound_row(k, j, true), qp.bound_row(k, j, false));
+                qp.b[ub] = self.hi[j] - ubar;
+                qp.b[lb] = ubar - self.lo[j];
+                if let Some(rate) = self.cfg.rate_limit {
+                    let (ru, rl) = (qp.rate_row(k, j, true), qp.rate_row(k, j, false));
+                    qp.b[ru] = rate[j] - d_here;
+                    qp.b[rl] = rate[j] + d_here;
+                }
+            }
+        }
+        // The equality rows of `b` stay zero from construction (the rollout has no defect).
+    }
+}
+
+impl CycleReport {
+    /// A report that applies `input` (the shifted plan) until the cycle says otherwise.
+    fn holding(input: Input) -> Self {
+        Self {
+            input,
+            saturated: [false; NU],
+            fallback: None,
+            envelope: EnvelopeStatus::default(),
+            status: SolverStatus::Unsolved,
+            iterations: 0,
+            objective: f64::NAN,
+            linearise_us: 0.0,
+            update_us: 0.0,
+            solve_us: 0.0,
+            cycle_us: 0.0,
+            deadline_missed: false,
+        }
+    }
+}
