@@ -1,4 +1,4 @@
-//! The paper's evaluation (SPEC section 5): one-step, 10-step rollout and physics-residual
+//! The paper's evaluation (docs/MODEL.md section 5): one-step, 10-step rollout and physics-residual
 //! MSEs, and the valid prediction time, computed with the frozen runtime.
 //!
 //! Definitions, for a set of trajectories with `N + 1` points each:

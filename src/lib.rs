@@ -29,3 +29,9 @@ pub mod eval;
 pub mod plot;
 
 pub use types::*;
+
+/// The README's code blocks, compiled and run by `cargo test` so the README cannot drift
+/// from the API.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

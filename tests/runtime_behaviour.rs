@@ -2,7 +2,7 @@
 
 mod common;
 
-use pinc::runtime::{BatchWorkspace, Predictor, Quantity, Real, RuntimeError};
+use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Quantity, Real, RuntimeError};
 use pinc::{Input, State};
 
 /// Random networks drift; 30 steps keep every variant finite.
@@ -282,4 +282,38 @@ fn batch_envelope_flags_match_the_single_rollouts() {
     let (_, want) = first.unwrap();
     assert_eq!(status.first, Some(want));
     assert_eq!((want.step, want.quantity), (4, Quantity::Input(0)));
+}
+
+#[test]
+fn a_workspace_or_output_made_for_another_predictor_or_horizon_is_an_error_not_a_panic() {
+    let small = Predictor::new(&common::random_model(pinc::model::Architecture::paper(2, 8), 1));
+    let large = Predictor::new(&common::paper_4x32(2));
+    let (x0, inputs) = case(0);
+    let mut traj = vec![State::zeros(); 11];
+    let mut next = State::zeros();
+    let mismatch = RuntimeError::WorkspaceMismatch { what: "workspace" };
+    // Buffers sized for 2 x 8 are too small for 4 x 32, and the reverse has other strides.
+    for (p, other) in [(&large, &small), (&small, &large)] {
+        let mut ws = other.workspace();
+        assert_eq!(p.rollout(&mut ws, &x0, &inputs[..10], &mut traj), Err(mismatch));
+        assert_eq!(p.step(&mut ws, &x0, &inputs[0], &mut next), Err(mismatch));
+        let mut lin = HorizonLinearisation::new(10);
+        assert_eq!(p.linearise_horizon(&mut ws, &x0, &inputs[..10], &mut lin), Err(mismatch));
+        let mut bws = other.batch_workspace();
+        let mut out = vec![State::zeros(); 11];
+        assert_eq!(
+            p.rollout_batch(&mut bws, &[x0], &inputs[..10], &mut out),
+            Err(RuntimeError::WorkspaceMismatch { what: "batch workspace" })
+        );
+    }
+    // The right workspace, a linearisation output for another horizon.
+    let mut ws = large.workspace();
+    let mut lin = HorizonLinearisation::new(20);
+    assert_eq!(
+        large.linearise_horizon(&mut ws, &x0, &inputs[..10], &mut lin),
+        Err(RuntimeError::HorizonMismatch { expected: 20, found: 10 })
+    );
+    assert_eq!(lin, HorizonLinearisation::new(20), "nothing written on a refused call");
+    large.linearise_horizon(&mut ws, &x0, &inputs[..20], &mut lin).unwrap();
+    assert_eq!(lin.trajectory()[0], x0);
 }

@@ -1,4 +1,4 @@
-//! The paper's datasets (SPEC section 2) and an MPC operating-envelope preset: seeded
+//! The paper's datasets (docs/MODEL.md section 2) and an MPC operating-envelope preset: seeded
 //! generation with the analytic vehicle, and `.npy` + JSON storage numpy can read.
 
 mod error;

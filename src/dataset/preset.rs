@@ -1,4 +1,4 @@
-//! What each dataset preset generates: the paper protocol (SPEC section 2) and an
+//! What each dataset preset generates: the paper protocol (docs/MODEL.md section 2) and an
 //! operating-envelope preset for model-predictive control.
 
 use crate::types::{NS, NU};

@@ -82,6 +82,22 @@ impl PincModel {
     /// # Errors
     /// As [`PincModel::from_bytes`], plus [`ModelError::Io`]; a file over
     /// [`MAX_FILE_BYTES`] is refused before it is read.
+    ///
+    /// # Example
+    /// A shipped model loads; a copy with one flipped bit is refused by its checksum:
+    /// ```
+    /// use pinc::model::{ModelError, PincModel};
+    ///
+    /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc");
+    /// let model = PincModel::load(path)?;
+    /// assert_eq!((model.architecture.hidden_layers, model.architecture.width), (4, 32));
+    ///
+    /// let mut bytes = std::fs::read(path)?;
+    /// let last = bytes.len() - 1;
+    /// bytes[last] ^= 1;
+    /// assert!(matches!(PincModel::from_bytes(&bytes), Err(ModelError::ChecksumMismatch { .. })));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ModelError> {
         let path = path.as_ref();
         let io = |source| ModelError::Io { path: path.to_path_buf(), source };

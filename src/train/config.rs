@@ -14,7 +14,7 @@ pub enum Backend {
     Flex,
 }
 
-/// The five losses of SPEC section 4.
+/// The five losses of docs/MODEL.md section 4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum LossKind {
     /// One-step prediction against the next sample.
@@ -105,7 +105,7 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
-    /// The paper's best configuration (SPEC section 6, "normalisation"): 4x32 softplus with
+    /// The paper's best configuration (docs/MODEL.md section 6, "normalisation"): 4x32 softplus with
     /// residual, rotation and LayerNorm; all five losses with the paper's weights; batch 10;
     /// 20-step rollouts.
     pub fn paper() -> Self {

@@ -1,4 +1,4 @@
-//! Combining per-loss gradients into one update direction (SPEC section 4), on flattened
+//! Combining per-loss gradients into one update direction (docs/MODEL.md section 4), on flattened
 //! gradients: plain sum, the paper's normalisation, and ConFIG (Liu, Chu & Thuerey 2024).
 //! Then a global-norm clip (burn's own clipping is per tensor).
 

@@ -1,4 +1,4 @@
-//! A batch of trajectories as tensors, and the five losses of SPEC section 4.
+//! A batch of trajectories as tensors, and the five losses of docs/MODEL.md section 4.
 
 use super::config::{LossKind, TrainConfig};
 use super::net::PincNet;

@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 pub const LAYER_NORM_EPS: f64 = 1e-5;
 
 /// The network `x_hat(t) = x + N([x_seen, u, t])` with adaptive activations, hand-written
-/// LayerNorm, residual and yaw rotation (SPEC section 3).
+/// LayerNorm, residual and yaw rotation (docs/MODEL.md section 3).
 #[derive(Module, Debug)]
 pub struct PincNet {
     /// Hidden weights, `[in, width]` (so the forward pass is `a W`).

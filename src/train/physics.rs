@@ -1,4 +1,4 @@
-//! The vehicle's right-hand side (SPEC section 1, network form) in tensor ops, for the
+//! The vehicle's right-hand side (docs/MODEL.md section 1, network form) in tensor ops, for the
 //! physics losses.
 
 use crate::types::NX;

@@ -1,4 +1,4 @@
-//! The analytic BlueROV2: the simplified 4-DOF Fossen model of SPEC section 1, its
+//! The analytic BlueROV2: the simplified 4-DOF Fossen model of docs/MODEL.md section 1, its
 //! parameters, and its zero-order-hold discretisation.
 
 mod dynamics;

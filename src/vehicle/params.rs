@@ -1,4 +1,4 @@
-//! BlueROV2 parameters of the simplified 4-DOF Fossen model (SPEC section 1).
+//! BlueROV2 parameters of the simplified 4-DOF Fossen model (docs/MODEL.md section 1).
 
 use serde::{Deserialize, Serialize};
 

@@ -1,4 +1,4 @@
-//! Physics checks derived from the equations of SPEC section 1, not from the code.
+//! Physics checks derived from the equations of docs/MODEL.md section 1, not from the code.
 
 use super::*;
 use crate::types::{Input, SimState, State};

@@ -116,7 +116,7 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
     ]
 }
 
-/// One step of `m` computed the plain way, in f64, straight from the SPEC's definition
+/// One step of `m` computed the plain way, in f64, straight from the definition in docs/MODEL.md
 /// (input scaling, Linear, `softplus(beta h) / beta` with torch's threshold or
 /// `tanh(beta h)`, LayerNorm with gain and bias, output layer and scaling, residual, planar
 /// increments rotated by the predicted yaw): the reference the runtime's folded, packed
