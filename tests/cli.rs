@@ -222,3 +222,18 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     assert!(plot.exists());
     assert_eq!(pinc(&["train", "--out", m, "--grad", "nope"]).status.code(), Some(2));
 }
+
+#[test]
+fn predict_warns_of_every_component_outside_the_envelope_farthest_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = format!("{}/models/mpc_pinc.pinc", env!("CARGO_MANIFEST_DIR"));
+    // Heading 0 ((cos, sin) = (1, 0), inside by construction) and a surge force nine orders
+    // of magnitude past the envelope, with a yaw moment just past it.
+    let inputs = write(dir.path(), "in.csv", "X,Y,Z,Mz\n1e9,0,0,1.5\n");
+    let out = pinc(&["predict", "--model", &model, "--x0", "0,0,0,0,0,0,0,0", "--inputs", &inputs]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("cos_psi"), "{err}");
+    let (x, mz) = (err.find("X = 1000000000").expect(&err), err.find("Mz = 1.5").expect(&err));
+    assert!(x < mz, "the farthest exit first: {err}");
+}

@@ -27,6 +27,15 @@ pub struct EnvelopeExit {
     pub max: f64,
 }
 
+impl EnvelopeExit {
+    /// How far outside: the distance past the nearer bound in units of the range's width,
+    /// so that components of different units can be ranked.
+    pub fn excess(&self) -> f64 {
+        let past = if self.value < self.min { self.min - self.value } else { self.value - self.max };
+        past / (self.max - self.min).max(f64::MIN_POSITIVE)
+    }
+}
+
 /// Envelope exits counted during the last runtime call.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EnvelopeStatus {
@@ -34,12 +43,30 @@ pub struct EnvelopeStatus {
     pub exits: usize,
     /// The first of them.
     pub first: Option<EnvelopeExit>,
+    /// Per component (the 9 states, then the 4 inputs): its farthest exit.
+    worst: [Option<EnvelopeExit>; NX + NU],
 }
 
 impl EnvelopeStatus {
     /// True if every value was inside the envelope (or the model has none).
     pub fn inside(&self) -> bool {
         self.exits == 0
+    }
+
+    /// Every component that left the envelope, each at its farthest exit, the farthest
+    /// ([`EnvelopeExit::excess`]) first.
+    pub fn worst_exits(&self) -> Vec<EnvelopeExit> {
+        let mut v: Vec<EnvelopeExit> = self.worst.iter().flatten().copied().collect();
+        v.sort_by(|a, b| b.excess().total_cmp(&a.excess()));
+        v
+    }
+
+    /// Records an exit of component `slot` (state index, or `NX +` input index).
+    fn record(&mut self, slot: usize, exit: EnvelopeExit) {
+        self.first.get_or_insert(exit);
+        if self.worst[slot].is_none_or(|w| exit.excess() > w.excess()) {
+            self.worst[slot] = Some(exit);
+        }
     }
 }
 
@@ -51,10 +78,19 @@ pub(crate) struct EnvelopeCheck {
 }
 
 impl EnvelopeCheck {
-    pub(crate) fn new(envelope: Option<Envelope>, seen: &[usize]) -> Self {
+    /// The check of `envelope` on the components in `seen`. `cos psi` and `sin psi` lie in
+    /// [-1, 1] by construction: a recorded range that ends just short of that (the training
+    /// headings never hit 0 or 180 deg exactly) is widened to it.
+    pub(crate) fn new(mut envelope: Option<Envelope>, seen: &[usize]) -> Self {
         let mut mask = [false; NX];
         for &i in seen {
             mask[i] = true;
+        }
+        if let Some(e) = &mut envelope {
+            for i in [3, 4] {
+                e.state_min[i] = e.state_min[i].min(-1.0);
+                e.state_max[i] = e.state_max[i].max(1.0);
+            }
         }
         Self { seen: mask, envelope }
     }
@@ -89,40 +125,23 @@ impl EnvelopeCheck {
         outside.iter().any(|&o| o)
     }
 
-    /// Records in `status` if `x` or `u` is outside the envelope at `step`.
+    /// Records in `status` if `x` or `u` is outside the envelope at `step`: one exit for the
+    /// step, and each component's farthest value outside.
     #[inline]
     pub(crate) fn check(&self, status: &mut EnvelopeStatus, step: usize, x: &State, u: &Input) {
         let Some(e) = &self.envelope else { return };
-        let mut first = None;
-        for i in 0..NX {
-            if self.seen[i] && !(e.state_min[i]..=e.state_max[i]).contains(&x[i]) {
-                first = Some(EnvelopeExit {
-                    step,
-                    quantity: Quantity::State(i),
-                    value: x[i],
-                    min: e.state_min[i],
-                    max: e.state_max[i],
-                });
-                break;
+        let states =
+            (0..NX).filter(|&i| self.seen[i]).map(|i| (i, Quantity::State(i), x[i], e.state_min[i], e.state_max[i]));
+        let inputs = (0..NU).map(|i| (NX + i, Quantity::Input(i), u[i], e.input_min[i], e.input_max[i]));
+        let mut left = false;
+        for (slot, quantity, value, min, max) in states.chain(inputs) {
+            if !(min..=max).contains(&value) {
+                left = true;
+                status.record(slot, EnvelopeExit { step, quantity, value, min, max });
             }
         }
-        if first.is_none() {
-            for i in 0..NU {
-                if !(e.input_min[i]..=e.input_max[i]).contains(&u[i]) {
-                    first = Some(EnvelopeExit {
-                        step,
-                        quantity: Quantity::Input(i),
-                        value: u[i],
-                        min: e.input_min[i],
-                        max: e.input_max[i],
-                    });
-                    break;
-                }
-            }
-        }
-        if let Some(exit) = first {
+        if left {
             status.exits += 1;
-            status.first.get_or_insert(exit);
         }
     }
 }

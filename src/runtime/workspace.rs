@@ -36,7 +36,10 @@ impl<T: Real> Workspace<T> {
         if self.net.shape != p.net.shape() {
             return Err(RuntimeError::WorkspaceMismatch { what: "workspace" });
         }
-        self.envelope = EnvelopeStatus::default();
+        // Only when something was recorded: the record is larger than a step's arithmetic.
+        if !self.envelope.inside() {
+            self.envelope = EnvelopeStatus::default();
+        }
         Ok(())
     }
 }

@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{self, DatasetPreset};
 use pinc::model::{Activation, ModelError, ModelSummary, PincModel, import_state_dict};
-use pinc::runtime::Predictor;
+use pinc::runtime::{Predictor, Quantity};
 use pinc::vehicle::{Rk4Vehicle, to_network, to_simulator};
 use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
@@ -195,16 +195,23 @@ fn run_predict(model: &Path, x0: &str, inputs: &Path, dt: Option<f64>, renormali
     p.rollout_dt(&mut ws, &to_network(&s0), &inputs_seq, dt, &mut traj)
         .map_err(|e| format!("prediction failed: {e}"))?;
     let status = ws.envelope_status();
-    if let Some(first) = status.first {
+    if !status.inside() {
+        let name = |q: Quantity| match q {
+            Quantity::State(i) => pinc::STATE_NAMES[i],
+            Quantity::Input(i) => pinc::INPUT_NAMES[i],
+        };
+        let each: Vec<String> = status
+            .worst_exits()
+            .iter()
+            .map(|e| {
+                format!("{} = {} at step {} (trained on [{}, {}])", name(e.quantity), e.value, e.step, e.min, e.max)
+            })
+            .collect();
         eprintln!(
-            "warning: {} of {} steps outside the training envelope; first at step {}: {:?} = {} not in [{}, {}]",
+            "warning: {} of {} steps outside the training envelope; farthest first: {}",
             status.exits,
             inputs_seq.len(),
-            first.step,
-            first.quantity,
-            first.value,
-            first.min,
-            first.max
+            each.join("; ")
         );
     }
     let sim: Vec<SimState> = traj.iter().map(to_simulator).collect();
