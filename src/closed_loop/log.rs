@@ -225,8 +225,14 @@ impl<W: Write + Seek> McapLog<W> {
     /// # Errors
     /// Writing fails.
     pub fn record(&mut self, s: &Sample) -> Result<(), LogError> {
-        let t = s.t;
-        let st = &s.state;
+        self.record_vehicle(s)?;
+        self.record_controller(s)?;
+        self.record_events(s)
+    }
+
+    /// `/vehicle/state` and `/vehicle/pose`: the true state in both forms.
+    fn record_vehicle(&mut self, s: &Sample) -> Result<(), LogError> {
+        let (t, st) = (s.t, &s.state);
         let net = to_network(st);
         let sim: BTreeMap<&str, f64> = SIM_STATE_NAMES.into_iter().zip(st.iter().copied()).collect();
         let network: BTreeMap<&str, f64> = STATE_NAMES.into_iter().zip(net.iter().copied()).collect();
@@ -246,7 +252,12 @@ impl<W: Write + Seek> McapLog<W> {
                     "orientation": {"x": 0.0, "y": 0.0, "z": half_s, "w": half_c},
                 },
             }),
-        )?;
+        )
+    }
+
+    /// `/mpc/reference`, `/mpc/command`, `/mpc/prediction` and `/mpc/solver`.
+    fn record_controller(&mut self, s: &Sample) -> Result<(), LogError> {
+        let t = s.t;
         let r = &s.reference;
         self.write(
             REFERENCE,
@@ -289,7 +300,13 @@ impl<W: Write + Seek> McapLog<W> {
                 "solve_us": c.solve_us, "cycle_us": c.cycle_us, "deadline_missed": c.deadline_missed,
                 "fallback": c.fallback.map(|f| f.to_string()), "envelope_exits": c.envelope.exits,
             }),
-        )?;
+        )
+    }
+
+    /// `/log` messages: fallbacks and bound violations (errors), deadline misses and the
+    /// prediction leaving the training envelope (warnings), its return (info).
+    fn record_events(&mut self, s: &Sample) -> Result<(), LogError> {
+        let (t, c) = (s.t, &s.cycle);
         if let Some(f) = c.fallback {
             self.log(t, Level::Error, &format!("fallback to the shifted previous plan: {f}"))?;
         }
@@ -313,7 +330,7 @@ impl<W: Write + Seek> McapLog<W> {
                     e.min,
                     e.max,
                     c.envelope.exits,
-                    pred.len().saturating_sub(1)
+                    s.prediction.len().saturating_sub(1)
                 );
                 self.log(t, Level::Warning, &message)?;
             }

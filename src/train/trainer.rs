@@ -14,7 +14,7 @@ use crate::runtime::Predictor;
 use crate::types::{NU, NX};
 use crate::vehicle::VehicleParams;
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::optim::{AdamWConfig, GradientsParams};
+use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::Gradients;
 use rand::SeedableRng;
@@ -233,6 +233,52 @@ pub fn train(
     interrupt: &AtomicBool,
     mut on_epoch: impl FnMut(&EpochRecord),
 ) -> Result<TrainOutcome, TrainError> {
+    check_run(cfg, train_set, dev)?;
+    let run = Run::new(cfg, train_set, dev, source);
+    let mut net = PincNet::init(&cfg.architecture, cfg.seed, &run.device);
+    let mut optim =
+        AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7261_696e);
+    let mut best = {
+        let (model, metrics) = run.measure(&net, 0);
+        Best::of(model, 0, metrics)
+    };
+    let mut schedule = Schedule { plateau: Plateau { best: f64::INFINITY, bad: 0 }, smoothed: f64::NAN, lr: cfg.lr };
+    let mut history = Vec::new();
+    let mut stop = StopReason::Completed;
+    let mut timing = StepTiming::default();
+    let mut order: Vec<usize> = (0..train_set.count).collect();
+    for epoch in 1..=cfg.epochs {
+        order.shuffle(&mut rng);
+        let losses;
+        (net, losses) = run.epoch(epoch, net, &mut optim, &order, schedule.lr, &mut rng, interrupt, &mut timing);
+        let losses = match losses {
+            Ok(losses) => losses,
+            Err(reason) => {
+                stop = reason;
+                break;
+            }
+        };
+        let record = run.close_epoch(epoch, &net, losses, &mut schedule, &mut best);
+        on_epoch(&record);
+        history.push(record);
+        if cfg.time_limit_s.is_some_and(|t| run.start.elapsed().as_secs_f64() >= t) && epoch < cfg.epochs {
+            stop = StopReason::TimeLimit { epoch };
+            break;
+        }
+    }
+    Ok(TrainOutcome {
+        model: best.model,
+        best_epoch: best.epoch,
+        history,
+        stop,
+        seconds: run.start.elapsed().as_secs_f64(),
+        step_ms: 1e3 * timing.seconds / timing.steps.max(1) as f64,
+    })
+}
+
+/// Refuses an invalid configuration and sets that cannot be trained on together.
+fn check_run(cfg: &TrainConfig, train_set: &TrajectorySet, dev: &TrajectorySet) -> Result<(), TrainError> {
     cfg.check().map_err(TrainError::Config)?;
     for (name, s) in [("training", train_set), ("dev", dev)] {
         if s.count == 0 || s.points < 2 {
@@ -248,124 +294,193 @@ pub fn train(
             what: format!("sample period {} s differs from training's {} s", dev.dt, train_set.dt),
         });
     }
-    let start = Instant::now();
-    let device = device(cfg.backend);
-    let plain = device.clone().without_autodiff();
-    let params = VehicleParams::default();
-    let envelope = envelope_of(train_set);
-    let config_json = serde_json::to_string(cfg).expect("config serialises");
-    let provenance = |epochs: usize, metrics: BTreeMap<String, f64>| Provenance {
-        source: source.to_string(),
-        seed: cfg.seed,
-        epochs: epochs as u64,
-        config_json: config_json.clone(),
-        metrics,
-        created_by: format!("pinc {} train", env!("CARGO_PKG_VERSION")),
-    };
-    let mut net = PincNet::init(&cfg.architecture, cfg.seed, &device);
-    let mut optim =
-        AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7261_696e);
+    Ok(())
+}
 
-    let dev_metrics_map = |one: f64, roll: f64, v: f64| {
-        BTreeMap::from([("dev_one_step_mse".into(), one), ("dev_rollout10_mse".into(), roll), ("dev_vpt_s".into(), v)])
-    };
-    let mut best = {
-        let m = freeze(&net, train_set.dt, &envelope, provenance(0, BTreeMap::new()));
-        let (one, roll, v) = dev_metrics(&m, dev);
-        let mut m = m;
-        m.provenance.metrics = dev_metrics_map(one, roll, v);
-        (m, 0usize, v, roll)
-    };
-    let mut plateau = Plateau { best: f64::INFINITY, bad: 0 };
-    let mut smoothed = f64::NAN;
-    let mut lr = cfg.lr;
-    let mut history = Vec::new();
-    let mut stop = StopReason::Completed;
-    let (mut steps, mut step_time) = (0usize, 0.0f64);
-    let mut order: Vec<usize> = (0..train_set.count).collect();
+/// What stays fixed over a run: the configuration, the data, the devices, the physics and
+/// what every frozen model records.
+struct Run<'a> {
+    cfg: &'a TrainConfig,
+    train_set: &'a TrajectorySet,
+    dev: &'a TrajectorySet,
+    source: &'a str,
+    device: Device,
+    /// The device without autodiff, where the combined gradients are rebuilt.
+    plain: Device,
+    params: VehicleParams,
+    envelope: Envelope,
+    config_json: String,
+    start: Instant,
+}
 
-    'epochs: for epoch in 1..=cfg.epochs {
-        order.shuffle(&mut rng);
+/// The weights kept so far: the best dev VPT, ties broken by the 10-step rollout MSE.
+struct Best {
+    model: PincModel,
+    epoch: usize,
+    vpt: f64,
+    rollout10: f64,
+}
+
+impl Best {
+    /// `model` after `epoch`, its dev metrics recorded in its provenance.
+    fn of(mut model: PincModel, epoch: usize, (one, roll, vpt): (f64, f64, f64)) -> Self {
+        model.provenance.metrics = BTreeMap::from([
+            ("dev_one_step_mse".into(), one),
+            ("dev_rollout10_mse".into(), roll),
+            ("dev_vpt_s".into(), vpt),
+        ]);
+        Self { model, epoch, vpt, rollout10: roll }
+    }
+}
+
+/// The learning rate and what decides it: reduce-on-plateau on the smoothed dev loss.
+struct Schedule {
+    plateau: Plateau,
+    smoothed: f64,
+    lr: f64,
+}
+
+/// Optimisation steps taken and the wall time they took.
+#[derive(Default)]
+struct StepTiming {
+    steps: usize,
+    seconds: f64,
+}
+
+impl<'a> Run<'a> {
+    fn new(cfg: &'a TrainConfig, train_set: &'a TrajectorySet, dev: &'a TrajectorySet, source: &'a str) -> Self {
+        let start = Instant::now();
+        let device = device(cfg.backend);
+        Self {
+            cfg,
+            train_set,
+            dev,
+            source,
+            plain: device.clone().without_autodiff(),
+            device,
+            params: VehicleParams::default(),
+            envelope: envelope_of(train_set),
+            config_json: serde_json::to_string(cfg).expect("config serialises"),
+            start,
+        }
+    }
+
+    fn provenance(&self, epochs: usize) -> Provenance {
+        Provenance {
+            source: self.source.to_string(),
+            seed: self.cfg.seed,
+            epochs: epochs as u64,
+            config_json: self.config_json.clone(),
+            metrics: BTreeMap::new(),
+            created_by: format!("pinc {} train", env!("CARGO_PKG_VERSION")),
+        }
+    }
+
+    /// `net` frozen after `epoch`, and its dev metrics (one-step MSE, 10-step rollout MSE,
+    /// mean VPT).
+    fn measure(&self, net: &PincNet, epoch: usize) -> (PincModel, (f64, f64, f64)) {
+        let model = freeze(net, self.train_set.dt, &self.envelope, self.provenance(epoch));
+        let metrics = dev_metrics(&model, self.dev);
+        (model, metrics)
+    }
+
+    /// One pass over the training set in `order`: per batch, the losses and their
+    /// gradients, combined and clipped, and one AdamW step. Returns the mean of each loss,
+    /// or why the run stops.
+    #[allow(clippy::too_many_arguments)] // the run's mutable state, each named
+    fn epoch(
+        &self,
+        epoch: usize,
+        mut net: PincNet,
+        optim: &mut ModuleOptimizer,
+        order: &[usize],
+        lr: f64,
+        rng: &mut ChaCha8Rng,
+        interrupt: &AtomicBool,
+        timing: &mut StepTiming,
+    ) -> (PincNet, Result<Vec<f64>, StopReason>) {
+        let cfg = self.cfg;
         let mut sums = vec![0.0; cfg.losses.len()];
         let mut batches = 0usize;
         for chunk in order.chunks(cfg.batch) {
             if interrupt.load(Ordering::Relaxed) {
-                stop = StopReason::Interrupted { epoch };
-                break 'epochs;
+                return (net, Err(StopReason::Interrupted { epoch }));
             }
             let t0 = Instant::now();
-            let batch = Batch::new(train_set, chunk, cfg, &mut rng, &device);
-            let (values, mut g) = if cfg.grad == GradCombine::Sum {
-                let (total, values) = joint_losses(cfg, &net, &params, &batch);
-                let g = flatten(&net, &total.backward());
-                (values.into_iter().map(|v| f64::from(v.into_scalar::<f32>())).collect::<Vec<_>>(), g)
-            } else {
-                let mut values = Vec::new();
-                let mut grads = Vec::new();
-                for &k in &cfg.losses {
-                    let l = loss(k, &net, &params, &batch);
-                    grads.push(flatten(&net, &l.backward()));
-                    values.push(f64::from(l.into_scalar::<f32>()));
-                }
-                (values, combine(cfg.grad, &grads, &cfg.weights))
-            };
+            let batch = Batch::new(self.train_set, chunk, cfg, rng, &self.device);
+            let (values, mut g) = self.gradients(&net, &batch);
             if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-                stop = StopReason::NonFiniteLoss { epoch, loss: cfg.losses[i] };
-                break 'epochs;
+                return (net, Err(StopReason::NonFiniteLoss { epoch, loss: cfg.losses[i] }));
             }
             if g.iter().any(|v| !v.is_finite()) {
-                stop = StopReason::NonFiniteLoss { epoch, loss: LossKind::Data };
-                break 'epochs;
+                return (net, Err(StopReason::NonFiniteLoss { epoch, loss: LossKind::Data }));
             }
             clip_global_norm(&mut g, cfg.clip_norm);
-            let mut split = SplitGrads { flat: &g, offset: 0, device: plain.clone(), out: GradientsParams::new() };
+            let mut split = SplitGrads { flat: &g, offset: 0, device: self.plain.clone(), out: GradientsParams::new() };
             net.visit(&mut split);
             net = optim.step(lr, net, split.out);
-            step_time += t0.elapsed().as_secs_f64();
-            steps += 1;
+            timing.seconds += t0.elapsed().as_secs_f64();
+            timing.steps += 1;
             for (s, v) in sums.iter_mut().zip(&values) {
                 *s += v;
             }
             batches += 1;
         }
-        let frozen = freeze(&net, train_set.dt, &envelope, provenance(epoch, BTreeMap::new()));
-        let (one, roll, v) = dev_metrics(&frozen, dev);
-        smoothed =
-            if smoothed.is_nan() { roll } else { cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * smoothed };
-        let used_lr = lr;
-        lr = plateau.update(cfg, smoothed, lr);
-        let is_best = v > best.2 || (v == best.2 && roll < best.3);
-        if is_best {
-            let mut m = frozen;
-            m.provenance.metrics = dev_metrics_map(one, roll, v);
-            best = (m, epoch, v, roll);
+        (net, Ok(sums.into_iter().map(|s| s / batches.max(1) as f64).collect()))
+    }
+
+    /// The value of every active loss on `batch` and the combined flat gradient: one
+    /// backward pass of their sum, or one per loss combined by the configured scheme.
+    fn gradients(&self, net: &PincNet, batch: &Batch) -> (Vec<f64>, Vec<f32>) {
+        let cfg = self.cfg;
+        if cfg.grad == GradCombine::Sum {
+            let (total, values) = joint_losses(cfg, net, &self.params, batch);
+            let g = flatten(net, &total.backward());
+            return (values.into_iter().map(|v| f64::from(v.into_scalar::<f32>())).collect(), g);
         }
-        let record = EpochRecord {
+        let mut values = Vec::new();
+        let mut grads = Vec::new();
+        for &k in &cfg.losses {
+            let l = loss(k, net, &self.params, batch);
+            grads.push(flatten(net, &l.backward()));
+            values.push(f64::from(l.into_scalar::<f32>()));
+        }
+        (values, combine(cfg.grad, &grads, &cfg.weights))
+    }
+
+    /// After an epoch: dev metrics, the learning-rate schedule, best-on-dev selection, and
+    /// the epoch's record.
+    fn close_epoch(
+        &self,
+        epoch: usize,
+        net: &PincNet,
+        losses: Vec<f64>,
+        schedule: &mut Schedule,
+        best: &mut Best,
+    ) -> EpochRecord {
+        let cfg = self.cfg;
+        let (frozen, (one, roll, v)) = self.measure(net, epoch);
+        schedule.smoothed = if schedule.smoothed.is_nan() {
+            roll
+        } else {
+            cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * schedule.smoothed
+        };
+        let used_lr = schedule.lr;
+        schedule.lr = schedule.plateau.update(cfg, schedule.smoothed, schedule.lr);
+        let is_best = v > best.vpt || (v == best.vpt && roll < best.rollout10);
+        if is_best {
+            *best = Best::of(frozen, epoch, (one, roll, v));
+        }
+        EpochRecord {
             epoch,
             lr: used_lr,
-            train: cfg.losses.iter().zip(&sums).map(|(&k, s)| (k, s / batches.max(1) as f64)).collect(),
+            train: cfg.losses.iter().copied().zip(losses).collect(),
             dev_one_step: one,
             dev_rollout10: roll,
             dev_vpt: v,
-            dev_smoothed: smoothed,
+            dev_smoothed: schedule.smoothed,
             best: is_best,
-            elapsed_s: start.elapsed().as_secs_f64(),
-        };
-        on_epoch(&record);
-        history.push(record);
-        if cfg.time_limit_s.is_some_and(|t| start.elapsed().as_secs_f64() >= t) && epoch < cfg.epochs {
-            stop = StopReason::TimeLimit { epoch };
-            break;
+            elapsed_s: self.start.elapsed().as_secs_f64(),
         }
     }
-    let (model, best_epoch, _, _) = best;
-    Ok(TrainOutcome {
-        model,
-        best_epoch,
-        history,
-        stop,
-        seconds: start.elapsed().as_secs_f64(),
-        step_ms: 1e3 * step_time / steps.max(1) as f64,
-    })
 }

@@ -4,11 +4,11 @@
 use crate::PresetName;
 use crate::eval_cmd::{eval_sets, print_metrics};
 use indicatif::{ProgressBar, ProgressStyle};
-use pinc::dataset::generate_set;
-use pinc::eval::evaluate;
+use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
+use pinc::eval::{Metrics, evaluate};
 use pinc::model::Activation;
 use pinc::plot::{Panel, Series, figure};
-use pinc::train::{Backend, EpochRecord, GradCombine, LossKind, StopReason, TrainConfig, train};
+use pinc::train::{Backend, EpochRecord, GradCombine, LossKind, StopReason, TrainConfig, TrainOutcome, train};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -166,23 +166,7 @@ fn sibling(out: &Path, ext: &str) -> PathBuf {
 pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let cfg = config(&a)?;
     let preset = a.preset.preset();
-    let spec = |name: &str, count: Option<usize>| {
-        let mut s = preset.set(name).expect("preset has train and dev sets").clone();
-        if let Some(c) = count {
-            s.count = c;
-        }
-        s
-    };
-    let mut train_spec = spec("train", a.train_count);
-    if let Some(m) = a.collocation {
-        if m == 0 {
-            return Err("--collocation: at least one point per interval".into());
-        }
-        train_spec.collocation_points = m;
-    }
-    let train_set = generate_set(&train_spec, a.seed, || {});
-    let dev = generate_set(&spec("dev", a.dev_count), a.seed, || {});
-
+    let (train_set, dev) = training_sets(&a, &preset)?;
     let interrupt = Arc::new(AtomicBool::new(false));
     {
         let flag = interrupt.clone();
@@ -190,91 +174,35 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
     }
     let csv_path = sibling(&a.out, "csv");
-    let mut csv = std::fs::File::create(&csv_path).map_err(|e| format!("{}: {e}", csv_path.display()))?;
-    let header: Vec<String> = ["epoch", "lr"]
-        .into_iter()
-        .map(String::from)
-        .chain(cfg.losses.iter().map(|k| format!("train_{}", k.name())))
-        .chain(
-            ["dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"]
-                .map(String::from),
-        )
-        .collect();
-    writeln!(csv, "{}", header.join(",")).map_err(|e| e.to_string())?;
-
+    let mut csv = EpochCsv::create(&csv_path, &cfg)?;
     let bar = if a.json { ProgressBar::hidden() } else { ProgressBar::new(cfg.epochs as u64) };
     bar.set_style(
         ProgressStyle::with_template("epoch {pos}/{len} [{bar:30}] {elapsed} (ETA {eta}) {msg}")
             .expect("static template")
             .progress_chars("=> "),
     );
-    let mut io_error = None;
-    let outcome = train(
-        &cfg,
-        &train_set,
-        &dev,
-        &format!("pinc train --preset {}", preset.name),
-        &interrupt,
-        |r: &EpochRecord| {
-            let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
-            bar.set_message(format!(
-                "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
-                losses.join(" "),
-                r.dev_rollout10,
-                r.dev_vpt,
-                r.lr
-            ));
-            bar.inc(1);
-            let mut row = vec![r.epoch.to_string(), format!("{:e}", r.lr)];
-            row.extend(r.train.iter().map(|(_, v)| format!("{v:e}")));
-            row.extend([
-                format!("{:e}", r.dev_one_step),
-                format!("{:e}", r.dev_rollout10),
-                format!("{}", r.dev_vpt),
-                format!("{:e}", r.dev_smoothed),
-                (r.best as u8).to_string(),
-                format!("{:.3}", r.elapsed_s),
-            ]);
-            if let Err(e) = writeln!(csv, "{}", row.join(",")) {
-                io_error.get_or_insert(e);
-            }
-        },
-    )
+    let source = format!("pinc train --preset {}", preset.name);
+    let outcome = train(&cfg, &train_set, &dev, &source, &interrupt, |r: &EpochRecord| {
+        let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
+        bar.set_message(format!(
+            "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
+            losses.join(" "),
+            r.dev_rollout10,
+            r.dev_vpt,
+            r.lr
+        ));
+        bar.inc(1);
+        csv.row(r);
+    })
     .map_err(|e| e.to_string())?;
     bar.finish_and_clear();
-    if let Some(e) = io_error {
+    if let Some(e) = csv.error {
         eprintln!("warning: {}: {e}", csv_path.display());
     }
-    match &outcome.stop {
-        StopReason::Completed => {}
-        StopReason::Interrupted { epoch } => {
-            eprintln!("interrupted in epoch {epoch}: writing the best weights so far (epoch {})", outcome.best_epoch)
-        }
-        StopReason::TimeLimit { epoch } => {
-            eprintln!("time limit reached after epoch {epoch}; best on dev: epoch {}", outcome.best_epoch)
-        }
-        StopReason::NonFiniteLoss { epoch, loss } => eprintln!(
-            "the {} loss became non-finite in epoch {epoch}: training stopped; writing the best weights so far (epoch {})",
-            loss.name(),
-            outcome.best_epoch
-        ),
-    }
-
-    let mut model = outcome.model;
-    let sets = eval_sets(a.preset, a.seed, a.eval_count, a.json);
-    let metrics = evaluate(&model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?;
-    for (k, v) in metrics.entries() {
-        model.provenance.metrics.insert(k.into(), v);
-    }
-    let m = &mut model.provenance.metrics;
-    m.insert("train_seconds".into(), outcome.seconds);
-    m.insert("step_ms".into(), outcome.step_ms);
-    m.insert("best_epoch".into(), outcome.best_epoch as f64);
-    m.insert("epochs_run".into(), outcome.history.len() as f64);
-    model.save(&a.out).map_err(|e| e.to_string())?;
+    report_stop(&outcome);
+    let metrics = evaluate_and_save(&a, &outcome)?;
     let png = sibling(&a.out, "png");
     plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
-
     if a.json {
         let v = serde_json::json!({
             "model": a.out.display().to_string(),
@@ -303,6 +231,102 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
     }
     Ok(())
+}
+
+/// The preset's training and dev sets, generated from the seed, with the counts and
+/// collocation points the arguments override.
+fn training_sets(a: &TrainArgs, preset: &DatasetPreset) -> Result<(TrajectorySet, TrajectorySet), String> {
+    let spec = |name: &str, count: Option<usize>| {
+        let mut s = preset.set(name).expect("preset has train and dev sets").clone();
+        if let Some(c) = count {
+            s.count = c;
+        }
+        s
+    };
+    let mut train_spec = spec("train", a.train_count);
+    if let Some(m) = a.collocation {
+        if m == 0 {
+            return Err("--collocation: at least one point per interval".into());
+        }
+        train_spec.collocation_points = m;
+    }
+    Ok((generate_set(&train_spec, a.seed, || {}), generate_set(&spec("dev", a.dev_count), a.seed, || {})))
+}
+
+/// The per-epoch CSV: a header naming every active loss, then one row per epoch. A write
+/// error is kept (training goes on) and reported at the end.
+struct EpochCsv {
+    file: std::fs::File,
+    error: Option<std::io::Error>,
+}
+
+impl EpochCsv {
+    fn create(path: &Path, cfg: &TrainConfig) -> Result<Self, String> {
+        let mut file = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let header: Vec<String> = ["epoch", "lr"]
+            .into_iter()
+            .map(String::from)
+            .chain(cfg.losses.iter().map(|k| format!("train_{}", k.name())))
+            .chain(
+                ["dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"]
+                    .map(String::from),
+            )
+            .collect();
+        writeln!(file, "{}", header.join(",")).map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(Self { file, error: None })
+    }
+
+    fn row(&mut self, r: &EpochRecord) {
+        let mut row = vec![r.epoch.to_string(), format!("{:e}", r.lr)];
+        row.extend(r.train.iter().map(|(_, v)| format!("{v:e}")));
+        row.extend([
+            format!("{:e}", r.dev_one_step),
+            format!("{:e}", r.dev_rollout10),
+            format!("{}", r.dev_vpt),
+            format!("{:e}", r.dev_smoothed),
+            (r.best as u8).to_string(),
+            format!("{:.3}", r.elapsed_s),
+        ]);
+        if let Err(e) = writeln!(self.file, "{}", row.join(",")) {
+            self.error.get_or_insert(e);
+        }
+    }
+}
+
+/// Says on stderr why training stopped early, if it did.
+fn report_stop(outcome: &TrainOutcome) {
+    match &outcome.stop {
+        StopReason::Completed => {}
+        StopReason::Interrupted { epoch } => {
+            eprintln!("interrupted in epoch {epoch}: writing the best weights so far (epoch {})", outcome.best_epoch)
+        }
+        StopReason::TimeLimit { epoch } => {
+            eprintln!("time limit reached after epoch {epoch}; best on dev: epoch {}", outcome.best_epoch)
+        }
+        StopReason::NonFiniteLoss { epoch, loss } => eprintln!(
+            "the {} loss became non-finite in epoch {epoch}: training stopped; writing the best weights so far (epoch {})",
+            loss.name(),
+            outcome.best_epoch
+        ),
+    }
+}
+
+/// The paper's metrics of the kept weights on fresh sets, recorded in the model with the
+/// run's timing, and the model written to `--out`.
+fn evaluate_and_save(a: &TrainArgs, outcome: &TrainOutcome) -> Result<Metrics, String> {
+    let mut model = outcome.model.clone();
+    let sets = eval_sets(a.preset, a.seed, a.eval_count, a.json);
+    let metrics = evaluate(&model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?;
+    for (k, v) in metrics.entries() {
+        model.provenance.metrics.insert(k.into(), v);
+    }
+    let m = &mut model.provenance.metrics;
+    m.insert("train_seconds".into(), outcome.seconds);
+    m.insert("step_ms".into(), outcome.step_ms);
+    m.insert("best_epoch".into(), outcome.best_epoch as f64);
+    m.insert("epochs_run".into(), outcome.history.len() as f64);
+    model.save(&a.out).map_err(|e| e.to_string())?;
+    Ok(metrics)
 }
 
 fn plot_history(path: &Path, h: &[EpochRecord]) -> Result<(), String> {
