@@ -4,7 +4,6 @@
 #![cfg(feature = "train")]
 
 mod common;
-
 use burn::prelude::*;
 use burn::tensor::FloatDType;
 use pinc::model::{Activation, Architecture};

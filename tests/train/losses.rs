@@ -2,8 +2,7 @@
 //! (forward passes, rollouts, and time derivatives by central differences).
 #![cfg(feature = "train")]
 
-mod common;
-
+use crate::common;
 use burn::prelude::*;
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::runtime::Predictor;

@@ -1,7 +1,6 @@
 //! Save -> load is exact, files stay small, and a loaded model predicts as the original.
 
-mod common;
-
+use crate::common;
 use pinc::model::PincModel;
 use pinc::runtime::Predictor;
 use pinc::{Input, State};

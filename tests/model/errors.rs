@@ -1,7 +1,6 @@
 //! Every way a `.pinc` file can be wrong gives a typed error; none panics.
 
-mod common;
-
+use crate::common;
 use pinc::model::{FORMAT_VERSION, HEADER_SIZE, MAGIC, MAX_FILE_BYTES, ModelError, PincModel};
 
 fn good_bytes() -> Vec<u8> {

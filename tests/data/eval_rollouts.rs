@@ -3,8 +3,7 @@
 //! unaffected.
 #![cfg(feature = "tools")]
 
-mod common;
-
+use crate::common;
 use pinc::dataset::TrajectorySet;
 use pinc::eval::full_rollouts;
 use pinc::model::Architecture;

@@ -4,8 +4,7 @@
 //! keeps running on its fallback plan within the bounds.
 #![cfg(feature = "mpc")]
 
-mod common;
-
+use crate::common;
 use pinc::closed_loop::{Scenario, run, summarise};
 use pinc::model::PincModel;
 use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};

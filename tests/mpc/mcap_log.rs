@@ -3,8 +3,7 @@
 //! fallbacks. The runs stop early (as Ctrl-C does), so these are also the early-stop files.
 #![cfg(feature = "mpc")]
 
-mod common;
-
+use crate::common;
 use mcap::MessageStream;
 use pinc::closed_loop::{LogStats, McapLog, RunInfo, file_sha256};
 use pinc::closed_loop::{Sample, Scenario, run, summarise};

@@ -1,7 +1,6 @@
 //! Batch rollout against single rollouts, bad input, and the envelope flag.
 
-mod common;
-
+use crate::common;
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Quantity, Real, RuntimeError};
 use pinc::{Input, State};
 

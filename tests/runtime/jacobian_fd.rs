@@ -1,7 +1,6 @@
 //! Exact Jacobians of the runtime against central finite differences in f64.
 
-mod common;
-
+use crate::common;
 use pinc::runtime::{HorizonLinearisation, Predictor};
 use pinc::{Input, InputMatrix, State, StateMatrix};
 

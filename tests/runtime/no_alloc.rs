@@ -1,8 +1,7 @@
 //! After construction, the hot calls perform zero heap allocations: proved with a counting
 //! global allocator (per thread, so parallel tests do not interfere).
 
-mod common;
-
+use crate::common;
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::Rk4Vehicle;

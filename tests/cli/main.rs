@@ -1,0 +1,3 @@
+//! The `pinc` command line: CSV contracts, exit codes and one-line errors.
+
+mod commands;

@@ -1,0 +1,7 @@
+//! The dataset presets and their storage, and the evaluation metrics.
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod dataset;
+mod eval_rollouts;

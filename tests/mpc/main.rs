@@ -1,0 +1,7 @@
+//! The controller in closed loop against the simulated vehicle, and its MCAP log.
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod closed_loop;
+mod mcap_log;
