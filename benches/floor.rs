@@ -212,8 +212,10 @@ mod avx2 {
             let e = _mm256_mul_ps(poly, _mm256_castsi256_ps(_mm256_slli_epi32::<23>(bits)));
             let (e2, c) = (_mm256_mul_ps(e, e), LOG1P);
             let e4 = _mm256_mul_ps(e2, e2);
-            let r0 = _mm256_fmadd_ps(_mm256_fmadd_ps(ps(c[3]), e, ps(c[2])), e2, _mm256_fmadd_ps(ps(c[1]), e, ps(c[0])));
-            let r1 = _mm256_fmadd_ps(_mm256_fmadd_ps(ps(c[7]), e, ps(c[6])), e2, _mm256_fmadd_ps(ps(c[5]), e, ps(c[4])));
+            let r0 =
+                _mm256_fmadd_ps(_mm256_fmadd_ps(ps(c[3]), e, ps(c[2])), e2, _mm256_fmadd_ps(ps(c[1]), e, ps(c[0])));
+            let r1 =
+                _mm256_fmadd_ps(_mm256_fmadd_ps(ps(c[7]), e, ps(c[6])), e2, _mm256_fmadd_ps(ps(c[5]), e, ps(c[4])));
             let r1 = _mm256_fmadd_ps(ps(c[8]), e4, r1);
             let log1p = _mm256_mul_ps(e, _mm256_fmadd_ps(r1, e4, r0));
             _mm256_add_ps(_mm256_max_ps(y, _mm256_setzero_ps()), log1p)
@@ -228,7 +230,9 @@ mod avx2 {
     impl BatchNetwork {
         pub fn new() -> Self {
             let hidden = |seed| BatchLayer::new(32, 32, seed);
-            Self { layers: [BatchLayer::new(32, 14, 11), hidden(12), hidden(13), hidden(14), BatchLayer::new(9, 32, 15)] }
+            Self {
+                layers: [BatchLayer::new(32, 14, 11), hidden(12), hidden(13), hidden(14), BatchLayer::new(9, 32, 15)],
+            }
         }
 
         /// One step of `LANES` trajectories, plainly: the raw output (9 components).
@@ -342,7 +346,9 @@ fn batch_floor(c: &mut Criterion) {
         use avx2::LANES;
         let net = avx2::BatchNetwork::new();
         let start: Vec<[[f32; LANES]; 14]> = (0..1000usize.div_ceil(LANES))
-            .map(|b| std::array::from_fn(|k| std::array::from_fn(|l| 0.05 * ((b * LANES + l + 3 * k) % 17) as f32 - 0.4)))
+            .map(|b| {
+                std::array::from_fn(|k| std::array::from_fn(|l| 0.05 * ((b * LANES + l + 3 * k) % 17) as f32 - 0.4))
+            })
             .collect();
         // One step of the first block against the plain computation.
         let mut one = vec![start[0]];

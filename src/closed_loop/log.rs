@@ -17,7 +17,9 @@
 //!
 //! Times are simulation time (the run starts at 0 ns).
 
-use crate::closed_loop::{Sample, Scenario, Summary};
+use super::run::Sample;
+use super::scenario::Scenario;
+use super::summary::Summary;
 use crate::mpc::MpcConfig;
 use crate::runtime::Quantity;
 use crate::types::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, STATE_NAMES};

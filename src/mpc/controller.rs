@@ -1,9 +1,14 @@
 //! The controller: its model, plan, QP and persistent solver, and one control cycle in named
 //! phases (shift, linearise, write the QP's data, solve, accept the solution).
 
+use super::error::MpcError;
+use super::fallback::Fallback;
+use super::qp::Weights;
 use super::qp::{ALL_STATES, Qp, WITHOUT_POSITION};
+use super::reference::Reference;
+use super::report::CycleReport;
+use super::settings::MpcConfig;
 use super::settings::solver_settings;
-use super::{CycleReport, Fallback, MpcConfig, MpcError, Reference, Weights};
 use crate::runtime::{EnvelopeStatus, HorizonLinearisation};
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NU, NX, State};

@@ -1,7 +1,7 @@
 //! What one control cycle did: the input, its saturation, any fallback, the solver's outcome
 //! and where the time went.
 
-use super::Fallback;
+use super::fallback::Fallback;
 use crate::runtime::EnvelopeStatus;
 use crate::types::{Input, NU};
 use clarabel::solver::SolverStatus;

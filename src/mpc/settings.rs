@@ -1,7 +1,7 @@
 //! The controller's settings, with defaults for depth and heading tracking of the BlueROV2
 //! at 0.08 s, and the Clarabel settings they imply.
 
-use super::MpcError;
+use super::error::MpcError;
 use crate::types::{Input, NU};
 use clarabel::solver::{DefaultSettings, DefaultSettingsBuilder};
 

@@ -5,8 +5,7 @@
 use super::error::{RuntimeError, check_dt, check_len};
 use super::horizon::HorizonLinearisation;
 use super::kernels::{Avx2Fma, Fused, MulAdd, Portable, Real};
-use super::predictor::Predictor;
-use super::workspace::Workspace;
+use super::predictor::{Predictor, Workspace};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 
 /// For each `$name`: a safe method taking the token that calls `$body::<Fused>` inside a

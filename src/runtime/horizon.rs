@@ -1,7 +1,7 @@
 //! The output of a horizon linearisation, sized once for a horizon: the nominal
 //! trajectory and every `A_k`, `B_k` along it.
 
-use super::RuntimeError;
+use super::error::RuntimeError;
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 
 /// A nominal trajectory of `N` steps and the exact linearisation along it:

@@ -12,7 +12,6 @@ mod horizon;
 mod kernels;
 mod output_map;
 mod predictor;
-mod workspace;
 
 pub use batch::{BatchWorkspace, LANES};
 pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
@@ -20,5 +19,4 @@ pub use error::RuntimeError;
 pub(crate) use error::{check_input, check_state};
 pub use horizon::HorizonLinearisation;
 pub use kernels::{Real, SOFTPLUS_THRESHOLD};
-pub use predictor::Predictor;
-pub use workspace::Workspace;
+pub use predictor::{Predictor, Workspace};

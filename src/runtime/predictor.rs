@@ -1,12 +1,11 @@
-//! The frozen PINC as an immutable [`Predictor`]: the network in the layout the kernels
-//! want, what its output means, its sample period and its training envelope.
+//! The frozen PINC as an immutable [`Predictor`] (the network in the layout the kernels
+//! want, what its output means, its sample period and its training envelope) and the
+//! per-thread [`Workspace`] its calls compute in.
 
-use super::envelope::EnvelopeCheck;
-use super::error::{check_input, check_state};
-use super::kernels::{Avx2Fma, Network, Real};
+use super::envelope::{EnvelopeCheck, EnvelopeStatus};
+use super::error::{RuntimeError, check_input, check_state};
+use super::kernels::{Avx2Fma, NetScratch, Network, Real};
 use super::output_map::OutputMap;
-use super::workspace::Workspace;
-use super::{BatchWorkspace, RuntimeError};
 use crate::model::{Envelope, PincModel};
 use crate::types::{Input, State};
 
@@ -135,11 +134,6 @@ impl<T: Real> Predictor<T> {
         Workspace::new(self)
     }
 
-    /// A batch workspace sized for this predictor.
-    pub fn batch_workspace(&self) -> BatchWorkspace<T> {
-        BatchWorkspace::new(self)
-    }
-
     /// Refuses non-finite arguments; records envelope exits.
     #[inline(always)]
     pub(crate) fn check_args(
@@ -152,6 +146,46 @@ impl<T: Real> Predictor<T> {
         check_state(step, x)?;
         check_input(step, u)?;
         self.envelope.check(&mut ws.envelope, step, x, u);
+        Ok(())
+    }
+}
+
+/// Scratch memory for one thread's calls into a [`Predictor`].
+///
+/// # Memory allocation
+/// `Workspace::new` allocates about `(3 L + 1 + 2 * 9) * width + inputs + L` floats for `L`
+/// hidden layers (widths rounded up to packs of 8); no call that takes a workspace
+/// allocates afterwards.
+#[derive(Debug, Clone)]
+pub struct Workspace<T: Real = f32> {
+    /// The network's buffers.
+    pub(crate) net: NetScratch<T>,
+    /// Envelope exits of the last call.
+    pub(crate) envelope: EnvelopeStatus,
+}
+
+impl<T: Real> Workspace<T> {
+    /// Sizes every buffer for `p`.
+    pub fn new(p: &Predictor<T>) -> Self {
+        Self { net: NetScratch::new(&p.net), envelope: EnvelopeStatus::default() }
+    }
+
+    /// Envelope exits seen during the last `step`, `rollout` or linearisation call.
+    pub fn envelope_status(&self) -> EnvelopeStatus {
+        self.envelope
+    }
+
+    /// Refuses a workspace sized for another network (its buffers would be too small or
+    /// laid out for other widths), then clears the envelope record for a new call.
+    #[inline(always)]
+    pub(crate) fn start_call(&mut self, p: &Predictor<T>) -> Result<(), RuntimeError> {
+        if self.net.shape != p.net.shape() {
+            return Err(RuntimeError::WorkspaceMismatch { what: "workspace" });
+        }
+        // Only when something was recorded: the record is larger than a step's arithmetic.
+        if !self.envelope.inside() {
+            self.envelope = EnvelopeStatus::default();
+        }
         Ok(())
     }
 }

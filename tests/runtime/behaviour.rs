@@ -298,7 +298,7 @@ fn a_workspace_or_output_made_for_another_predictor_or_horizon_is_an_error_not_a
         assert_eq!(p.step(&mut ws, &x0, &inputs[0], &mut next), Err(mismatch));
         let mut lin = HorizonLinearisation::new(10);
         assert_eq!(p.linearise_horizon(&mut ws, &x0, &inputs[..10], &mut lin), Err(mismatch));
-        let mut bws = other.batch_workspace();
+        let mut bws = BatchWorkspace::new(other);
         let mut out = vec![State::zeros(); 11];
         assert_eq!(
             p.rollout_batch(&mut bws, &[x0], &inputs[..10], &mut out),

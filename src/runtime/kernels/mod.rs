@@ -7,6 +7,7 @@ mod activation;
 mod cpu;
 mod fold;
 mod forward;
+mod network;
 mod packs;
 mod real;
 #[cfg(target_arch = "x86_64")]
@@ -18,6 +19,6 @@ pub use activation::SOFTPLUS_THRESHOLD;
 pub(crate) use activation::activate;
 pub(crate) use cpu::Avx2Fma;
 pub(crate) use fold::Dense;
-pub(crate) use forward::{NetOut, NetScratch, Network, Shape};
+pub(crate) use network::{NetOut, NetScratch, Network, Shape};
 pub(crate) use packs::{Fused, MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows, packs};
 pub use real::Real;

@@ -17,7 +17,7 @@ use std::arch::x86_64::*;
 
 use super::cpu::Avx2Fma;
 use super::fold::Dense;
-use super::forward::{NetOut, NetScratch, Network};
+use super::network::{NetOut, NetScratch, Network};
 use super::packs::{PACK, Pack, packs};
 use crate::model::Activation;
 use crate::types::{Input, NU, State};
