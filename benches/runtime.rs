@@ -20,7 +20,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use pinc::model::{Activation, import_state_dict};
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::vehicle::{Rk4Vehicle, to_network};
-use pinc::{Input, InputMatrix, SimState, State, StateMatrix};
+use pinc::{Input, SimState, State};
 use std::hint::black_box;
 
 fn predictor<T: Real>() -> Predictor<T> {

@@ -9,7 +9,7 @@ pub enum Fallback {
     Model,
     /// Clarabel did not return a solution (status attached).
     Solver(SolverStatus),
-    /// The nominal rollout left the training envelope (with [`MpcConfig::envelope_fallback`]).
+    /// The nominal rollout left the training envelope (with [`MpcConfig::envelope_fallback`](super::MpcConfig::envelope_fallback)).
     Envelope,
 }
 

@@ -36,7 +36,7 @@ pub struct MpcConfig {
     /// The real-time budget of one cycle (s); longer cycles are counted as deadline misses.
     pub deadline: f64,
     /// Apply the shifted previous plan when the nominal rollout leaves the model's training
-    /// envelope. Off by default: exits are reported in every [`CycleReport`] either way, and
+    /// envelope. Off by default: exits are reported in every [`CycleReport`](super::CycleReport) either way, and
     /// the previous plan came from the same model, so it is rarely the safer choice.
     pub envelope_fallback: bool,
 }

@@ -3,9 +3,7 @@
 
 use super::envelope::EnvelopeStatus;
 use super::error::{RuntimeError, check_dt, check_input, check_len, check_state};
-use super::kernels::{
-    Avx2Fma, Dense, Fused, MulAdd, PACK, Pack, Portable, Real, Shape, activate, block_packs, matvec, matvec_rows,
-};
+use super::kernels::{Dense, MulAdd, PACK, Pack, Portable, Real, Shape, activate, block_packs, matvec, matvec_rows};
 use super::predictor::Predictor;
 use crate::model::Activation;
 use crate::types::{Input, NU, NX, State};
@@ -119,33 +117,14 @@ impl<T: Real> Predictor<T> {
         }
     }
 
-    /// [`batch_generic`](Self::batch_generic) compiled for AVX2 + FMA.
-    #[inline(always)]
-    fn batch_avx2(
-        &self,
-        _cpu: Avx2Fma,
+    avx2_entry!(batch_avx2 => batch_generic(
         ws: &mut BatchWorkspace<T>,
         x0: &[State],
         inputs: &[Input],
         steps: usize,
         dt: f64,
-        out: &mut [State],
-    ) -> Result<(), RuntimeError> {
-        #[target_feature(enable = "avx2,fma")]
-        fn compiled<T: Real>(
-            p: &Predictor<T>,
-            ws: &mut BatchWorkspace<T>,
-            x0: &[State],
-            inputs: &[Input],
-            steps: usize,
-            dt: f64,
-            out: &mut [State],
-        ) -> Result<(), RuntimeError> {
-            p.batch_generic::<Fused>(ws, x0, inputs, steps, dt, out)
-        }
-        // SAFETY: the token proves that the CPU has AVX2 and FMA.
-        unsafe { compiled(self, ws, x0, inputs, steps, dt, out) }
-    }
+        out: &mut [State]
+    ));
 
     /// The batch, one block of [`LANES`] trajectories at a time.
     #[inline(always)]

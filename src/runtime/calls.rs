@@ -1,29 +1,12 @@
 //! The public hot calls of [`Predictor`]: step, rollout and horizon linearisation. Each
 //! runs its whole loop inside one function compiled either portably or, given an
-//! [`Avx2Fma`] token, for AVX2 + FMA. None allocates.
+//! `Avx2Fma` token, for AVX2 + FMA. None allocates.
 
 use super::error::{RuntimeError, check_dt, check_len};
 use super::horizon::HorizonLinearisation;
-use super::kernels::{Avx2Fma, Fused, MulAdd, Portable, Real};
+use super::kernels::{MulAdd, Portable, Real};
 use super::predictor::{Predictor, Workspace};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
-
-/// For each `$name`: a safe method taking the token that calls `$body::<Fused>` inside a
-/// function compiled for AVX2 + FMA.
-macro_rules! avx2_entry {
-    ($name:ident => $generic:ident ($($arg:ident: $ty:ty),*)) => {
-        #[inline(always)]
-        fn $name(&self, cpu: Avx2Fma, $($arg: $ty),*) -> Result<(), RuntimeError> {
-            #[target_feature(enable = "avx2,fma")]
-            fn compiled<T: Real>(p: &Predictor<T>, $($arg: $ty),*) -> Result<(), RuntimeError> {
-                p.$generic::<Fused>($($arg),*)
-            }
-            let _ = cpu;
-            // SAFETY: `cpu` proves that the CPU has AVX2 and FMA.
-            unsafe { compiled(self, $($arg),*) }
-        }
-    };
-}
 
 impl<T: Real> Predictor<T> {
     /// One step of the model's own sample period: `out = x_hat(dt)` from `x` under `u`.

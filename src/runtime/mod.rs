@@ -4,6 +4,24 @@
 //! What a user meets is at this level (the predictor, its workspaces, the horizon output,
 //! the envelope record and the errors); the arithmetic is in `kernels`.
 
+/// `$name`: a safe method of `Predictor` taking the [`Avx2Fma`](kernels::Avx2Fma) token,
+/// which runs `$generic::<Fused>` inside a function compiled for AVX2 + FMA.
+macro_rules! avx2_entry {
+    ($name:ident => $generic:ident ($($arg:ident: $ty:ty),*)) => {
+        #[inline(always)]
+        #[allow(clippy::too_many_arguments)] // the generic body's arguments and the token
+        fn $name(&self, cpu: super::kernels::Avx2Fma, $($arg: $ty),*) -> Result<(), RuntimeError> {
+            #[target_feature(enable = "avx2,fma")]
+            fn compiled<T: super::kernels::Real>(p: &super::Predictor<T>, $($arg: $ty),*) -> Result<(), RuntimeError> {
+                p.$generic::<super::kernels::Fused>($($arg),*)
+            }
+            let _ = cpu;
+            // SAFETY: `cpu` proves that the CPU has AVX2 and FMA.
+            unsafe { compiled(self, $($arg),*) }
+        }
+    };
+}
+
 mod batch;
 mod calls;
 mod envelope;
