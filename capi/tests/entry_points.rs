@@ -1,0 +1,253 @@
+//! The C entry points called from Rust: every bad argument is a documented code with a
+//! message (never a crash), a corrupted file is refused, a workspace of another predictor is
+//! refused, results equal the Rust API's, and nothing allocates after `pinc_workspace_new`.
+
+use pinc::model::PincModel;
+use pinc_c::*;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::ffi::{CStr, CString};
+use std::ptr::{null, null_mut};
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; only counts (per thread, so parallel tests do
+// not see each other's allocations).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: forwarded with the caller's layout.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded with the caller's pointer and layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_during(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+fn model_path() -> CString {
+    CString::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../models/mpc_pinc.pinc")).unwrap()
+}
+
+fn last_error() -> String {
+    // SAFETY: a NUL-terminated thread-local buffer.
+    unsafe { CStr::from_ptr(pinc_last_error()) }.to_str().unwrap().to_string()
+}
+
+/// A predictor and its workspace, freed on drop.
+struct Handles(*mut PincPredictor, *mut PincWorkspace);
+
+impl Handles {
+    fn load() -> Self {
+        let (mut p, mut w) = (null_mut(), null_mut());
+        // SAFETY: valid path and out pointers.
+        unsafe {
+            assert_eq!(pinc_predictor_load(model_path().as_ptr(), &mut p), PINC_OK);
+            assert_eq!(pinc_workspace_new(p, &mut w), PINC_OK);
+        }
+        Self(p, w)
+    }
+}
+
+impl Drop for Handles {
+    fn drop(&mut self) {
+        // SAFETY: handles from this library, freed once.
+        unsafe {
+            pinc_workspace_free(self.1);
+            pinc_predictor_free(self.0);
+        }
+    }
+}
+
+const X0: [f64; 9] = [0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.0, 0.0, 0.0];
+const U: [f64; 4] = [2.0, 0.0, 5.0, 0.1];
+
+#[test]
+fn null_pointers_are_error_codes_with_messages() {
+    let h = Handles::load();
+    let mut out = [0.0; 9];
+    let mut p = null_mut();
+    // SAFETY: every non-null pointer is valid; the nulls are what is tested.
+    unsafe {
+        assert_eq!(pinc_predictor_load(null(), &mut p), PINC_ERR_NULL);
+        assert_eq!(pinc_predictor_load(model_path().as_ptr(), null_mut()), PINC_ERR_NULL);
+        assert_eq!(pinc_step(null(), h.1, X0.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_NULL);
+        assert_eq!(last_error(), "pinc_step: predictor is null");
+        assert_eq!(pinc_step(h.0, h.1, null(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_NULL);
+        assert_eq!(last_error(), "pinc_step: x is null");
+        assert_eq!(pinc_rollout(h.0, h.1, X0.as_ptr(), null(), 3, out.as_mut_ptr()), PINC_ERR_NULL);
+        assert_eq!(last_error(), "pinc_rollout: u is null");
+        let mut t = [0.0; 9];
+        assert_eq!(
+            pinc_linearise_horizon(h.0, h.1, X0.as_ptr(), U.as_ptr(), 1, t.as_mut_ptr(), null_mut(), null_mut()),
+            PINC_ERR_NULL
+        );
+        assert_eq!(last_error(), "pinc_linearise_horizon: a is null");
+        assert!(pinc_predictor_dt(null()).is_nan());
+        assert_eq!(pinc_envelope_exits(null()), 0);
+        pinc_predictor_free(null_mut());
+        pinc_workspace_free(null_mut());
+    }
+}
+
+#[test]
+fn bad_files_bad_values_and_foreign_workspaces_are_refused() {
+    let h = Handles::load();
+    let mut out = [0.0; 9];
+    let mut p = null_mut();
+    let missing = CString::new("no/such/file.pinc").unwrap();
+    let bytes = std::fs::read(model_path().to_str().unwrap()).unwrap();
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 0x10;
+    // SAFETY: valid pointers and lengths throughout.
+    unsafe {
+        assert_eq!(pinc_predictor_load(missing.as_ptr(), &mut p), PINC_ERR_IO);
+        assert!(last_error().starts_with("no/such/file.pinc"), "{}", last_error());
+        assert_eq!(pinc_predictor_from_bytes(flipped.as_ptr(), flipped.len(), &mut p), PINC_ERR_MODEL);
+        assert!(last_error().contains("checksum"), "{}", last_error());
+        assert_eq!(pinc_predictor_from_bytes(bytes.as_ptr(), 10, &mut p), PINC_ERR_MODEL);
+        assert!(p.is_null(), "nothing handed out on failure");
+
+        let mut nan = X0;
+        nan[5] = f64::NAN;
+        assert_eq!(pinc_step(h.0, h.1, nan.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_NON_FINITE);
+        assert_eq!(last_error(), "pinc_step: state[5] = NaN is not finite (step 0)");
+        assert_eq!(pinc_step(h.0, h.1, X0.as_ptr(), U.as_ptr(), f64::NAN, out.as_mut_ptr()), PINC_ERR_DT);
+        let u = [U, [1.0, 0.0, f64::INFINITY, 0.0]].concat();
+        let (mut t, mut a, mut b) = ([0.0; 27], [0.0; 162], [0.0; 72]);
+        let rc = pinc_linearise_horizon(
+            h.0,
+            h.1,
+            X0.as_ptr(),
+            u.as_ptr(),
+            2,
+            t.as_mut_ptr(),
+            a.as_mut_ptr(),
+            b.as_mut_ptr(),
+        );
+        assert_eq!(rc, PINC_ERR_NON_FINITE);
+        assert_eq!(last_error(), "pinc_linearise_horizon: input[2] = inf is not finite (step 1)");
+        assert_eq!(
+            pinc_linearise_horizon(
+                h.0,
+                h.1,
+                X0.as_ptr(),
+                u.as_ptr(),
+                0,
+                t.as_mut_ptr(),
+                a.as_mut_ptr(),
+                b.as_mut_ptr()
+            ),
+            PINC_ERR_LENGTH
+        );
+        assert_eq!(pinc_rollout(h.0, h.1, X0.as_ptr(), u.as_ptr(), usize::MAX / 2, t.as_mut_ptr()), PINC_ERR_LENGTH);
+
+        // A predictor with one hidden layer fewer: the first one's workspace does not fit it.
+        let mut small = PincModel::from_bytes(&bytes).unwrap();
+        small.weights.hidden.pop();
+        small.architecture.hidden_layers -= 1;
+        small.architecture.layer_norm.pop();
+        let small = small.to_bytes().unwrap();
+        let mut q = null_mut();
+        assert_eq!(pinc_predictor_from_bytes(small.as_ptr(), small.len(), &mut q), PINC_OK);
+        assert_eq!(pinc_step(q, h.1, X0.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_WORKSPACE);
+        assert!(last_error().contains("another predictor"), "{}", last_error());
+        pinc_predictor_free(q);
+    }
+}
+
+#[test]
+fn results_equal_the_rust_api_and_dt_defaults_to_the_model_period() {
+    let h = Handles::load();
+    let model = PincModel::load(model_path().to_str().unwrap()).unwrap();
+    let p = pinc::runtime::Predictor::new(&model);
+    let (x, u) = (pinc::State::from(X0), pinc::Input::from(U));
+    let mut want = pinc::State::zeros();
+    p.step_dt(&mut p.workspace(), &x, &u, 0.06, &mut want).unwrap();
+    let (mut at_06, mut own, mut default) = ([0.0; 9], [0.0; 9], [0.0; 9]);
+    // SAFETY: valid pointers throughout.
+    unsafe {
+        assert_eq!(pinc_step(h.0, h.1, X0.as_ptr(), U.as_ptr(), 0.06, at_06.as_mut_ptr()), PINC_OK);
+        assert_eq!(pinc_step(h.0, h.1, X0.as_ptr(), U.as_ptr(), 0.08, own.as_mut_ptr()), PINC_OK);
+        assert_eq!(pinc_step(h.0, h.1, X0.as_ptr(), U.as_ptr(), 0.0, default.as_mut_ptr()), PINC_OK);
+        assert_eq!(pinc_predictor_dt(h.0), 0.08);
+    }
+    assert_eq!(at_06.as_slice(), want.as_slice());
+    assert_eq!(own, default);
+    assert_ne!(own, at_06);
+}
+
+#[test]
+fn envelope_exits_count_the_steps_outside() {
+    let h = Handles::load();
+    // X = 50 N is outside the controller model's envelope on every step.
+    let u = [[50.0, 0.0, 0.0, 0.0]; 5].concat();
+    let (mut t, mut a, mut b) = ([0.0; 54], [0.0; 405], [0.0; 180]);
+    // SAFETY: valid pointers and lengths.
+    unsafe {
+        assert_eq!(
+            pinc_linearise_horizon(
+                h.0,
+                h.1,
+                X0.as_ptr(),
+                u.as_ptr(),
+                5,
+                t.as_mut_ptr(),
+                a.as_mut_ptr(),
+                b.as_mut_ptr()
+            ),
+            PINC_OK
+        );
+        assert_eq!(pinc_envelope_exits(h.1), 5);
+        assert_eq!(pinc_rollout(h.0, h.1, X0.as_ptr(), U.as_ptr(), 1, t.as_mut_ptr()), PINC_OK);
+        assert_eq!(pinc_envelope_exits(h.1), 0);
+    }
+}
+
+#[test]
+fn no_entry_point_allocates_after_the_workspace_exists() {
+    let h = Handles::load();
+    let n = 20;
+    let u: Vec<f64> = (0..n).flat_map(|k| [1.0 + 0.1 * k as f64, 0.0, 3.0, 0.05]).collect();
+    let (mut t, mut a, mut b) = (vec![0.0; 9 * (n + 1)], vec![0.0; 81 * n], vec![0.0; 36 * n]);
+    let mut out = [0.0; 9];
+    let mut nan = X0;
+    nan[0] = f64::NAN;
+    let count = allocations_during(|| {
+        // SAFETY: valid pointers and lengths; the null and NaN calls test the error paths.
+        unsafe {
+            assert_eq!(pinc_step(h.0, h.1, X0.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_OK);
+            assert_eq!(pinc_rollout(h.0, h.1, X0.as_ptr(), u.as_ptr(), n, t.as_mut_ptr()), PINC_OK);
+            assert_eq!(
+                pinc_linearise_horizon(
+                    h.0,
+                    h.1,
+                    X0.as_ptr(),
+                    u.as_ptr(),
+                    n,
+                    t.as_mut_ptr(),
+                    a.as_mut_ptr(),
+                    b.as_mut_ptr()
+                ),
+                PINC_OK
+            );
+            assert_eq!(pinc_step(h.0, h.1, nan.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_NON_FINITE);
+            assert_eq!(pinc_step(h.0, null_mut(), X0.as_ptr(), U.as_ptr(), 0.0, out.as_mut_ptr()), PINC_ERR_NULL);
+            std::hint::black_box((pinc_envelope_exits(h.1), pinc_predictor_dt(h.0), pinc_last_error()));
+        }
+    });
+    assert_eq!(count, 0, "the C entry points allocated {count} times");
+}
