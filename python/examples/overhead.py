@@ -1,0 +1,47 @@
+"""Per-call time of the Python bindings, to set beside `cargo bench --bench runtime`.
+
+    python3 python/examples/overhead.py [--json]
+"""
+
+import argparse
+import json
+import timeit
+from pathlib import Path
+
+import numpy as np
+
+import pinc
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def best_us(stmt, number):
+    """The fastest of 7 repeats, per call, in microseconds (the least disturbed run)."""
+    return min(timeit.repeat(stmt, number=number, repeat=7)) / number * 1e6
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args()
+    p = pinc.Predictor(str(ROOT / "models" / "mpc_pinc.pinc"))
+    x = np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.0, 0.05, 0.0])
+    u = np.array([2.0, 0.1, 5.0, 0.05])
+    U20 = np.tile(u, (20, 1))
+    U65 = np.tile(u, (65, 1))
+    xb, ub = np.tile(x, (1000, 1)), np.tile(U65, (1000, 1, 1))
+    times = {
+        "step_us": best_us(lambda: p.step(x, u), 20000),
+        "rollout_65_us": best_us(lambda: p.rollout(x, U65), 2000),
+        "linearise_h20_us": best_us(lambda: p.linearise(x, U20), 2000),
+        "rollout_batch_1000x65_ms": best_us(lambda: p.rollout_batch(xb, ub), 5) / 1e3,
+    }
+    if a.json:
+        print(json.dumps(times, indent=2))
+    else:
+        for k, v in times.items():
+            print(f"{k:<26} {v:.2f}")
+
+
+if __name__ == "__main__":
+    main()

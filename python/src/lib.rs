@@ -1,0 +1,246 @@
+//! `pinc._pinc`: the predictor and the analytic vehicle for Python, on numpy arrays.
+//!
+//! Every array argument accepts any array-like convertible to float64; shapes and
+//! finiteness are checked here and a failure is a `ValueError` naming the argument. Model
+//! files that cannot be loaded and predictions that stop being finite raise `PincError`
+//! (a `ValueError`).
+
+use numpy::ndarray::{Array1, Array2, Array3, ArrayViewD, Dimension};
+use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn};
+use pinc::model::PincModel;
+use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor as RustPredictor, Workspace};
+use pinc::vehicle::{Rk4Vehicle, VehicleParams};
+use pinc::{INPUT_NAMES, Input, NS, NU, NX, STATE_NAMES, SimState, State};
+use pyo3::create_exception;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple};
+use std::sync::Mutex;
+
+create_exception!(
+    _pinc,
+    PincError,
+    PyValueError,
+    "A model file pinc cannot use, or a prediction that stopped being finite."
+);
+
+type Array<'py> = PyArrayLikeDyn<'py, f64, AllowTypeChange>;
+
+/// `arg` as a view of `shape` (`None`: any length on that axis), all finite.
+fn checked<'a>(arg: &str, a: &'a Array<'_>, shape: &[Option<usize>]) -> PyResult<ArrayViewD<'a, f64>> {
+    let v = a.as_array();
+    let fits = v.ndim() == shape.len() && v.shape().iter().zip(shape).all(|(&n, s)| s.is_none_or(|s| s == n));
+    if !fits {
+        let want: Vec<String> = shape.iter().map(|s| s.map_or("N".to_string(), |n| n.to_string())).collect();
+        return Err(PyValueError::new_err(format!("{arg}: expected shape ({}), got {:?}", want.join(", "), v.shape())));
+    }
+    // Scan plainly first (indexing a dynamic-rank array is slow); find the index on failure.
+    let all_finite = match v.as_slice() {
+        Some(flat) => flat.iter().all(|x| x.is_finite()),
+        None => v.iter().all(|x| x.is_finite()),
+    };
+    if !all_finite && let Some((i, x)) = v.indexed_iter().find(|(_, x)| !x.is_finite()) {
+        return Err(PyValueError::new_err(format!("{arg}{:?} = {x} is not finite", i.slice())));
+    }
+    Ok(v)
+}
+
+fn state(arg: &str, a: &Array<'_>) -> PyResult<State> {
+    let v = checked(arg, a, &[Some(NX)])?;
+    Ok(State::from_fn(|i, _| v[[i]]))
+}
+
+fn input(arg: &str, a: &Array<'_>) -> PyResult<Input> {
+    let v = checked(arg, a, &[Some(NU)])?;
+    Ok(Input::from_fn(|i, _| v[[i]]))
+}
+
+fn inputs(arg: &str, a: &Array<'_>) -> PyResult<Vec<Input>> {
+    let v = checked(arg, a, &[None, Some(NU)])?;
+    Ok((0..v.shape()[0]).map(|k| Input::from_fn(|i, _| v[[k, i]])).collect())
+}
+
+fn runtime_err(e: impl std::fmt::Display) -> PyErr {
+    PincError::new_err(e.to_string())
+}
+
+fn trajectory<'py>(py: Python<'py>, traj: &[State]) -> Bound<'py, PyArray2<f64>> {
+    Array2::from_shape_fn((traj.len(), NX), |(k, i)| traj[k][i]).into_pyarray(py)
+}
+
+/// A frozen PINC model: `Predictor(path)`.
+#[pyclass(frozen, module = "pinc")]
+struct Predictor {
+    inner: RustPredictor,
+    /// One workspace; calls from several Python threads take turns.
+    ws: Mutex<Workspace>,
+}
+
+#[pymethods]
+impl Predictor {
+    #[new]
+    fn new(path: std::path::PathBuf) -> PyResult<Self> {
+        let model = PincModel::load(&path).map_err(|e| PincError::new_err(format!("{}: {e}", path.display())))?;
+        let inner = RustPredictor::new(&model);
+        let ws = Mutex::new(inner.workspace());
+        Ok(Self { inner, ws })
+    }
+
+    /// The sample period the model was trained for (s).
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.inner.dt()
+    }
+
+    /// The training envelope: `{component: (min, max)}` for the 9 state and 4 input
+    /// components, or None for a model without one.
+    #[getter]
+    fn envelope<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(e) = self.inner.envelope() else { return Ok(None) };
+        let d = PyDict::new(py);
+        for (i, name) in STATE_NAMES.iter().enumerate() {
+            d.set_item(name, (e.state_min[i], e.state_max[i]))?;
+        }
+        for (i, name) in INPUT_NAMES.iter().enumerate() {
+            d.set_item(name, (e.input_min[i], e.input_max[i]))?;
+        }
+        Ok(Some(d))
+    }
+
+    /// One step: `x` (9,), `u` (4,), `dt` (s; None: the model's) -> (9,).
+    #[pyo3(signature = (x, u, dt = None))]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        x: Array<'py>,
+        u: Array<'py>,
+        dt: Option<f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (x, u) = (state("x", &x)?, input("u", &u)?);
+        let dt = dt.unwrap_or(self.inner.dt());
+        let mut out = State::zeros();
+        let mut ws = self.ws.lock().expect("workspace lock");
+        self.inner.step_dt(&mut ws, &x, &u, dt, &mut out).map_err(runtime_err)?;
+        Ok(Array1::from_iter(out.iter().copied()).into_pyarray(py))
+    }
+
+    /// Rollout: `x0` (9,), `U` (N, 4) -> (N + 1, 9), the first row `x0`.
+    #[allow(non_snake_case)]
+    fn rollout<'py>(&self, py: Python<'py>, x0: Array<'py>, U: Array<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (x0, u) = (state("x0", &x0)?, inputs("U", &U)?);
+        let mut traj = vec![State::zeros(); u.len() + 1];
+        let mut ws = self.ws.lock().expect("workspace lock");
+        self.inner.rollout(&mut ws, &x0, &u, &mut traj).map_err(runtime_err)?;
+        Ok(trajectory(py, &traj))
+    }
+
+    /// Rollout and exact Jacobians: `x0` (9,), `U` (N, 4) -> `(X, A, B)` with shapes
+    /// (N + 1, 9), (N, 9, 9), (N, 9, 4); `A[k] = dX[k+1]/dX[k]`, `B[k] = dX[k+1]/dU[k]`.
+    #[allow(non_snake_case)]
+    fn linearise<'py>(&self, py: Python<'py>, x0: Array<'py>, U: Array<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let (x0, u) = (state("x0", &x0)?, inputs("U", &U)?);
+        if u.is_empty() {
+            return Err(PyValueError::new_err("U: a horizon has at least one step"));
+        }
+        let mut lin = HorizonLinearisation::new(u.len());
+        let mut ws = self.ws.lock().expect("workspace lock");
+        self.inner.linearise_horizon(&mut ws, &x0, &u, &mut lin).map_err(runtime_err)?;
+        let n = u.len();
+        let a = Array3::from_shape_fn((n, NX, NX), |(k, i, j)| lin.a()[k][(i, j)]);
+        let b = Array3::from_shape_fn((n, NX, NU), |(k, i, j)| lin.b()[k][(i, j)]);
+        (trajectory(py, lin.trajectory()), a.into_pyarray(py), b.into_pyarray(py)).into_pyobject(py)
+    }
+
+    /// Batch rollout: `X0` (B, 9), `Ub` (B, N, 4) -> (B, N + 1, 9). Releases the GIL.
+    #[allow(non_snake_case)]
+    fn rollout_batch<'py>(
+        &self,
+        py: Python<'py>,
+        X0: Array<'py>,
+        Ub: Array<'py>,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let x0v = checked("X0", &X0, &[None, Some(NX)])?;
+        let batch = x0v.shape()[0];
+        let uv = checked("Ub", &Ub, &[Some(batch), None, Some(NU)])?;
+        let n = uv.shape()[1];
+        let x0: Vec<State> = (0..batch).map(|b| State::from_fn(|i, _| x0v[[b, i]])).collect();
+        // C-contiguous input (the usual case) is read as one run of rows.
+        let u: Vec<Input> = match uv.as_slice() {
+            Some(flat) => flat.chunks_exact(NU).map(Input::from_column_slice).collect(),
+            None => (0..batch)
+                .flat_map(|b| (0..n).map(move |k| (b, k)))
+                .map(|(b, k)| Input::from_fn(|i, _| uv[[b, k, i]]))
+                .collect(),
+        };
+        let p = &self.inner;
+        let out = py.detach(|| {
+            let mut ws = BatchWorkspace::new(p);
+            let mut out = vec![State::zeros(); batch * (n + 1)];
+            p.rollout_batch(&mut ws, &x0, &u, &mut out).map(|()| out)
+        });
+        let flat: Vec<f64> = out.map_err(runtime_err)?.iter().flat_map(|x| x.iter().copied()).collect();
+        let out = Array3::from_shape_vec((batch, n + 1, NX), flat).expect("batch * (n + 1) states of 9");
+        Ok(out.into_pyarray(py))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("pinc.Predictor(dt={}, state_inputs={:?})", self.inner.dt(), self.inner.state_inputs())
+    }
+}
+
+/// The analytic vehicle (RK4): `x0_sim` (8,) `[x, y, z, psi, u, v, w, r]`, `U` (N, 4) held
+/// per sample -> (N + 1, 8). `vehicle`: a dict of `VehicleParams` overrides (e.g.
+/// `{"m": 12.0}`), None for the BlueROV2.
+#[pyfunction]
+#[pyo3(signature = (x0_sim, U, dt = 0.08, vehicle = None))]
+#[allow(non_snake_case)]
+fn simulate<'py>(
+    py: Python<'py>,
+    x0_sim: Array<'py>,
+    U: Array<'py>,
+    dt: f64,
+    vehicle: Option<Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let s = checked("x0_sim", &x0_sim, &[Some(NS)])?;
+    let s0 = SimState::from_fn(|i, _| s[[i]]);
+    let u = inputs("U", &U)?;
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(PyValueError::new_err(format!("dt: {dt} is not a positive number of seconds")));
+    }
+    let mut v = Rk4Vehicle::with_dt(dt);
+    if let Some(overrides) = vehicle {
+        v.params = params(&overrides)?;
+    }
+    let traj = v.simulate(&s0, &u);
+    Ok(Array2::from_shape_fn((traj.len(), NS), |(k, i)| traj[k][i]).into_pyarray(py))
+}
+
+/// The BlueROV2's parameters with `overrides` applied; an unknown name or a non-finite value
+/// is an error naming it.
+fn params(overrides: &Bound<'_, PyDict>) -> PyResult<VehicleParams> {
+    let mut map = match serde_json::to_value(VehicleParams::default()) {
+        Ok(serde_json::Value::Object(m)) => m,
+        _ => unreachable!("VehicleParams serialises to an object"),
+    };
+    for (k, v) in overrides.iter() {
+        let key: String = k.extract().map_err(|_| PyValueError::new_err("vehicle: keys must be strings"))?;
+        let value: f64 = v.extract().map_err(|_| PyValueError::new_err(format!("vehicle[{key:?}]: not a number")))?;
+        if !map.contains_key(&key) {
+            let known: Vec<&String> = map.keys().collect();
+            return Err(PyValueError::new_err(format!("vehicle: unknown parameter {key:?} (known: {known:?})")));
+        }
+        if !value.is_finite() {
+            return Err(PyValueError::new_err(format!("vehicle[{key:?}] = {value} is not finite")));
+        }
+        map.insert(key, value.into());
+    }
+    serde_json::from_value(serde_json::Value::Object(map)).map_err(|e| PyValueError::new_err(format!("vehicle: {e}")))
+}
+
+#[pymodule]
+fn _pinc(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Predictor>()?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add("PincError", m.py().get_type::<PincError>())?;
+    Ok(())
+}
