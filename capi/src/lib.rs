@@ -316,6 +316,40 @@ pub unsafe extern "C" fn pinc_step(
     })
 }
 
+/// The arguments every horizon call shares, checked.
+struct Horizon<'a> {
+    predictor: &'a Predictor,
+    w: &'a mut PincWorkspace,
+    x0: State,
+    inputs: &'a [Input],
+    /// `n + 1` states.
+    traj: &'a mut [State],
+}
+
+/// The handles, `x0` (9 doubles), `u` (`n` rows of 4) and `traj` (`n + 1` rows of 9),
+/// checked, or the error code.
+///
+/// # Safety
+/// As for the callers' pointer arguments.
+unsafe fn horizon<'a>(
+    name: &str,
+    p: *const PincPredictor,
+    w: *mut PincWorkspace,
+    x0: *const f64,
+    u: *const f64,
+    n: usize,
+    traj: *mut f64,
+) -> Result<Horizon<'a>, c_int> {
+    // SAFETY: the caller's pointer contracts.
+    unsafe {
+        let (predictor, w) = handles(name, p, w)?;
+        let x0 = as_states(doubles(name, "x0", x0, 1, NX)?)[0];
+        let inputs = as_inputs(doubles(name, "u", u, n, NU)?);
+        let traj = as_states_mut(doubles_mut(name, "traj", traj, n.saturating_add(1), NX)?);
+        Ok(Horizon { predictor, w, x0, inputs, traj })
+    }
+}
+
 /// Rolls out `n` steps from `x0` under `u` (`n` rows of 4) into `traj` (`n + 1` rows of 9,
 /// the first `x0`), at the model's sample period.
 ///
@@ -333,22 +367,12 @@ pub unsafe extern "C" fn pinc_rollout(
     const NAME: &str = "pinc_rollout";
     guarded(NAME, || {
         // SAFETY: the pointer contracts above (caller).
-        let args = unsafe {
-            (|| {
-                Ok((
-                    handles(NAME, p, w)?,
-                    doubles(NAME, "x0", x0, 1, NX)?,
-                    doubles(NAME, "u", u, n, NU)?,
-                    doubles_mut(NAME, "traj", traj, n.saturating_add(1), NX)?,
-                ))
-            })()
-        };
-        let ((predictor, w), x0, u, traj) = match args {
-            Ok(a) => a,
+        let h = match unsafe { horizon(NAME, p, w, x0, u, n, traj) } {
+            Ok(h) => h,
             Err(code) => return code,
         };
-        let result = predictor.rollout(&mut w.ws, &as_states(x0)[0], as_inputs(u), as_states_mut(traj));
-        w.exits = w.ws.envelope_status().exits;
+        let result = h.predictor.rollout(&mut h.w.ws, &h.x0, h.inputs, h.traj);
+        h.w.exits = h.w.ws.envelope_status().exits;
         result.map_or_else(|e| runtime_error(NAME, e), |()| PINC_OK)
     })
 }
@@ -380,21 +404,17 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
         let args = unsafe {
             (|| {
                 Ok((
-                    handles(NAME, p, w)?,
-                    doubles(NAME, "x0", x0, 1, NX)?,
-                    doubles(NAME, "u", u, n, NU)?,
-                    doubles_mut(NAME, "traj", traj, n.saturating_add(1), NX)?,
+                    horizon(NAME, p, w, x0, u, n, traj)?,
                     doubles_mut(NAME, "a", a, n, NX * NX)?,
                     doubles_mut(NAME, "b", b, n, NX * NU)?,
                 ))
             })()
         };
-        let ((predictor, w), x0, u, traj, a, b) = match args {
+        let (Horizon { predictor, w, x0, inputs, traj }, a, b) = match args {
             Ok(a) => a,
             Err(code) => return code,
         };
-        let (traj, inputs) = (as_states_mut(traj), as_inputs(u));
-        traj[0] = as_states(x0)[0];
+        traj[0] = x0;
         w.exits = 0;
         // Step by step, so that the Jacobians go straight into the caller's row-major
         // buffers: the same arithmetic as `Predictor::linearise_horizon`.
