@@ -2,14 +2,18 @@
 //! parameters, and its zero-order-hold discretisation.
 
 mod dynamics;
+#[cfg(feature = "tools")]
+mod file;
 mod integrator;
 mod params;
 
 pub use dynamics::{
     RhsInputJacobian, RhsStateJacobian, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator, wrap_angle,
 };
+#[cfg(feature = "tools")]
+pub use file::VehicleFileError;
 pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
-pub use params::{VehicleParams, terminal_speed};
+pub use params::{ParamsError, VehicleParams, terminal_speed};
 
 #[cfg(test)]
 mod tests;

@@ -102,3 +102,118 @@ pub fn terminal_speed(f: f64, lin: f64, quad: f64) -> f64 {
     }
     (-b + (b * b + 4.0 * a * f).sqrt()) / (2.0 * a)
 }
+
+/// What makes a set of coefficients unusable as a vehicle model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParamsError {
+    /// A coefficient is NaN or infinite.
+    #[error("{key} = {value} is not finite")]
+    NotFinite {
+        /// The coefficient's name (the `VehicleParams` field).
+        key: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// A coefficient that makes the model meaningless.
+    #[error("{key} = {value}: {why}")]
+    Meaningless {
+        /// The coefficient's name.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+        /// What it breaks.
+        why: &'static str,
+    },
+}
+
+impl VehicleParams {
+    /// Every coefficient with its name, in declaration order (the names of a vehicle file).
+    pub fn named(&self) -> [(&'static str, f64); 17] {
+        [
+            ("m", self.m),
+            ("g", self.g),
+            ("rho", self.rho),
+            ("volume", self.volume),
+            ("x_ud", self.x_ud),
+            ("y_vd", self.y_vd),
+            ("z_wd", self.z_wd),
+            ("n_rd", self.n_rd),
+            ("izz", self.izz),
+            ("x_u", self.x_u),
+            ("y_v", self.y_v),
+            ("z_w", self.z_w),
+            ("n_r", self.n_r),
+            ("x_uu", self.x_uu),
+            ("y_vv", self.y_vv),
+            ("z_ww", self.z_ww),
+            ("n_rr", self.n_rr),
+        ]
+    }
+
+    /// The coefficient called `key`, to set; `None` for a name that is not one.
+    pub fn get_mut(&mut self, key: &str) -> Option<&mut f64> {
+        Some(match key {
+            "m" => &mut self.m,
+            "g" => &mut self.g,
+            "rho" => &mut self.rho,
+            "volume" => &mut self.volume,
+            "x_ud" => &mut self.x_ud,
+            "y_vd" => &mut self.y_vd,
+            "z_wd" => &mut self.z_wd,
+            "n_rd" => &mut self.n_rd,
+            "izz" => &mut self.izz,
+            "x_u" => &mut self.x_u,
+            "y_v" => &mut self.y_v,
+            "z_w" => &mut self.z_w,
+            "n_r" => &mut self.n_r,
+            "x_uu" => &mut self.x_uu,
+            "y_vv" => &mut self.y_vv,
+            "z_ww" => &mut self.z_ww,
+            "n_rr" => &mut self.n_rr,
+            _ => return None,
+        })
+    }
+
+    /// Refuses coefficients that make the model meaningless: non-finite values, a
+    /// non-positive mass, gravity, density or volume, a non-positive effective mass or
+    /// inertia (`m - x_ud`, `m - y_vd`, `m - z_wd`, `izz - n_rd`), positive damping (which
+    /// would feed energy in; Fossen's convention makes damping coefficients <= 0).
+    ///
+    /// # Errors
+    /// The first offending coefficient, by name.
+    pub fn validate(&self) -> Result<(), ParamsError> {
+        for (key, value) in self.named() {
+            if !value.is_finite() {
+                return Err(ParamsError::NotFinite { key, value });
+            }
+        }
+        let bad = |key, value, why| Err(ParamsError::Meaningless { key, value, why });
+        for (key, value) in
+            [("m", self.m), ("g", self.g), ("rho", self.rho), ("volume", self.volume), ("izz", self.izz)]
+        {
+            if value <= 0.0 {
+                return bad(key, value, "must be positive");
+            }
+        }
+        for (key, added, rigid) in [
+            ("x_ud", self.x_ud, self.m),
+            ("y_vd", self.y_vd, self.m),
+            ("z_wd", self.z_wd, self.m),
+            ("n_rd", self.n_rd, self.izz),
+        ] {
+            if rigid - added <= 0.0 {
+                return bad(key, added, "the effective mass or inertia (rigid minus added) must be positive");
+            }
+        }
+        for (key, value) in self.named().into_iter().skip(9) {
+            if value > 0.0 {
+                return bad(
+                    key,
+                    value,
+                    "positive damping feeds energy into the vehicle (damping coefficients are <= 0)",
+                );
+            }
+        }
+        Ok(())
+    }
+}
