@@ -19,7 +19,7 @@ use pinc::mpc::{Mpc, MpcConfig};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
-use pinc::vehicle::Rk4Vehicle;
+use pinc::vehicle::{Rk4Vehicle, VehicleParams};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -46,6 +46,10 @@ struct Args {
     /// Where the plot and the MCAP log go.
     #[arg(long, default_value = "out")]
     out_dir: PathBuf,
+    /// Vehicle file of the plant, and of the oracle's model (the oracle knows the plant)
+    /// [default: the BlueROV2].
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -70,6 +74,10 @@ fn try_main(a: Args) -> Result<(), String> {
         ScenarioName::Disturbed => Scenario::Disturbed,
     };
     let model = PincModel::load(&a.model).map_err(|e| format!("{}: {e}", a.model.display()))?;
+    let vehicle = match &a.vehicle {
+        Some(path) => VehicleParams::load(path).map_err(|e| e.to_string())?,
+        None => VehicleParams::default(),
+    };
     let predictor = Predictor::reference(&model);
     let bounds = predictor
         .input_bounds()
@@ -80,13 +88,14 @@ fn try_main(a: Args) -> Result<(), String> {
     let name = format!("mpc_{}_{controller}", scenario.name());
     let png = a.out_dir.join(format!("{name}.png"));
     let mcap = a.out_dir.join(format!("{name}.mcap"));
-    let info = RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt };
+    let info =
+        RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     let (samples, log_error) = if a.oracle {
-        let oracle = Rk4Vehicle::with_dt(predictor.dt());
-        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, a.json, &mut log)
+        let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
+        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     } else {
-        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, a.json, &mut log)
+        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     };
     let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
     // The log is finished even when a write failed mid-run, so what was written stays readable.
@@ -130,6 +139,7 @@ fn try_main(a: Args) -> Result<(), String> {
 fn closed_loop<M: DiscreteModel>(
     mut mpc: Mpc<M>,
     scenario: Scenario,
+    vehicle: &VehicleParams,
     quiet: bool,
     log: &mut McapLog,
 ) -> (Vec<Sample>, Option<LogError>) {
@@ -144,7 +154,7 @@ fn closed_loop<M: DiscreteModel>(
             .progress_chars("=> "),
     );
     let mut log_error = None;
-    let samples = run(&mut mpc, scenario, |s| {
+    let samples = run(&mut mpc, scenario, vehicle, |s| {
         if log_error.is_none() {
             log_error = log.record(s).err();
         }

@@ -80,7 +80,7 @@ impl EvalSets {
             if let Some(c) = count {
                 spec.count = c;
             }
-            generate_set(&spec, seed, &mut progress)
+            generate_set(&spec, &preset.vehicle, seed, &mut progress)
         };
         Self { dev: make("dev_eval"), interp: make("interp"), extrap: make("extrap") }
     }
@@ -94,7 +94,8 @@ impl EvalSets {
 pub fn evaluate(model: &PincModel, sets: &EvalSets) -> Result<Metrics, RuntimeError> {
     let p = Predictor::<f32>::new(model);
     let p64 = Predictor::reference(model);
-    let params = VehicleParams::default();
+    // The physics residual against the vehicle the model was trained for.
+    let params = model.vehicle;
     Ok(Metrics {
         l1: one_step_mse(&p, &sets.dev)?.log10(),
         l2: rollout_mse(&p, &sets.dev, 10)?.log10(),

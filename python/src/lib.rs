@@ -215,26 +215,22 @@ fn simulate<'py>(
     Ok(Array2::from_shape_fn((traj.len(), NS), |(k, i)| traj[k][i]).into_pyarray(py))
 }
 
-/// The BlueROV2's parameters with `overrides` applied; an unknown name or a non-finite value
-/// is an error naming it.
+/// The BlueROV2's parameters with `overrides` applied (the keys of a vehicle file); an
+/// unknown name, a value that is not a number or coefficients that make the model
+/// meaningless are errors naming the key.
 fn params(overrides: &Bound<'_, PyDict>) -> PyResult<VehicleParams> {
-    let mut map = match serde_json::to_value(VehicleParams::default()) {
-        Ok(serde_json::Value::Object(m)) => m,
-        _ => unreachable!("VehicleParams serialises to an object"),
-    };
+    let mut params = VehicleParams::default();
     for (k, v) in overrides.iter() {
         let key: String = k.extract().map_err(|_| PyValueError::new_err("vehicle: keys must be strings"))?;
         let value: f64 = v.extract().map_err(|_| PyValueError::new_err(format!("vehicle[{key:?}]: not a number")))?;
-        if !map.contains_key(&key) {
-            let known: Vec<&String> = map.keys().collect();
+        let known: Vec<&str> = params.named().iter().map(|(k, _)| *k).collect();
+        let Some(slot) = params.get_mut(&key) else {
             return Err(PyValueError::new_err(format!("vehicle: unknown parameter {key:?} (known: {known:?})")));
-        }
-        if !value.is_finite() {
-            return Err(PyValueError::new_err(format!("vehicle[{key:?}] = {value} is not finite")));
-        }
-        map.insert(key, value.into());
+        };
+        *slot = value;
     }
-    serde_json::from_value(serde_json::Value::Object(map)).map_err(|e| PyValueError::new_err(format!("vehicle: {e}")))
+    params.validate().map_err(|e| PyValueError::new_err(format!("vehicle: {e}")))?;
+    Ok(params)
 }
 
 #[pymodule]

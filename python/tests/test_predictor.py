@@ -131,3 +131,8 @@ def test_bad_files_raise_pinc_error(tmp_path):
     with pytest.raises(pinc.PincError, match="checksum"):
         pinc.Predictor(str(corrupt))
     assert issubclass(pinc.PincError, ValueError)
+
+
+def test_meaningless_vehicle_overrides_are_refused():
+    with pytest.raises(ValueError, match="x_ud = 20: the effective mass"):
+        pinc.simulate(np.zeros(8), np.zeros((2, 4)), vehicle={"x_ud": 20.0})

@@ -23,7 +23,7 @@ use super::summary::Summary;
 use crate::mpc::MpcConfig;
 use crate::runtime::Quantity;
 use crate::types::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, STATE_NAMES};
-use crate::vehicle::to_network;
+use crate::vehicle::{VehicleParams, to_network};
 use mcap::records::{MessageHeader, Metadata};
 use serde::Serialize;
 use serde_json::{Value, json};
@@ -78,6 +78,8 @@ pub struct RunInfo<'a> {
     pub bounds: (Input, Input),
     /// Sample period (s).
     pub dt: f64,
+    /// The plant's vehicle (before the scenario's disturbance).
+    pub vehicle: &'a VehicleParams,
 }
 
 /// Counts of what a finished log holds.
@@ -382,6 +384,7 @@ fn run_metadata(info: &RunInfo) -> Result<BTreeMap<String, String>, LogError> {
     put("scenario", info.scenario.name().into());
     put("horizon", c.horizon.to_string());
     put("dt_s", info.dt.to_string());
+    put("plant_vehicle", serde_json::to_string(info.vehicle)?);
     put("input_min", vec4(&info.bounds.0)?);
     put("input_max", vec4(&info.bounds.1)?);
     put("input_names", serde_json::to_string(&INPUT_NAMES)?);

@@ -5,7 +5,7 @@ use super::scenario::Scenario;
 use crate::mpc::{CycleReport, Mpc, Reference};
 use crate::traits::DiscreteModel;
 use crate::types::{NU, SimState, State};
-use crate::vehicle::to_network;
+use crate::vehicle::{VehicleParams, to_network};
 
 /// One sample of a run.
 #[derive(Debug, Clone)]
@@ -24,15 +24,16 @@ pub struct Sample {
     pub bound_violation: bool,
 }
 
-/// Runs `scenario` with `mpc` from rest at the surface. `on_sample` sees every sample and
+/// Runs `scenario` with `mpc` from rest at the surface, the plant being `vehicle`. `on_sample` sees every sample and
 /// may stop the run early by returning `false` (Ctrl-C); the samples so far are returned.
 pub fn run<M: DiscreteModel>(
     mpc: &mut Mpc<M>,
     scenario: Scenario,
+    vehicle: &VehicleParams,
     mut on_sample: impl FnMut(&Sample) -> bool,
 ) -> Vec<Sample> {
     let dt = mpc.model().dt();
-    let plant = scenario.plant(dt);
+    let plant = scenario.plant(dt, vehicle);
     let steps = (scenario.duration() / dt).round() as usize;
     let n = mpc.config().horizon;
     let (lo, hi) = mpc.bounds();

@@ -45,13 +45,13 @@ impl Scenario {
         Reference { depth: piecewise(&DEPTH_STEPS, t), heading: piecewise(&HEADING_STEPS, t).to_radians() }
     }
 
-    /// The plant of this scenario, sampled at `dt`.
-    pub fn plant(self, dt: f64) -> Plant {
-        let mut vehicle = Rk4Vehicle::with_dt(dt);
+    /// The plant of this scenario for `vehicle`, sampled at `dt`.
+    pub fn plant(self, dt: f64, vehicle: &VehicleParams) -> Plant {
+        let mut vehicle = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(dt) };
         match self {
             Scenario::Default => Plant { vehicle, current: [0.0, 0.0] },
             Scenario::Disturbed => {
-                vehicle.params = VehicleParams::default().with_damping_scaled(1.2);
+                vehicle.params = vehicle.params.with_damping_scaled(1.2);
                 Plant { vehicle, current: [0.1, 0.0] }
             }
         }
@@ -95,7 +95,10 @@ mod tests {
 
     #[test]
     fn the_current_moves_the_disturbed_plant_exactly_by_current_times_dt() {
-        let (nominal, disturbed) = (Scenario::Default.plant(0.08), Scenario::Disturbed.plant(0.08));
+        let (nominal, disturbed) = {
+            let v = VehicleParams::default();
+            (Scenario::Default.plant(0.08, &v), Scenario::Disturbed.plant(0.08, &v))
+        };
         let s = SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
         let u = Input::zeros();
         let a = nominal.step(&s, &u);

@@ -3,7 +3,7 @@
 use super::excitation::{apply_paper_scaling, sample_inputs};
 use super::{DatasetPreset, SetSpec};
 use crate::types::{Input, NS, SimState, State};
-use crate::vehicle::{Rk4Vehicle, to_network};
+use crate::vehicle::{Rk4Vehicle, VehicleParams, to_network};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -65,10 +65,16 @@ fn set_rng(seed: u64, name: &str) -> ChaCha8Rng {
     rng
 }
 
-/// Generates one set; `on_trajectory` is called after each trajectory (for progress).
-pub fn generate_set(spec: &SetSpec, seed: u64, mut on_trajectory: impl FnMut()) -> TrajectorySet {
+/// Generates one set with `vehicle`; `on_trajectory` is called after each trajectory (for
+/// progress).
+pub fn generate_set(
+    spec: &SetSpec,
+    vehicle: &VehicleParams,
+    seed: u64,
+    mut on_trajectory: impl FnMut(),
+) -> TrajectorySet {
     let mut rng = set_rng(seed, &spec.name);
-    let vehicle = Rk4Vehicle::with_dt(spec.dt);
+    let vehicle = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(spec.dt) };
     let n = spec.points.saturating_sub(1);
     let mut set = TrajectorySet {
         name: spec.name.clone(),
@@ -119,6 +125,6 @@ fn latin_hypercube(rng: &mut impl Rng, m: usize, dt: f64, out: &mut Vec<f64>) {
 /// Generates every set of `preset` from `seed`; `on_trajectory` is called after each
 /// trajectory of every set.
 pub fn generate(preset: &DatasetPreset, seed: u64, mut on_trajectory: impl FnMut()) -> Dataset {
-    let sets = preset.sets.iter().map(|spec| generate_set(spec, seed, &mut on_trajectory)).collect();
+    let sets = preset.sets.iter().map(|spec| generate_set(spec, &preset.vehicle, seed, &mut on_trajectory)).collect();
     Dataset { preset: preset.clone(), seed, sets }
 }

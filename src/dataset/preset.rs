@@ -88,6 +88,10 @@ pub struct DatasetPreset {
     pub name: String,
     /// The sets, in generation order.
     pub sets: Vec<SetSpec>,
+    /// The vehicle the trajectories are simulated with (manifests without one were
+    /// generated with the BlueROV2). Default: the BlueROV2.
+    #[serde(default)]
+    pub vehicle: VehicleParams,
 }
 
 /// Points per trajectory in both presets: 5.2 s at 0.08 s.
@@ -151,6 +155,7 @@ impl DatasetPreset {
                     0,
                 ),
             ],
+            vehicle: VehicleParams::default(),
         }
     }
 
@@ -158,9 +163,15 @@ impl DatasetPreset {
     /// |Mz| <= 1 N m`, with initial velocities inside what those inputs can reach and mixed
     /// step / ramp / multisine excitation.
     pub fn mpc() -> Self {
+        Self::mpc_for(VehicleParams::default())
+    }
+
+    /// [`DatasetPreset::mpc`] for another vehicle: its initial velocities are what that
+    /// vehicle reaches with the same inputs.
+    pub fn mpc_for(vehicle: VehicleParams) -> Self {
         let lo = [-10.0, -5.0, -5.0, -1.0];
         let hi = [10.0, 5.0, 20.0, 1.0];
-        let v = reachable_velocities(&VehicleParams::default(), lo, hi);
+        let v = reachable_velocities(&vehicle, lo, hi);
         let initial = InitialRanges {
             lo: [-1.0, -1.0, 0.0, -PI, v.lo[0], v.lo[1], v.lo[2], v.lo[3]],
             hi: [1.0, 1.0, 3.0, PI, v.hi[0], v.hi[1], v.hi[2], v.hi[3]],
@@ -185,6 +196,15 @@ impl DatasetPreset {
                 set("interp", 1000, 0.06, 0),
                 set("extrap", 1000, 0.10, 0),
             ],
+            vehicle,
+        }
+    }
+
+    /// The preset `name` (`paper` or `mpc`) simulated with `vehicle`.
+    pub fn by_name_for(name: &str, vehicle: VehicleParams) -> Option<Self> {
+        match name {
+            "mpc" => Some(Self::mpc_for(vehicle)),
+            _ => Self::by_name(name).map(|p| Self { vehicle, ..p }),
         }
     }
 }

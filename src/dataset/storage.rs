@@ -256,6 +256,7 @@ pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
             manifest.format, manifest.version
         )));
     }
+    manifest.preset.vehicle.validate().map_err(|e| bad_manifest(format!("preset vehicle: {e}")))?;
     if manifest.sets.len() != manifest.preset.sets.len() {
         return Err(DatasetError::Inconsistent {
             path: manifest_path.clone(),

@@ -1,6 +1,7 @@
 //! Bytes <-> [`PincModel`]: the fixed header, the checksum, bincode, and validation.
 
-use super::{FORMAT_VERSION, HEADER_SIZE, MAGIC, MAX_FILE_BYTES, ModelError, PincModel, validate};
+use super::format::PincModelV1;
+use super::{FORMAT_VERSION, HEADER_SIZE, MAGIC, MAX_FILE_BYTES, ModelError, OLDEST_READ_VERSION, PincModel, validate};
 use std::path::Path;
 
 fn bincode_config() -> impl bincode::config::Config {
@@ -48,7 +49,7 @@ impl PincModel {
             return Err(ModelError::BadMagic { found: bytes[..8].to_vec() });
         }
         let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
-        if version != FORMAT_VERSION {
+        if !(OLDEST_READ_VERSION..=FORMAT_VERSION).contains(&version) {
             return Err(ModelError::UnsupportedVersion { found: version, supported: FORMAT_VERSION });
         }
         let declared = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
@@ -68,8 +69,14 @@ impl PincModel {
         if stored != computed {
             return Err(ModelError::ChecksumMismatch { stored, computed });
         }
-        let (model, used): (PincModel, usize) =
-            bincode::serde::decode_from_slice(body, bincode_config()).map_err(|e| ModelError::Decode(e.to_string()))?;
+        let decode_error = |e: bincode::error::DecodeError| ModelError::Decode(e.to_string());
+        let (model, used): (PincModel, usize) = if version == 1 {
+            let (v1, used): (PincModelV1, usize) =
+                bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
+            (v1.into(), used)
+        } else {
+            bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?
+        };
         if used != body.len() {
             return Err(ModelError::TrailingBytes { extra: body.len() - used });
         }

@@ -6,13 +6,17 @@
 //! file, a future version, a lying length or a corrupted payload before decoding anything.
 
 use crate::types::{NU, NX};
+use crate::vehicle::VehicleParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// First bytes of every `.pinc` file.
 pub const MAGIC: [u8; 8] = *b"PINC\x00MDL";
 /// Version written by this build; readers refuse any other.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
+/// The oldest version still read: version 1 files have no vehicle and were all trained on
+/// the BlueROV2.
+pub const OLDEST_READ_VERSION: u32 = 1;
 /// Bytes before the payload: magic, version, length, checksum.
 pub const HEADER_SIZE: usize = 8 + 4 + 8 + 4;
 /// Largest file a reader accepts (bytes); far above any network this runtime is for.
@@ -175,6 +179,36 @@ pub struct PincModel {
     pub provenance: Provenance,
     /// The learned parameters.
     pub weights: Weights,
+    /// The vehicle whose equations the physics loss used (format version 2; version 1 files
+    /// read as the BlueROV2, the only vehicle they could have used).
+    pub vehicle: VehicleParams,
+}
+
+/// A version 1 payload: [`PincModel`] without the vehicle.
+#[derive(Deserialize)]
+pub(crate) struct PincModelV1 {
+    architecture: Architecture,
+    dt: f64,
+    input_scaling: Option<Affine>,
+    output_scaling: Option<Affine>,
+    envelope: Option<Envelope>,
+    provenance: Provenance,
+    weights: Weights,
+}
+
+impl From<PincModelV1> for PincModel {
+    fn from(v: PincModelV1) -> Self {
+        Self {
+            architecture: v.architecture,
+            dt: v.dt,
+            input_scaling: v.input_scaling,
+            output_scaling: v.output_scaling,
+            envelope: v.envelope,
+            provenance: v.provenance,
+            weights: v.weights,
+            vehicle: VehicleParams::default(),
+        }
+    }
 }
 
 impl PincModel {

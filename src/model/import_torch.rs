@@ -132,6 +132,7 @@ pub fn import_state_dict(bytes: &[u8], dt: f64, activation: Activation) -> Resul
             ..Provenance::default()
         },
         weights: Weights { hidden, output },
+        vehicle: crate::vehicle::VehicleParams::default(),
     };
     validate(&model).map_err(|e| err(format!("the imported network is inconsistent: {e}")))?;
     Ok(model)

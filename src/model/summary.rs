@@ -2,6 +2,7 @@
 
 use super::{Activation, Envelope, FORMAT_VERSION, PincModel, Provenance};
 use crate::types::STATE_NAMES;
+use crate::vehicle::VehicleParams;
 use serde::Serialize;
 
 /// A model's header: architecture, sample period, envelope, provenance, sizes.
@@ -37,6 +38,8 @@ pub struct ModelSummary {
     pub output_scaling: bool,
     /// Training envelope, if recorded.
     pub envelope: Option<Envelope>,
+    /// The vehicle the physics loss used.
+    pub vehicle: VehicleParams,
     /// Provenance and metrics.
     pub provenance: Provenance,
 }
@@ -64,6 +67,7 @@ impl ModelSummary {
             input_scaling: m.input_scaling.is_some(),
             output_scaling: m.output_scaling.is_some(),
             envelope: m.envelope.clone(),
+            vehicle: m.vehicle,
             provenance: m.provenance.clone(),
         }
     }
@@ -97,6 +101,20 @@ impl std::fmt::Display for ModelSummary {
                 }
             }
             None => writeln!(f, "envelope        none recorded")?,
+        }
+        // The coefficients that differ from the BlueROV2's, or that it is the BlueROV2.
+        let default = VehicleParams::default().named();
+        let changed: Vec<String> = self
+            .vehicle
+            .named()
+            .iter()
+            .zip(default)
+            .filter(|(a, b)| a.1 != b.1)
+            .map(|((k, v), _)| format!("{k} = {v}"))
+            .collect();
+        match changed.is_empty() {
+            true => writeln!(f, "vehicle         BlueROV2 (models/bluerov2.toml)")?,
+            false => writeln!(f, "vehicle         BlueROV2 but {}", changed.join(", "))?,
         }
         let p = &self.provenance;
         writeln!(

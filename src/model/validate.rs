@@ -40,6 +40,7 @@ fn affine(name: &str, a: &Affine, n: usize) -> Result<(), ModelError> {
 
 /// Checks limits, every dimension against the architecture, finiteness and ranges.
 pub fn validate(m: &PincModel) -> Result<(), ModelError> {
+    m.vehicle.validate().map_err(|e| invalid("vehicle", e.to_string()))?;
     let a = &m.architecture;
     if a.hidden_layers == 0 || a.hidden_layers > MAX_LAYERS {
         return Err(ModelError::LimitExceeded {

@@ -3,6 +3,7 @@
 
 use super::GradCombine;
 use crate::model::Architecture;
+use crate::vehicle::VehicleParams;
 use serde::{Deserialize, Serialize};
 
 /// The CPU backend burn trains on.
@@ -102,6 +103,10 @@ pub struct TrainConfig {
     pub backend: Backend,
     /// Wall-clock budget (s): training stops after the epoch that exceeds it.
     pub time_limit_s: Option<f64>,
+    /// The vehicle whose equations the physics losses use (recorded in the model file).
+    /// Default: the BlueROV2.
+    #[serde(default)]
+    pub vehicle: VehicleParams,
 }
 
 impl TrainConfig {
@@ -131,6 +136,7 @@ impl TrainConfig {
             seed: 0,
             backend: Backend::Ndarray,
             time_limit_s: None,
+            vehicle: VehicleParams::default(),
         }
     }
 

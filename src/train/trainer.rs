@@ -175,8 +175,8 @@ fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
     v.out
 }
 
-/// Freezes `net` with the run's envelope and provenance.
-fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance) -> PincModel {
+/// Freezes `net` with the run's envelope, provenance and vehicle.
+fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance, vehicle: VehicleParams) -> PincModel {
     PincModel {
         architecture: net.architecture().clone(),
         dt,
@@ -185,6 +185,7 @@ fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance) -
         envelope: Some(envelope.clone()),
         provenance,
         weights: net.weights(),
+        vehicle,
     }
 }
 
@@ -358,7 +359,7 @@ impl<'a> Run<'a> {
             source,
             plain: device.clone().without_autodiff(),
             device,
-            params: VehicleParams::default(),
+            params: cfg.vehicle,
             envelope: envelope_of(train_set),
             config_json: serde_json::to_string(cfg).expect("config serialises"),
             start,
@@ -379,7 +380,7 @@ impl<'a> Run<'a> {
     /// `net` frozen after `epoch`, and its dev metrics (one-step MSE, 10-step rollout MSE,
     /// mean VPT).
     fn measure(&self, net: &PincNet, epoch: usize) -> (PincModel, (f64, f64, f64)) {
-        let model = freeze(net, self.train_set.dt, &self.envelope, self.provenance(epoch));
+        let model = freeze(net, self.train_set.dt, &self.envelope, self.provenance(epoch), self.params);
         let metrics = dev_metrics(&model, self.dev);
         (model, metrics)
     }

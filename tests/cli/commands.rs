@@ -175,6 +175,7 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("tiny.pinc");
     let m = model.to_str().unwrap();
+    let vehicle = write(dir.path(), "v.toml", "y_vd = -15.5\n");
     let args = [
         "train",
         "--preset",
@@ -197,6 +198,8 @@ fn train_then_eval_writes_model_metrics_and_plots() {
         "--backend",
         "flex",
         "--json",
+        "--vehicle",
+        &vehicle,
         "--out",
         m,
     ];
@@ -209,6 +212,7 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     }
     let frozen = pinc::model::PincModel::load(&model).unwrap();
     assert_eq!(frozen.architecture.state_inputs, vec![3, 4, 5, 6, 7, 8]);
+    assert_eq!(frozen.vehicle.y_vd, -15.5, "the physics loss's vehicle is recorded");
     let csv = std::fs::read_to_string(model.with_extension("csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "header and one row per epoch");
 
@@ -236,4 +240,47 @@ fn predict_warns_of_every_component_outside_the_envelope_farthest_first() {
     assert!(!err.contains("cos_psi"), "{err}");
     let (x, mz) = (err.find("X = 1000000000").expect(&err), err.find("Mz = 1.5").expect(&err));
     assert!(x < mz, "the farthest exit first: {err}");
+}
+
+#[test]
+fn vehicle_files_reach_simulate_and_gen_data_and_bad_ones_are_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let vehicle = write(dir.path(), "heavy.toml", "# a heavier, more damped vehicle\nm = 14.0\nz_ww = -90\n");
+    let inputs = write(dir.path(), "in.csv", "X,Y,Z,Mz\n5,0,4,0.2\n5,0,4,0.2\n");
+    let out = pinc(&["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", &inputs, "--vehicle", &vehicle]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Vec<Vec<f64>> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let params = pinc::vehicle::VehicleParams { m: 14.0, z_ww: -90.0, ..Default::default() };
+    let u = [Input::new(5.0, 0.0, 4.0, 0.2); 2];
+    let expected = Rk4Vehicle { params, ..Rk4Vehicle::default() }.simulate(&SimState::zeros(), &u);
+    for (row, s) in rows.iter().zip(&expected) {
+        assert_eq!(&row[1..], s.as_slice());
+    }
+    assert_ne!(expected, Rk4Vehicle::default().simulate(&SimState::zeros(), &u), "the file changed the vehicle");
+
+    // gen-data records the vehicle in the manifest.
+    let data = dir.path().join("data");
+    let out = pinc(&["gen-data", "--preset", "paper", "--out", data.to_str().unwrap(), "--vehicle", &vehicle]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["preset"]["vehicle"]["m"], 14.0);
+
+    for (text, expected) in [
+        ("mass = 14\n", "unknown key \"mass\""),
+        ("m = -1\n", "m = -1: must be positive"),
+        ("n_rr = 0.5\n", "n_rr = 0.5: positive damping"),
+    ] {
+        let bad = write(dir.path(), "bad.toml", text);
+        let out = pinc(&["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", &inputs, "--vehicle", &bad]);
+        assert_eq!(out.status.code(), Some(1), "{text}");
+        let err = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.contains("bad.toml") && err.contains(expected), "{err}");
+    }
 }

@@ -62,6 +62,7 @@ pub fn random_model(arch: Architecture, seed: u64) -> PincModel {
         envelope: None,
         provenance: Provenance { source: "test".into(), ..Provenance::default() },
         weights: Weights { hidden, output },
+        vehicle: pinc::vehicle::VehicleParams::default(),
         architecture: arch,
     }
 }

@@ -3,6 +3,7 @@
 use crate::common;
 use pinc::model::PincModel;
 use pinc::runtime::Predictor;
+use pinc::vehicle::VehicleParams;
 use pinc::{Input, State};
 
 #[test]
@@ -27,4 +28,25 @@ fn round_trip_is_exact_and_small() {
         q.step(&mut q.workspace(), &x, &u, &mut b).unwrap();
         assert_eq!(a, b);
     }
+}
+
+#[test]
+fn the_vehicle_is_recorded_and_version_1_files_read_as_the_bluerov2() {
+    // The shipped models were written in format version 1, before files recorded a vehicle.
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc");
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 1);
+    let old = PincModel::from_bytes(&bytes).unwrap();
+    assert_eq!(old.vehicle, VehicleParams::default());
+    // Written again, it is version 2 and keeps another vehicle exactly.
+    let mut model = old;
+    model.vehicle.m = 13.25;
+    model.vehicle.z_ww = -61.0;
+    let again = model.to_bytes().unwrap();
+    assert_eq!(u32::from_le_bytes(again[8..12].try_into().unwrap()), pinc::model::FORMAT_VERSION);
+    assert_eq!(PincModel::from_bytes(&again).unwrap(), model);
+    // A vehicle that makes the physics meaningless is refused like any invalid field.
+    model.vehicle.x_ud = 20.0;
+    let err = model.to_bytes().unwrap_err().to_string();
+    assert!(err.starts_with("vehicle: x_ud = 20: the effective mass"), "{err}");
 }

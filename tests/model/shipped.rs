@@ -14,7 +14,7 @@ fn shipped(name: &str) -> PincModel {
 fn fresh(set: &str, seed: u64) -> TrajectorySet {
     let mut spec = DatasetPreset::paper().set(set).unwrap().clone();
     spec.count = 200;
-    generate_set(&spec, seed, || {})
+    generate_set(&spec, &Default::default(), seed, || {})
 }
 
 fn mean_vpt(m: &PincModel, set: &TrajectorySet) -> f64 {

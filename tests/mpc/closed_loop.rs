@@ -10,6 +10,7 @@ use pinc::model::PincModel;
 use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};
 use pinc::runtime::{EnvelopeStatus, HorizonLinearisation, Predictor, RuntimeError};
 use pinc::traits::DiscreteModel;
+use pinc::vehicle::VehicleParams;
 use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{Input, SimState, State};
 
@@ -25,7 +26,7 @@ fn oracle(cfg: MpcConfig) -> Mpc<Rk4Vehicle> {
 #[test]
 fn the_oracle_loop_settles_the_first_depth_step_and_tracks_heading() {
     let mut mpc = oracle(common::untimed());
-    let samples = run(&mut mpc, Scenario::Default, |_| true);
+    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |_| true);
     let s = summarise(&samples, Scenario::Default, 1.6);
     assert_eq!(s.samples, 750);
     assert_eq!((s.fallbacks, s.bound_violations), (0, 0), "{s:?}");
@@ -42,7 +43,7 @@ fn the_oracle_loop_settles_the_first_depth_step_and_tracks_heading() {
 fn failed_solves_fall_back_to_the_shifted_plan_and_the_loop_goes_on() {
     // A time limit no solve can meet: every cycle ends in Clarabel's MaxTime.
     let mut mpc = oracle(MpcConfig { solver_time_limit: 1e-12, ..MpcConfig::default() });
-    let samples = run(&mut mpc, Scenario::Default, |s| s.t < 2.0);
+    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |s| s.t < 2.0);
     assert!(samples.len() > 20);
     for s in &samples {
         assert!(matches!(s.cycle.fallback, Some(Fallback::Solver(_))), "{:?}", s.cycle);
@@ -69,10 +70,16 @@ fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     let pinc = Predictor::reference(&model);
     let bounds = pinc.input_bounds().unwrap();
     let cfg = MpcConfig { bounds: Some(bounds), ..common::untimed() };
-    let samples = run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, |_| true);
+    let samples =
+        run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, &VehicleParams::default(), |_| true);
     let s = summarise(&samples, Scenario::Default, 1.6);
     let o = summarise(
-        &run(&mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(), Scenario::Default, |_| true),
+        &run(
+            &mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(),
+            Scenario::Default,
+            &VehicleParams::default(),
+            |_| true,
+        ),
         Scenario::Default,
         1.6,
     );

@@ -11,6 +11,7 @@ use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
+use pinc::vehicle::VehicleParams;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -33,10 +34,11 @@ fn logged_run(cfg: MpcConfig, seconds: f64) -> (Vec<Sample>, LogStats, Vec<u8>) 
         config: &cfg,
         bounds,
         dt: model.dt,
+        vehicle: &VehicleParams::default(),
     };
     let mut log = McapLog::create(&path, &info).unwrap();
     let mut mpc = Mpc::new(predictor, cfg.clone()).unwrap();
-    let samples = run(&mut mpc, Scenario::Default, |s| {
+    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |s| {
         log.record(s).unwrap();
         s.t + 1e-9 < seconds
     });

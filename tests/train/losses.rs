@@ -16,7 +16,7 @@ const STEPS: usize = 5;
 fn small_set() -> TrajectorySet {
     let mut spec = DatasetPreset::paper().set("train").unwrap().clone();
     spec.count = 3;
-    generate_set(&spec, 11, || {})
+    generate_set(&spec, &Default::default(), 11, || {})
 }
 
 fn value(t: Tensor<1>) -> f64 {

@@ -12,7 +12,7 @@ use std::sync::atomic::AtomicBool;
 fn set(name: &str, count: usize) -> TrajectorySet {
     let mut spec = DatasetPreset::paper().set(name).unwrap().clone();
     spec.count = count;
-    generate_set(&spec, 3, || {})
+    generate_set(&spec, &Default::default(), 3, || {})
 }
 
 fn tiny_config(epochs: usize) -> TrainConfig {

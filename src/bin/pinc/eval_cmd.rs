@@ -1,8 +1,8 @@
 //! `pinc eval`: the paper's metrics on freshly generated sets, and a plot of rollouts.
 
-use crate::{PresetName, load_model};
+use crate::{PresetName, load_model, load_vehicle};
 use indicatif::{ProgressBar, ProgressStyle};
-use pinc::dataset::TrajectorySet;
+use pinc::dataset::{DatasetPreset, TrajectorySet};
 use pinc::eval::{EvalSets, Metrics, VPT_THRESHOLD_M, evaluate, full_rollouts, position_errors, vpt_of_rollouts};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
@@ -33,11 +33,15 @@ pub struct EvalArgs {
     /// Skip the plot.
     #[arg(long)]
     pub no_plot: bool,
+    /// Vehicle file the evaluation sets are simulated with [default: the vehicle the model
+    /// records, which its physics loss used].
+    #[arg(long)]
+    pub vehicle: Option<PathBuf>,
 }
 
 /// Generates the sets with a progress bar.
-pub fn eval_sets(preset: PresetName, seed: u64, count: Option<usize>, quiet: bool) -> EvalSets {
-    let p = preset.preset();
+pub fn eval_sets(preset: &DatasetPreset, seed: u64, count: Option<usize>, quiet: bool) -> EvalSets {
+    let p = preset;
     let total: usize =
         ["dev_eval", "interp", "extrap"].iter().filter_map(|n| p.set(n)).map(|s| count.unwrap_or(s.count)).sum();
     let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total as u64) };
@@ -46,7 +50,7 @@ pub fn eval_sets(preset: PresetName, seed: u64, count: Option<usize>, quiet: boo
             .expect("static template")
             .progress_chars("=> "),
     );
-    let sets = EvalSets::generate(&p, seed, count, || bar.inc(1));
+    let sets = EvalSets::generate(p, seed, count, || bar.inc(1));
     bar.finish_and_clear();
     sets
 }
@@ -65,8 +69,12 @@ pub fn print_metrics(label: &str, m: &Metrics) {
 
 pub fn run_eval(a: EvalArgs) -> Result<(), String> {
     let model = load_model(&a.model)?;
+    let vehicle = match &a.vehicle {
+        Some(path) => load_vehicle(Some(path))?,
+        None => model.vehicle,
+    };
     let start = Instant::now();
-    let sets = eval_sets(a.preset, a.seed, a.count, a.json);
+    let sets = eval_sets(&a.preset.preset_for(vehicle), a.seed, a.count, a.json);
     let metrics = evaluate(&model, &sets).map_err(|e| format!("evaluation failed: {e}"))?;
     let seconds = start.elapsed().as_secs_f64();
     let plot = (!a.no_plot).then(|| {

@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{self, DatasetPreset};
 use pinc::model::{Activation, ModelError, ModelSummary, PincModel, import_state_dict};
 use pinc::runtime::{Predictor, Quantity};
-use pinc::vehicle::{Rk4Vehicle, to_network, to_simulator};
+use pinc::vehicle::{Rk4Vehicle, VehicleParams, to_network, to_simulator};
 use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -38,6 +38,9 @@ enum Command {
         /// Sample period (s).
         #[arg(long, default_value_t = pinc::DEFAULT_DT)]
         dt: f64,
+        /// Vehicle file (TOML, keys of models/bluerov2.toml) [default: the BlueROV2].
+        #[arg(long)]
+        vehicle: Option<PathBuf>,
     },
     /// Generate every set of a dataset preset as .npy arrays plus manifest.json.
     GenData {
@@ -50,6 +53,9 @@ enum Command {
         /// Seed (the paper uses 0).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Vehicle file the trajectories are simulated with [default: the BlueROV2].
+        #[arg(long)]
+        vehicle: Option<PathBuf>,
     },
     /// Roll a frozen model out autoregressively; prints CSV t,x,y,z,psi,u,v,w,r.
     Predict {
@@ -96,7 +102,7 @@ enum Command {
     ///
     /// Writes OUT (the model), OUT with .csv (metrics per epoch) and .png (curves).
     #[cfg(feature = "train")]
-    Train(train_cmd::TrainArgs),
+    Train(Box<train_cmd::TrainArgs>),
     /// Train a PINC: needs the `train` feature (burn), which this build does not have.
     #[cfg(not(feature = "train"))]
     #[command(disable_help_flag = true)]
@@ -123,9 +129,14 @@ pub(crate) enum PresetName {
 
 impl PresetName {
     pub(crate) fn preset(self) -> DatasetPreset {
+        self.preset_for(VehicleParams::default())
+    }
+
+    /// The preset simulated with `vehicle`.
+    pub(crate) fn preset_for(self, vehicle: VehicleParams) -> DatasetPreset {
         match self {
-            PresetName::Paper => DatasetPreset::paper(),
-            PresetName::Mpc => DatasetPreset::mpc(),
+            PresetName::Paper => DatasetPreset { vehicle, ..DatasetPreset::paper() },
+            PresetName::Mpc => DatasetPreset::mpc_for(vehicle),
         }
     }
 }
@@ -133,15 +144,19 @@ impl PresetName {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Simulate { x0, inputs, dt } => run_simulate(&x0, &inputs, dt),
-        Command::GenData { preset, out, seed } => run_gen_data(preset.preset(), &out, seed),
+        Command::Simulate { x0, inputs, dt, vehicle } => {
+            load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v))
+        }
+        Command::GenData { preset, out, seed, vehicle } => {
+            load_vehicle(vehicle.as_deref()).and_then(|v| run_gen_data(preset.preset_for(v), &out, seed))
+        }
         Command::Predict { model, x0, inputs, dt, renormalise_yaw } => {
             run_predict(&model, &x0, &inputs, dt, renormalise_yaw)
         }
         Command::Inspect { model, json } => run_inspect(&model, json),
         Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
         #[cfg(feature = "train")]
-        Command::Train(args) => train_cmd::run_train(args),
+        Command::Train(args) => train_cmd::run_train(*args),
         #[cfg(not(feature = "train"))]
         Command::Train { .. } => {
             // Burn takes ~4x the rest of the build, so the default build leaves the trainer out.
@@ -172,9 +187,14 @@ fn initial_and_inputs(x0: &str, inputs: &Path, dt: f64) -> Result<(SimState, Vec
     Ok((s0, inputs_seq))
 }
 
-fn run_simulate(x0: &str, inputs: &Path, dt: f64) -> Result<(), String> {
+/// The vehicle of `--vehicle FILE`, or the BlueROV2 without one.
+pub(crate) fn load_vehicle(path: Option<&Path>) -> Result<VehicleParams, String> {
+    path.map_or(Ok(VehicleParams::default()), |p| VehicleParams::load(p).map_err(|e| e.to_string()))
+}
+
+fn run_simulate(x0: &str, inputs: &Path, dt: f64, vehicle: VehicleParams) -> Result<(), String> {
     let (s0, inputs_seq) = initial_and_inputs(x0, inputs, dt)?;
-    let traj = Rk4Vehicle::with_dt(dt).simulate(&s0, &inputs_seq);
+    let traj = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(dt) }.simulate(&s0, &inputs_seq);
     write_trajectory(std::io::stdout().lock(), dt, &traj).map_err(|e| format!("writing output: {e}"))
 }
 
@@ -221,7 +241,12 @@ fn run_predict(model: &Path, x0: &str, inputs: &Path, dt: Option<f64>, renormali
 fn run_inspect(path: &Path, json: bool) -> Result<(), String> {
     let m = load_model(path)?;
     let size = std::fs::metadata(path).map(|md| md.len() as usize).ok();
-    let summary = ModelSummary::new(&m, size);
+    let mut summary = ModelSummary::new(&m, size);
+    // The version the file was written in (it loaded, so its header is whole).
+    let mut header = [0u8; 12];
+    if std::io::Read::read_exact(&mut std::fs::File::open(path).map_err(|e| e.to_string())?, &mut header).is_ok() {
+        summary.format_version = u32::from_le_bytes([header[8], header[9], header[10], header[11]]);
+    }
     if json {
         println!("{}", serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?);
     } else {

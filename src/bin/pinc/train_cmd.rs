@@ -1,8 +1,8 @@
 //! `pinc train`: progress bar, per-epoch CSV, training-curve plot, frozen best weights with
 //! final metrics; Ctrl-C or a NaN loss stops cleanly and still writes the best weights.
 
-use crate::PresetName;
 use crate::eval_cmd::{eval_sets, print_metrics};
+use crate::{PresetName, load_vehicle};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::eval::{Metrics, evaluate};
@@ -23,6 +23,10 @@ pub struct TrainArgs {
     /// Output .pinc file.
     #[arg(long)]
     pub out: PathBuf,
+    /// Vehicle file: the data are simulated with it and the physics losses use it (the model
+    /// records it) [default: the BlueROV2].
+    #[arg(long)]
+    pub vehicle: Option<PathBuf>,
     /// Epochs [default: 1200].
     #[arg(long)]
     pub epochs: Option<usize>,
@@ -164,8 +168,9 @@ fn sibling(out: &Path, ext: &str) -> PathBuf {
 }
 
 pub fn run_train(a: TrainArgs) -> Result<(), String> {
-    let cfg = config(&a)?;
-    let preset = a.preset.preset();
+    let mut cfg = config(&a)?;
+    cfg.vehicle = load_vehicle(a.vehicle.as_deref())?;
+    let preset = a.preset.preset_for(cfg.vehicle);
     let (train_set, dev) = training_sets(&a, &preset)?;
     let interrupt = Arc::new(AtomicBool::new(false));
     {
@@ -250,7 +255,8 @@ fn training_sets(a: &TrainArgs, preset: &DatasetPreset) -> Result<(TrajectorySet
         }
         train_spec.collocation_points = m;
     }
-    Ok((generate_set(&train_spec, a.seed, || {}), generate_set(&spec("dev", a.dev_count), a.seed, || {})))
+    let v = &preset.vehicle;
+    Ok((generate_set(&train_spec, v, a.seed, || {}), generate_set(&spec("dev", a.dev_count), v, a.seed, || {})))
 }
 
 /// The per-epoch CSV: a header naming every active loss, then one row per epoch. A write
@@ -315,7 +321,7 @@ fn report_stop(outcome: &TrainOutcome) {
 /// run's timing, and the model written to `--out`.
 fn evaluate_and_save(a: &TrainArgs, outcome: &TrainOutcome) -> Result<Metrics, String> {
     let mut model = outcome.model.clone();
-    let sets = eval_sets(a.preset, a.seed, a.eval_count, a.json);
+    let sets = eval_sets(&a.preset.preset_for(outcome.model.vehicle), a.seed, a.eval_count, a.json);
     let metrics = evaluate(&model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?;
     for (k, v) in metrics.entries() {
         model.provenance.metrics.insert(k.into(), v);

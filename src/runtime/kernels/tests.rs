@@ -158,6 +158,7 @@ fn model() -> PincModel {
         envelope: None,
         provenance: Provenance::default(),
         weights: Weights { hidden, output },
+        vehicle: crate::vehicle::VehicleParams::default(),
         architecture: arch,
     }
 }
