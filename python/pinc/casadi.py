@@ -16,141 +16,93 @@ import numpy as np
 NX, NU = 9, 4
 
 
-class _StepJacobian(ca.Callback):
-    """[df/dx, df/du] of one step, as CasADi asks for it: inputs (x, u, f), outputs the two
-    dense blocks."""
+class _Callback(ca.Callback):
+    """A CasADi callback with dense inputs and outputs of fixed shapes, whose values come
+    from `evaluate(*numpy arrays)`; `jacobian`, when given, builds its Jacobian callback."""
 
-    def __init__(self, name, predictor, opts=None):
+    def __init__(self, name, inputs, outputs, evaluate, jacobian=None, opts=None):
         ca.Callback.__init__(self)
-        self.p = predictor
+        self._inputs, self._outputs = inputs, outputs
+        self._evaluate, self._make_jacobian = evaluate, jacobian
+        self._jac = None  # CasADi does not own it: kept alive here
         self.construct(name, opts or {})
 
     def get_n_in(self):
-        return 3
+        return len(self._inputs)
 
     def get_n_out(self):
-        return 2
+        return len(self._outputs)
 
     def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(NX if i in (0, 2) else NU, 1)
+        return ca.Sparsity.dense(*self._inputs[i])
 
     def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(NX, NX if i == 0 else NU)
+        return ca.Sparsity.dense(*self._outputs[i])
 
     def eval(self, arg):
-        x, u = np.asarray(arg[0]).ravel(), np.asarray(arg[1]).ravel()
-        _, a, b = self.p.linearise(x, u[None, :])
-        return [ca.DM(a[0]), ca.DM(b[0])]
-
-
-class StepFunction(ca.Callback):
-    """x_next = f(x, u) over the model's sample period."""
-
-    def __init__(self, name, predictor, opts=None):
-        ca.Callback.__init__(self)
-        self.p = predictor
-        self._jac = None
-        self.construct(name, opts or {})
-
-    def get_n_in(self):
-        return 2
-
-    def get_n_out(self):
-        return 1
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(NX if i == 0 else NU, 1)
-
-    def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(NX, 1)
-
-    def eval(self, arg):
-        x, u = np.asarray(arg[0]).ravel(), np.asarray(arg[1]).ravel()
-        return [ca.DM(self.p.step(x, u))]
+        return [ca.DM(v) for v in self._evaluate(*(np.asarray(a) for a in arg))]
 
     def has_jacobian(self):
-        return True
+        return self._make_jacobian is not None
 
     def get_jacobian(self, name, inames, onames, opts):
-        self._jac = _StepJacobian(name, self.p, opts)
+        self._jac = self._make_jacobian(name, opts)
         return self._jac
 
 
-class _RolloutJacobian(ca.Callback):
-    def __init__(self, name, predictor, n, opts=None):
-        ca.Callback.__init__(self)
-        self.p, self.n = predictor, n
-        self.construct(name, opts or {})
-
-    def get_n_in(self):
-        return 3
-
-    def get_n_out(self):
-        return 2
-
-    def get_sparsity_in(self, i):
-        return [ca.Sparsity.dense(NX, 1), ca.Sparsity.dense(NU, self.n), ca.Sparsity.dense(NX, self.n + 1)][i]
-
-    def get_sparsity_out(self, i):
-        cols = NX if i == 0 else NU * self.n
-        return ca.Sparsity.dense(NX * (self.n + 1), cols)
-
-    def eval(self, arg):
-        x0 = np.asarray(arg[0]).ravel()
-        u = np.asarray(arg[1]).reshape((NU, self.n), order="F").T
-        _, a, b = self.p.linearise(x0, u)
-        n = self.n
-        # CasADi vectorises matrices column-major: X[9 x (n+1)] -> entry (i, k) at k*9 + i,
-        # U[4 x n] -> entry (j, k) at k*4 + j.
-        dx0 = np.zeros((NX * (n + 1), NX))
-        du = np.zeros((NX * (n + 1), NU * n))
-        dx0[:NX] = np.eye(NX)
-        for k in range(n):
-            dx0[NX * (k + 1) : NX * (k + 2)] = a[k] @ dx0[NX * k : NX * (k + 1)]
-            du[NX * (k + 1) : NX * (k + 2)] = a[k] @ du[NX * k : NX * (k + 1)]
-            du[NX * (k + 1) : NX * (k + 2), NU * k : NU * (k + 1)] = b[k]
-        return [ca.DM(dx0), ca.DM(du)]
+def _inputs(u, n):
+    """CasADi's 4 x n input matrix as numpy's (n, 4) rows."""
+    return np.asarray(u).reshape((NU, n), order="F").T
 
 
-class RolloutFunction(ca.Callback):
-    """X = F(x0, U): the N-step rollout, X[:, 0] = x0, U with one column per step."""
-
-    def __init__(self, name, predictor, n, opts=None):
-        ca.Callback.__init__(self)
-        self.p, self.n = predictor, n
-        self._jac = None
-        self.construct(name, opts or {})
-
-    def get_n_in(self):
-        return 2
-
-    def get_n_out(self):
-        return 1
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(NX, 1) if i == 0 else ca.Sparsity.dense(NU, self.n)
-
-    def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(NX, self.n + 1)
-
-    def eval(self, arg):
-        x0 = np.asarray(arg[0]).ravel()
-        u = np.asarray(arg[1]).reshape((NU, self.n), order="F").T
-        return [ca.DM(self.p.rollout(x0, u).T)]
-
-    def has_jacobian(self):
-        return True
-
-    def get_jacobian(self, name, inames, onames, opts):
-        self._jac = _RolloutJacobian(name, self.p, self.n, opts)
-        return self._jac
+def _rollout_jacobian(predictor, x0, u, n):
+    """d X / d x0 and d X / d U of the n-step rollout, with X (9 x (n+1)) and U (4 x n)
+    vectorised column-major as CasADi does, from the runtime's A_k, B_k."""
+    _, a, b = predictor.linearise(np.asarray(x0).ravel(), _inputs(u, n))
+    dx0 = np.zeros((NX * (n + 1), NX))
+    du = np.zeros((NX * (n + 1), NU * n))
+    dx0[:NX] = np.eye(NX)
+    for k in range(n):
+        rows, prev = slice(NX * (k + 1), NX * (k + 2)), slice(NX * k, NX * (k + 1))
+        dx0[rows] = a[k] @ dx0[prev]
+        du[rows] = a[k] @ du[prev]
+        du[rows, NU * k : NU * (k + 1)] = b[k]
+    return dx0, du
 
 
 def step_function(predictor, name="pinc_step"):
     """One step of `predictor` as a CasADi Function f(x[9], u[4]) -> x_next[9]."""
-    return StepFunction(name, predictor)
+
+    def jacobian(jname, opts):
+        # CasADi's Jacobian function takes (x, u, f) and returns [df/dx, df/du].
+        def evaluate(x, u, _f):
+            _, a, b = predictor.linearise(x.ravel(), u.reshape(1, NU))
+            return a[0], b[0]
+
+        return _Callback(jname, [(NX, 1), (NU, 1), (NX, 1)], [(NX, NX), (NX, NU)], evaluate, opts=opts)
+
+    return _Callback(
+        name,
+        [(NX, 1), (NU, 1)],
+        [(NX, 1)],
+        lambda x, u: [predictor.step(x.ravel(), u.ravel())],
+        jacobian,
+    )
 
 
 def rollout_function(predictor, n, name="pinc_rollout"):
     """The n-step rollout as a CasADi Function F(x0[9], U[4 x n]) -> X[9 x (n+1)]."""
-    return RolloutFunction(name, predictor, n)
+
+    def jacobian(jname, opts):
+        shapes_in = [(NX, 1), (NU, n), (NX, n + 1)]
+        shapes_out = [(NX * (n + 1), NX), (NX * (n + 1), NU * n)]
+        evaluate = lambda x0, u, _x: _rollout_jacobian(predictor, x0, u, n)  # noqa: E731
+        return _Callback(jname, shapes_in, shapes_out, evaluate, opts=opts)
+
+    return _Callback(
+        name,
+        [(NX, 1), (NU, n)],
+        [(NX, n + 1)],
+        lambda x0, u: [predictor.rollout(x0.ravel(), _inputs(u, n)).T],
+        jacobian,
+    )
