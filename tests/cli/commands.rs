@@ -215,6 +215,20 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     assert_eq!(frozen.vehicle.y_vd, -15.5, "the physics loss's vehicle is recorded");
     let csv = std::fs::read_to_string(model.with_extension("csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "header and one row per epoch");
+    // The curves can be redrawn from the CSV alone; a damaged CSV is a one-line error.
+    let png = dir.path().join("again.png");
+    let out = pinc(&["plot-training", model.with_extension("csv").to_str().unwrap(), "--out", png.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8(out.stdout).unwrap().starts_with("2 epochs -> "));
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000, "a drawn figure");
+    let damaged = write(dir.path(), "damaged.csv", &csv.replacen("\n1,", "\nx,", 1));
+    let out = pinc(&["plot-training", &damaged]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("damaged.csv: line 2: column epoch: \"x\" is not a number") && err.lines().count() == 1,
+        "{err}"
+    );
 
     let plot = dir.path().join("eval.png");
     let out = pinc(&["eval", "--model", m, "--count", "5", "--json", "--plot", plot.to_str().unwrap()]);

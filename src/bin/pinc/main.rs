@@ -103,6 +103,9 @@ enum Command {
     /// Writes OUT (the model), OUT with .csv (metrics per epoch) and .png (curves).
     #[cfg(feature = "train")]
     Train(Box<train_cmd::TrainArgs>),
+    /// Redraw the training curves (PNG) from the per-epoch CSV `pinc train` wrote.
+    #[cfg(feature = "train")]
+    PlotTraining(train_cmd::PlotTrainingArgs),
     /// Train a PINC: needs the `train` feature (burn), which this build does not have.
     #[cfg(not(feature = "train"))]
     #[command(disable_help_flag = true)]
@@ -157,6 +160,8 @@ fn main() -> ExitCode {
         Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
         #[cfg(feature = "train")]
         Command::Train(args) => train_cmd::run_train(*args),
+        #[cfg(feature = "train")]
+        Command::PlotTraining(args) => train_cmd::run_plot_training(args),
         #[cfg(not(feature = "train"))]
         Command::Train { .. } => {
             // Burn takes ~4x the rest of the build, so the default build leaves the trainer out.

@@ -335,6 +335,68 @@ fn evaluate_and_save(a: &TrainArgs, outcome: &TrainOutcome) -> Result<Metrics, S
     Ok(metrics)
 }
 
+/// Arguments of `pinc plot-training`.
+#[derive(clap::Args)]
+pub struct PlotTrainingArgs {
+    /// The per-epoch CSV that `pinc train` wrote beside its model.
+    pub csv: PathBuf,
+    /// The PNG to write [default: the CSV's path with .png].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Redraws the training curves from the per-epoch CSV.
+pub fn run_plot_training(a: PlotTrainingArgs) -> Result<(), String> {
+    let history = read_history(&a.csv).map_err(|e| format!("{}: {e}", a.csv.display()))?;
+    let out = a.out.unwrap_or_else(|| sibling(&a.csv, "png"));
+    plot_history(&out, &history).map_err(|e| format!("plot {}: {e}", out.display()))?;
+    println!("{} epochs -> {}", history.len(), out.display());
+    Ok(())
+}
+
+/// The epochs of a per-epoch CSV (the columns `EpochCsv` writes; `train_<loss>` for each
+/// active loss).
+fn read_history(path: &Path) -> Result<Vec<EpochRecord>, String> {
+    let mut reader = csv::Reader::from_path(path).map_err(|e| e.to_string())?;
+    let header = reader.headers().map_err(|e| e.to_string())?.clone();
+    let column = |name: &str| header.iter().position(|h| h == name).ok_or(format!("no column {name:?}"));
+    let losses: Vec<(usize, LossKind)> = header
+        .iter()
+        .enumerate()
+        .filter_map(|(i, h)| h.strip_prefix("train_").map(|n| (i, n)))
+        .map(|(i, n)| LossKind::from_name(n).map(|k| (i, k)).ok_or(format!("unknown loss column train_{n}")))
+        .collect::<Result<_, _>>()?;
+    let [epoch, lr, one, roll, vpt, smoothed, best, elapsed] =
+        ["epoch", "lr", "dev_one_step_mse", "dev_rollout10_mse", "dev_vpt_s", "dev_smoothed", "best", "elapsed_s"]
+            .map(column);
+    let (epoch, lr, one, roll, vpt, smoothed, best, elapsed) =
+        (epoch?, lr?, one?, roll?, vpt?, smoothed?, best?, elapsed?);
+    let mut history = Vec::new();
+    for (row, record) in reader.records().enumerate() {
+        let record = record.map_err(|e| e.to_string())?;
+        let line = row + 2;
+        let number = |i: usize| -> Result<f64, String> {
+            let text = record.get(i).unwrap_or("");
+            text.parse().map_err(|_| format!("line {line}: column {}: {text:?} is not a number", &header[i]))
+        };
+        history.push(EpochRecord {
+            epoch: number(epoch)? as usize,
+            lr: number(lr)?,
+            train: losses.iter().map(|&(i, k)| number(i).map(|v| (k, v))).collect::<Result<_, _>>()?,
+            dev_one_step: number(one)?,
+            dev_rollout10: number(roll)?,
+            dev_vpt: number(vpt)?,
+            dev_smoothed: number(smoothed)?,
+            best: number(best)? != 0.0,
+            elapsed_s: number(elapsed)?,
+        });
+    }
+    if history.is_empty() {
+        return Err("no epochs".into());
+    }
+    Ok(history)
+}
+
 fn plot_history(path: &Path, h: &[EpochRecord]) -> Result<(), String> {
     let Some(first) = h.first() else { return Ok(()) };
     let train_series: Vec<Series> = first
