@@ -75,10 +75,14 @@ fn fail(code: c_int, message: std::fmt::Arguments) -> c_int {
     code
 }
 
-/// Runs `f`, turning a panic into `PINC_ERR_INTERNAL`.
-fn guarded(name: &str, f: impl FnOnce() -> c_int) -> c_int {
-    catch_unwind(AssertUnwindSafe(f))
-        .unwrap_or_else(|_| fail(PINC_ERR_INTERNAL, format_args!("{name}: internal error (panic)")))
+/// Runs an entry point's body: `PINC_OK`, its error code, or `PINC_ERR_INTERNAL` for a
+/// panic.
+fn guarded(name: &str, f: impl FnOnce() -> Result<(), c_int>) -> c_int {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => PINC_OK,
+        Ok(Err(code)) => code,
+        Err(_) => fail(PINC_ERR_INTERNAL, format_args!("{name}: internal error (panic)")),
+    }
 }
 
 /// The code and message of a runtime error.
@@ -169,11 +173,10 @@ unsafe fn handles<'a>(
     Ok(unsafe { (&(*p).predictor, &mut *w) })
 }
 
-fn finish_predictor(model: PincModel, out: *mut *mut PincPredictor) -> c_int {
+fn finish_predictor(model: PincModel, out: *mut *mut PincPredictor) {
     let predictor = Box::new(PincPredictor { predictor: Predictor::new(&model) });
     // SAFETY: `out` was checked non-null by the caller of this function.
     unsafe { *out = Box::into_raw(predictor) };
-    PINC_OK
 }
 
 /// Loads and validates the `.pinc` file at `path` (UTF-8, NUL-terminated) into `*out`.
@@ -185,16 +188,14 @@ fn finish_predictor(model: PincModel, out: *mut *mut PincPredictor) -> c_int {
 pub unsafe extern "C" fn pinc_predictor_load(path: *const c_char, out: *mut *mut PincPredictor) -> c_int {
     guarded("pinc_predictor_load", || {
         if path.is_null() || out.is_null() {
-            return fail(PINC_ERR_NULL, format_args!("pinc_predictor_load: path or out is null"));
+            return Err(fail(PINC_ERR_NULL, format_args!("pinc_predictor_load: path or out is null")));
         }
         // SAFETY: non-null and NUL-terminated (caller).
         let Ok(path) = unsafe { CStr::from_ptr(path) }.to_str() else {
-            return fail(PINC_ERR_IO, format_args!("pinc_predictor_load: path is not UTF-8"));
+            return Err(fail(PINC_ERR_IO, format_args!("pinc_predictor_load: path is not UTF-8")));
         };
-        match PincModel::load(path) {
-            Ok(model) => finish_predictor(model, out),
-            Err(e) => model_error(path, e),
-        }
+        finish_predictor(PincModel::load(path).map_err(|e| model_error(path, e))?, out);
+        Ok(())
     })
 }
 
@@ -208,16 +209,15 @@ pub unsafe extern "C" fn pinc_predictor_from_bytes(
     len: usize,
     out: *mut *mut PincPredictor,
 ) -> c_int {
-    guarded("pinc_predictor_from_bytes", || {
+    const NAME: &str = "pinc_predictor_from_bytes";
+    guarded(NAME, || {
         if bytes.is_null() || out.is_null() {
-            return fail(PINC_ERR_NULL, format_args!("pinc_predictor_from_bytes: bytes or out is null"));
+            return Err(fail(PINC_ERR_NULL, format_args!("{NAME}: bytes or out is null")));
         }
         // SAFETY: non-null, `len` readable bytes (caller).
         let bytes = unsafe { std::slice::from_raw_parts(bytes, len) };
-        match PincModel::from_bytes(bytes) {
-            Ok(model) => finish_predictor(model, out),
-            Err(e) => model_error("pinc_predictor_from_bytes", e),
-        }
+        finish_predictor(PincModel::from_bytes(bytes).map_err(|e| model_error(NAME, e))?, out);
+        Ok(())
     })
 }
 
@@ -241,14 +241,14 @@ pub unsafe extern "C" fn pinc_predictor_free(p: *mut PincPredictor) {
 pub unsafe extern "C" fn pinc_workspace_new(p: *const PincPredictor, out: *mut *mut PincWorkspace) -> c_int {
     guarded("pinc_workspace_new", || {
         if p.is_null() || out.is_null() {
-            return fail(PINC_ERR_NULL, format_args!("pinc_workspace_new: predictor or out is null"));
+            return Err(fail(PINC_ERR_NULL, format_args!("pinc_workspace_new: predictor or out is null")));
         }
         // SAFETY: a live predictor (caller).
         let predictor = unsafe { &(*p).predictor };
         let w = Box::new(PincWorkspace { ws: predictor.workspace(), exits: 0 });
         // SAFETY: non-null (checked).
         unsafe { *out = Box::into_raw(w) };
-        PINC_OK
+        Ok(())
     })
 }
 
@@ -291,28 +291,22 @@ pub unsafe extern "C" fn pinc_step(
     const NAME: &str = "pinc_step";
     guarded(NAME, || {
         // SAFETY: the pointer contracts above (caller).
-        let args = unsafe {
-            (|| {
-                Ok((
-                    handles(NAME, p, w)?,
-                    doubles(NAME, "x", x, 1, NX)?,
-                    doubles(NAME, "u", u, 1, NU)?,
-                    doubles_mut(NAME, "out", out, 1, NX)?,
-                ))
-            })()
-        };
-        let ((predictor, w), x, u, out) = match args {
-            Ok(a) => a,
-            Err(code) => return code,
+        let ((predictor, w), x, u, out) = unsafe {
+            (
+                handles(NAME, p, w)?,
+                doubles(NAME, "x", x, 1, NX)?,
+                doubles(NAME, "u", u, 1, NU)?,
+                doubles_mut(NAME, "out", out, 1, NX)?,
+            )
         };
         if dt.is_nan() {
-            return fail(PINC_ERR_DT, format_args!("{NAME}: dt is NaN"));
+            return Err(fail(PINC_ERR_DT, format_args!("{NAME}: dt is NaN")));
         }
         let dt = if dt <= 0.0 { predictor.dt() } else { dt };
         let next = &mut as_states_mut(out)[0];
         let result = predictor.step_dt(&mut w.ws, &as_states(x)[0], &as_inputs(u)[0], dt, next);
         w.exits = w.ws.envelope_status().exits;
-        result.map_or_else(|e| runtime_error(NAME, e), |()| PINC_OK)
+        result.map_err(|e| runtime_error(NAME, e))
     })
 }
 
@@ -367,13 +361,10 @@ pub unsafe extern "C" fn pinc_rollout(
     const NAME: &str = "pinc_rollout";
     guarded(NAME, || {
         // SAFETY: the pointer contracts above (caller).
-        let h = match unsafe { horizon(NAME, p, w, x0, u, n, traj) } {
-            Ok(h) => h,
-            Err(code) => return code,
-        };
+        let h = unsafe { horizon(NAME, p, w, x0, u, n, traj) }?;
         let result = h.predictor.rollout(&mut h.w.ws, &h.x0, h.inputs, h.traj);
         h.w.exits = h.w.ws.envelope_status().exits;
-        result.map_or_else(|e| runtime_error(NAME, e), |()| PINC_OK)
+        result.map_err(|e| runtime_error(NAME, e))
     })
 }
 
@@ -398,21 +389,15 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
     const NAME: &str = "pinc_linearise_horizon";
     guarded(NAME, || {
         if n == 0 {
-            return fail(PINC_ERR_LENGTH, format_args!("{NAME}: n = 0 (a horizon has at least one step)"));
+            return Err(fail(PINC_ERR_LENGTH, format_args!("{NAME}: n = 0 (a horizon has at least one step)")));
         }
         // SAFETY: the pointer contracts above (caller).
-        let args = unsafe {
-            (|| {
-                Ok((
-                    horizon(NAME, p, w, x0, u, n, traj)?,
-                    doubles_mut(NAME, "a", a, n, NX * NX)?,
-                    doubles_mut(NAME, "b", b, n, NX * NU)?,
-                ))
-            })()
-        };
-        let (Horizon { predictor, w, x0, inputs, traj }, a, b) = match args {
-            Ok(a) => a,
-            Err(code) => return code,
+        let (Horizon { predictor, w, x0, inputs, traj }, a, b) = unsafe {
+            (
+                horizon(NAME, p, w, x0, u, n, traj)?,
+                doubles_mut(NAME, "a", a, n, NX * NX)?,
+                doubles_mut(NAME, "b", b, n, NX * NU)?,
+            )
         };
         traj[0] = x0;
         w.exits = 0;
@@ -423,9 +408,7 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
             let x = traj[k];
             let result = predictor.linearise(&mut w.ws, &x, &inputs[k], &mut traj[k + 1], &mut ak, &mut bk);
             w.exits += w.ws.envelope_status().exits;
-            if let Err(e) = result {
-                return runtime_error(NAME, shift_step(e, k));
-            }
+            result.map_err(|e| runtime_error(NAME, shift_step(e, k)))?;
             for i in 0..NX {
                 for j in 0..NX {
                     a[k * NX * NX + i * NX + j] = ak[(i, j)];
@@ -435,7 +418,7 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
                 }
             }
         }
-        PINC_OK
+        Ok(())
     })
 }
 

@@ -3,6 +3,8 @@
 
 #[path = "../common/mod.rs"]
 mod common;
+#[path = "../common/counting_alloc.rs"]
+mod counting_alloc;
 
 mod behaviour;
 mod jacobian_fd;

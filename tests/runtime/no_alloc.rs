@@ -2,47 +2,11 @@
 //! global allocator (per thread, so parallel tests do not interfere).
 
 use crate::common;
+use crate::counting_alloc::allocations_during;
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::Rk4Vehicle;
 use pinc::{Input, InputMatrix, State, StateMatrix};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocations_during(f: impl FnOnce()) -> usize {
-    let before = ALLOCATIONS.with(Cell::get);
-    f();
-    ALLOCATIONS.with(Cell::get) - before
-}
-
-#[test]
-fn the_counter_sees_allocations() {
-    // Guard against a counter that can never fail.
-    assert!(allocations_during(|| drop(std::hint::black_box(vec![1u8; 64]))) >= 1);
-}
 
 #[test]
 fn predictor_hot_calls_do_not_allocate() {
