@@ -41,16 +41,15 @@ pub struct EvalArgs {
 
 /// Generates the sets with a progress bar.
 pub fn eval_sets(preset: &DatasetPreset, seed: u64, count: Option<usize>, quiet: bool) -> EvalSets {
-    let p = preset;
     let total: usize =
-        ["dev_eval", "interp", "extrap"].iter().filter_map(|n| p.set(n)).map(|s| count.unwrap_or(s.count)).sum();
+        ["dev_eval", "interp", "extrap"].iter().filter_map(|n| preset.set(n)).map(|s| count.unwrap_or(s.count)).sum();
     let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total as u64) };
     bar.set_style(
         ProgressStyle::with_template("generating eval sets [{bar:40}] {pos}/{len} ({eta})")
             .expect("static template")
             .progress_chars("=> "),
     );
-    let sets = EvalSets::generate(p, seed, count, || bar.inc(1));
+    let sets = EvalSets::generate(preset, seed, count, || bar.inc(1));
     bar.finish_and_clear();
     sets
 }
