@@ -268,3 +268,42 @@ pub fn vpt_of_rollouts(out: &[State], set: &TrajectorySet) -> Vec<f64> {
         })
         .collect()
 }
+
+/// The metrics of one set of recorded windows (an imported dataset's test split).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SetMetrics {
+    /// One-step MSE.
+    pub one_step_mse: f64,
+    /// 10-step rollout MSE (shorter when the windows are).
+    pub rollout10_mse: f64,
+    /// Physics-residual MSE at `t = T` against the given vehicle.
+    pub physics_mse: f64,
+    /// Mean VPT (s); a window's VPT is at most its length.
+    pub vpt_s: f64,
+    /// Median VPT (s).
+    pub vpt_median_s: f64,
+    /// Windows evaluated.
+    pub windows: usize,
+}
+
+/// [`SetMetrics`] of `model` on `set`, the physics residual against `vehicle`.
+///
+/// # Errors
+/// A non-finite state or input in the set.
+pub fn evaluate_set(
+    model: &PincModel,
+    set: &TrajectorySet,
+    vehicle: &VehicleParams,
+) -> Result<SetMetrics, RuntimeError> {
+    let p = Predictor::<f32>::new(model);
+    let mut v = vpt(&p, set)?;
+    v.sort_by(f64::total_cmp);
+    Ok(SetMetrics {
+        one_step_mse: one_step_mse(&p, set)?,
+        rollout10_mse: rollout_mse(&p, set, 10.min(set.points - 1))?,
+        physics_mse: physics_mse(&Predictor::reference(model), vehicle, set)?,
+        vpt_s: mean(&v),
+        vpt_median_s: v.get(v.len() / 2).copied().unwrap_or(0.0),
+        windows: set.count,
+    })
+}

@@ -26,6 +26,8 @@ pub mod dataset;
 #[cfg(feature = "tools")]
 pub mod eval;
 #[cfg(feature = "tools")]
+pub mod identify;
+#[cfg(feature = "tools")]
 pub mod plot;
 
 pub use types::*;

@@ -27,7 +27,6 @@ use crate::vehicle::{VehicleParams, to_network};
 use mcap::records::{MessageHeader, Metadata};
 use serde::Serialize;
 use serde_json::{Value, json};
-use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
@@ -147,7 +146,7 @@ fn nanos(t: f64) -> u64 {
 /// The file cannot be read.
 pub fn file_sha256(path: &Path) -> Result<String, LogError> {
     let bytes = std::fs::read(path).map_err(|source| LogError::Io { path: path.to_owned(), source })?;
-    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+    Ok(crate::dataset::import::sha256_hex(&bytes))
 }
 
 impl McapLog {

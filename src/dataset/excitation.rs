@@ -35,6 +35,8 @@ pub fn sample_inputs(excitation: &Excitation, rng: &mut impl Rng, n: usize, dt: 
             }
         }
         Excitation::Constant { input } => out.fill(Input::from(*input)),
+        // Recorded inputs exist only in the files they were imported from.
+        Excitation::Recorded => {}
         Excitation::Figure8 { surge, moment, freq_hz } => {
             for (k, u) in out.iter_mut().enumerate() {
                 u[0] = *surge;

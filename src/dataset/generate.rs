@@ -48,6 +48,8 @@ pub struct Dataset {
     pub seed: u64,
     /// The sets, in the preset's order.
     pub sets: Vec<TrajectorySet>,
+    /// For a dataset imported from recorded runs: the files and options.
+    pub source: Option<super::import::ImportSource>,
 }
 
 impl Dataset {
@@ -106,6 +108,17 @@ pub fn generate_set(
     set
 }
 
+/// Collocation times for `intervals` recorded intervals of the set `name`, `m` per interval,
+/// from the set's own stream of `seed` (as generation draws them, but without trajectories).
+pub(super) fn collocation_times(seed: u64, name: &str, intervals: usize, m: usize, dt: f64) -> Vec<f64> {
+    let mut rng = set_rng(seed, name);
+    let mut out = Vec::with_capacity(intervals * m);
+    for _ in 0..intervals {
+        latin_hypercube(&mut rng, m, dt, &mut out);
+    }
+    out
+}
+
 /// Appends `m` collocation times in `[0, dt]`: one at `dt` when `m == 1`, otherwise a
 /// Latin-hypercube sample (one uniform point in each of `m` equal strata, shuffled).
 fn latin_hypercube(rng: &mut impl Rng, m: usize, dt: f64, out: &mut Vec<f64>) {
@@ -126,5 +139,5 @@ fn latin_hypercube(rng: &mut impl Rng, m: usize, dt: f64, out: &mut Vec<f64>) {
 /// trajectory of every set.
 pub fn generate(preset: &DatasetPreset, seed: u64, mut on_trajectory: impl FnMut()) -> Dataset {
     let sets = preset.sets.iter().map(|spec| generate_set(spec, &preset.vehicle, seed, &mut on_trajectory)).collect();
-    Dataset { preset: preset.clone(), seed, sets }
+    Dataset { preset: preset.clone(), seed, sets, source: None }
 }

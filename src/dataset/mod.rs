@@ -4,6 +4,7 @@
 mod error;
 mod excitation;
 mod generate;
+pub mod import;
 mod preset;
 mod storage;
 

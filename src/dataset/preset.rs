@@ -57,6 +57,9 @@ pub enum Excitation {
         /// Upper input bounds.
         hi: [f64; NU],
     },
+    /// Inputs recorded in the water (`pinc dataset import`): such a set is loaded from its
+    /// folder, never generated (generating it would hold zero inputs).
+    Recorded,
 }
 
 /// One set of trajectories.

@@ -45,6 +45,10 @@ pub struct Manifest {
     pub units: BTreeMap<String, String>,
     /// One entry per set.
     pub sets: Vec<SetEntry>,
+    /// For a dataset imported from recorded runs: the files (with their SHA-256), the
+    /// options and what was skipped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<super::import::ImportSource>,
 }
 
 /// Manifest entry of one set.
@@ -114,8 +118,39 @@ fn write_npy(path: &Path, shape: &[u64], data: impl Iterator<Item = f64>) -> Res
     w.finish().map_err(io_err(path))
 }
 
-/// Writes `data` into `dir` (created if needed) and returns the manifest written.
+/// Writes `data` into the folder `dir` and returns the manifest written. The folder appears
+/// whole or not at all: everything is written into a sibling folder first, which then
+/// replaces `dir`. An existing `dir` is replaced only if it is empty or a dataset (it holds
+/// a manifest), so a mistyped path never deletes unrelated files.
 pub fn save(data: &Dataset, dir: &Path) -> Result<Manifest, DatasetError> {
+    if dir.exists() {
+        let empty = fs::read_dir(dir).map_err(io_err(dir))?.next().is_none();
+        if !empty && !dir.join(MANIFEST_FILE).is_file() {
+            return Err(DatasetError::Inconsistent {
+                path: dir.to_path_buf(),
+                message: "exists and is not a dataset folder (no manifest.json); choose another --out".into(),
+            });
+        }
+    }
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
+    let partial = dir.with_file_name(format!(".{name}.partial-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&partial);
+    let written = write_folder(data, &partial);
+    let manifest = match written {
+        Ok(m) => m,
+        Err(e) => {
+            let _ = fs::remove_dir_all(&partial);
+            return Err(e);
+        }
+    };
+    if dir.exists() {
+        fs::remove_dir_all(dir).map_err(io_err(dir))?;
+    }
+    fs::rename(&partial, dir).map_err(io_err(dir))?;
+    Ok(manifest)
+}
+
+fn write_folder(data: &Dataset, dir: &Path) -> Result<Manifest, DatasetError> {
     fs::create_dir_all(dir).map_err(io_err(dir))?;
     let mut entries = Vec::new();
     for set in &data.sets {
@@ -153,6 +188,7 @@ pub fn save(data: &Dataset, dir: &Path) -> Result<Manifest, DatasetError> {
         input_layout: INPUT_NAMES.iter().map(|s| s.to_string()).collect(),
         units: units(),
         sets: entries,
+        source: data.source.clone(),
     };
     let path = dir.join(MANIFEST_FILE);
     let json = serde_json::to_string_pretty(&manifest)
@@ -302,5 +338,5 @@ pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
             collocation,
         });
     }
-    Ok(Dataset { preset: manifest.preset, seed: manifest.seed, sets })
+    Ok(Dataset { preset: manifest.preset, seed: manifest.seed, sets, source: manifest.source })
 }

@@ -27,8 +27,9 @@ impl Inertia {
     }
 }
 
-/// Body-frame accelerations `[u', v', w', r']` from velocities and input.
-fn accelerations(p: &VehicleParams, uvwr: [f64; 4], f: &Input) -> [f64; 4] {
+/// Body-frame accelerations `[u', v', w', r']` from velocities and input (they depend on
+/// neither position nor heading, which is what identification integrates).
+pub fn body_accelerations(p: &VehicleParams, uvwr: [f64; 4], f: &Input) -> [f64; 4] {
     let [u, v, w, r] = uvwr;
     let k = Inertia::of(p);
     [
@@ -45,7 +46,7 @@ fn accelerations(p: &VehicleParams, uvwr: [f64; 4], f: &Input) -> [f64; 4] {
 pub fn rhs_sim(p: &VehicleParams, s: &SimState, f: &Input) -> SimState {
     let (psi, u, v, w, r) = (s[3], s[4], s[5], s[6], s[7]);
     let (sn, cs) = psi.sin_cos();
-    let a = accelerations(p, [u, v, w, r], f);
+    let a = body_accelerations(p, [u, v, w, r], f);
     SimState::from([cs * u - sn * v, sn * u + cs * v, w, r, a[0], a[1], a[2], a[3]])
 }
 
@@ -53,7 +54,7 @@ pub fn rhs_sim(p: &VehicleParams, s: &SimState, f: &Input) -> SimState {
 #[inline]
 pub fn rhs(p: &VehicleParams, x: &State, f: &Input) -> State {
     let (cs, sn, u, v, w, r) = (x[3], x[4], x[5], x[6], x[7], x[8]);
-    let a = accelerations(p, [u, v, w, r], f);
+    let a = body_accelerations(p, [u, v, w, r], f);
     State::from([cs * u - sn * v, sn * u + cs * v, w, -sn * r, cs * r, a[0], a[1], a[2], a[3]])
 }
 

@@ -8,7 +8,8 @@ mod integrator;
 mod params;
 
 pub use dynamics::{
-    RhsInputJacobian, RhsStateJacobian, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator, wrap_angle,
+    RhsInputJacobian, RhsStateJacobian, body_accelerations, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator,
+    wrap_angle,
 };
 #[cfg(feature = "tools")]
 pub use file::VehicleFileError;

@@ -5,3 +5,5 @@ mod common;
 
 mod dataset;
 mod eval_rollouts;
+mod identify;
+mod import;

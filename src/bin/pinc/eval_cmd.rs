@@ -34,9 +34,13 @@ pub struct EvalArgs {
     #[arg(long)]
     pub no_plot: bool,
     /// Vehicle file the evaluation sets are simulated with [default: the vehicle the model
-    /// records, which its physics loss used].
+    /// records, which its physics loss used]; with --data, the vehicle of the physics residual.
     #[arg(long)]
     pub vehicle: Option<PathBuf>,
+    /// Evaluate on the test split of this dataset folder (`pinc dataset import`) instead of
+    /// generated sets: one-step and 10-step MSE, physics residual, VPT.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
 }
 
 /// Generates the sets with a progress bar.
@@ -72,16 +76,15 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
         Some(path) => load_vehicle(Some(path))?,
         None => model.vehicle,
     };
+    if let Some(dir) = &a.data {
+        return eval_on_data(&a, &model, dir, &vehicle);
+    }
     let start = Instant::now();
     let sets = eval_sets(&a.preset.preset_for(vehicle), a.seed, a.count, a.json);
     let metrics = evaluate(&model, &sets).map_err(|e| format!("evaluation failed: {e}"))?;
     let seconds = start.elapsed().as_secs_f64();
-    let plot = (!a.no_plot).then(|| {
-        a.plot.clone().unwrap_or_else(|| {
-            let stem = a.model.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "model".into());
-            PathBuf::from(format!("{stem}_eval_seed{}.png", a.seed))
-        })
-    });
+    let plot =
+        (!a.no_plot).then(|| a.plot.clone().unwrap_or_else(|| default_plot(&a.model, &format!("seed{}", a.seed))));
     if let Some(path) = &plot {
         plot_rollouts(path, &model, &sets.dev).map_err(|e| format!("plot {}: {e}", path.display()))?;
     }
@@ -113,6 +116,66 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// The model's [`pinc::eval::SetMetrics`] on the test split of a dataset folder.
+fn eval_on_data(
+    a: &EvalArgs,
+    model: &pinc::model::PincModel,
+    dir: &Path,
+    vehicle: &pinc::vehicle::VehicleParams,
+) -> Result<(), String> {
+    let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
+    let test = data
+        .set("test")
+        .filter(|s| s.count > 0)
+        .ok_or_else(|| format!("{}: the dataset has no test windows", dir.display()))?;
+    if (test.dt - model.dt).abs() > 1e-12 {
+        eprintln!("warning: the data's sample period is {} s, the model's {} s", test.dt, model.dt);
+    }
+    let m = pinc::eval::evaluate_set(model, test, vehicle).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let plot = (!a.no_plot).then(|| a.plot.clone().unwrap_or_else(|| default_plot(&a.model, "data")));
+    if let Some(path) = &plot {
+        plot_rollouts(path, model, test).map_err(|e| format!("plot {}: {e}", path.display()))?;
+    }
+    if a.json {
+        let mut v = serde_json::to_value(m).map_err(|e| e.to_string())?;
+        let obj = v.as_object_mut().expect("metrics serialise to an object");
+        obj.insert("model".into(), a.model.display().to_string().into());
+        obj.insert("data".into(), dir.display().to_string().into());
+        obj.insert("vpt_threshold_m".into(), VPT_THRESHOLD_M.into());
+        if let Some(p) = &plot {
+            obj.insert("plot".into(), p.display().to_string().into());
+        }
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{} on the test split of {} ({} windows of {} points)",
+            a.model.display(),
+            dir.display(),
+            m.windows,
+            test.points
+        );
+        print_set_metrics(&m);
+        if let Some(p) = &plot {
+            println!("plot: {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// Prints [`pinc::eval::SetMetrics`] as one table row.
+pub fn print_set_metrics(m: &pinc::eval::SetMetrics) {
+    println!("{:>12} {:>12} {:>12} {:>8} {:>10}", "one-step", "10-step", "physics", "VPT s", "median s");
+    println!(
+        "{:>12.3e} {:>12.3e} {:>12.3e} {:>8.2} {:>10.2}",
+        m.one_step_mse, m.rollout10_mse, m.physics_mse, m.vpt_s, m.vpt_median_s
+    );
+}
+
+fn default_plot(model: &Path, what: &str) -> PathBuf {
+    let stem = model.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "model".into());
+    PathBuf::from(format!("{stem}_eval_{what}.png"))
 }
 
 /// xy, z, psi and position error of three dev rollouts (shortest, median and longest VPT)

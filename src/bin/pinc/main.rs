@@ -1,4 +1,4 @@
-//! `pinc`: simulate the vehicle, generate datasets, import, inspect and run frozen models. Thin: argument parsing, calls into the library,
+//! `pinc`: simulate the vehicle, generate and import datasets, identify the vehicle, inspect and run frozen models. Thin: argument parsing, calls into the library,
 //! one-line errors with exit code 1 (runtime) or 2 (usage).
 
 use clap::{Parser, Subcommand, ValueEnum};
@@ -14,6 +14,8 @@ use std::time::Instant;
 use trajectory_csv::{parse_sim_state, read_inputs, write_trajectory};
 
 mod eval_cmd;
+mod identify_cmd;
+mod import_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
@@ -114,8 +116,23 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
-    /// The paper's metrics L1..L5 and VPT1..3 on freshly generated sets, and a rollout plot.
+    /// The paper's metrics L1..L5 and VPT1..3 on freshly generated sets (or the metrics on a
+    /// dataset folder's test split with --data), and a rollout plot.
     Eval(eval_cmd::EvalArgs),
+    /// Datasets from recorded runs.
+    Dataset {
+        #[command(subcommand)]
+        action: DatasetAction,
+    },
+    /// Estimate the vehicle's added masses, damping and buoyancy from a dataset's train split.
+    Identify(identify_cmd::IdentifyArgs),
+}
+
+#[derive(Subcommand)]
+enum DatasetAction {
+    /// Windows of recorded runs (CSV, or MCAP logs such as mpc_track's) as a dataset folder
+    /// that `pinc train --data`, `pinc eval --data` and `pinc identify --data` read.
+    Import(import_cmd::ImportArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -171,6 +188,8 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
         Command::Eval(args) => eval_cmd::run_eval(args),
+        Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
+        Command::Identify(args) => identify_cmd::run_identify(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -23,6 +23,10 @@ pub struct TrainArgs {
     /// Output .pinc file.
     #[arg(long)]
     pub out: PathBuf,
+    /// Train on a dataset folder (`pinc dataset import`, or `pinc gen-data`): its train and dev
+    /// splits, and the final metrics on its test split, instead of a generated preset.
+    #[arg(long, conflicts_with = "preset")]
+    pub data: Option<PathBuf>,
     /// Vehicle file: the data are simulated with it and the physics losses use it (the model
     /// records it) [default: the BlueROV2].
     #[arg(long)]
@@ -171,7 +175,11 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let mut cfg = config(&a)?;
     cfg.vehicle = load_vehicle(a.vehicle.as_deref())?;
     let preset = a.preset.preset_for(cfg.vehicle);
-    let (train_set, dev) = training_sets(&a, &preset)?;
+    let folder = a.data.as_deref().map(|d| pinc::dataset::load(d).map_err(|e| e.to_string())).transpose()?;
+    let (train_set, dev) = match &folder {
+        Some(data) => folder_sets(&a, data)?,
+        None => training_sets(&a, &preset)?,
+    };
     let interrupt = Arc::new(AtomicBool::new(false));
     {
         let flag = interrupt.clone();
@@ -186,7 +194,10 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             .expect("static template")
             .progress_chars("=> "),
     );
-    let source = format!("pinc train --preset {}", preset.name);
+    let source = match &a.data {
+        Some(d) => format!("pinc train --data {}", d.display()),
+        None => format!("pinc train --preset {}", preset.name),
+    };
     let outcome = train(&cfg, &train_set, &dev, &source, &interrupt, |r: &EpochRecord| {
         let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
         bar.set_message(format!(
@@ -205,6 +216,9 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         eprintln!("warning: {}: {e}", csv_path.display());
     }
     report_stop(&outcome);
+    if let Some(data) = &folder {
+        return finish_on_folder(&a, &outcome, data, &csv_path);
+    }
     let metrics = evaluate_and_save(&a, &outcome)?;
     let png = sibling(&a.out, "png");
     plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
@@ -257,6 +271,94 @@ fn training_sets(a: &TrainArgs, preset: &DatasetPreset) -> Result<(TrajectorySet
     }
     let v = &preset.vehicle;
     Ok((generate_set(&train_spec, v, a.seed, || {}), generate_set(&spec("dev", a.dev_count), v, a.seed, || {})))
+}
+
+/// The train and dev splits of a dataset folder, cut to the counts the arguments give.
+fn folder_sets(a: &TrainArgs, data: &pinc::dataset::Dataset) -> Result<(TrajectorySet, TrajectorySet), String> {
+    let dir = a.data.as_deref().expect("called with --data").display();
+    let split = |name: &str, count: Option<usize>| -> Result<TrajectorySet, String> {
+        let mut s =
+            data.set(name).filter(|s| s.count > 0).cloned().ok_or_else(|| {
+                format!("{dir}: the {name} split is empty (training fits on train and selects on dev)")
+            })?;
+        if let Some(c) = count.filter(|&c| c < s.count) {
+            let n = s.points - 1;
+            s.states.truncate(c * s.points);
+            s.inputs.truncate(c * n);
+            s.collocation.truncate(c * n * s.collocation_points);
+            s.count = c;
+        }
+        Ok(s)
+    };
+    let train = split("train", a.train_count)?;
+    if let Some(m) = a.collocation.filter(|&m| m != train.collocation_points) {
+        return Err(format!(
+            "--collocation {m}: {dir} holds {} collocation times per interval; import it again with --collocation {m}",
+            train.collocation_points
+        ));
+    }
+    if train.collocation_points == 0 && !a.no_physics {
+        return Err(format!("{dir}: the train split has no collocation times for the physics loss"));
+    }
+    Ok((train, split("dev", a.dev_count)?))
+}
+
+/// Metrics on the folder's test split, recorded in the model, and the model written.
+fn finish_on_folder(
+    a: &TrainArgs,
+    outcome: &TrainOutcome,
+    data: &pinc::dataset::Dataset,
+    csv_path: &Path,
+) -> Result<(), String> {
+    let mut model = outcome.model.clone();
+    let test = data.set("test").filter(|s| s.count > 0);
+    let metrics = test
+        .map(|t| pinc::eval::evaluate_set(&model, t, &model.vehicle))
+        .transpose()
+        .map_err(|e| format!("final evaluation failed: {e}"))?;
+    let m = &mut model.provenance.metrics;
+    if let Some(t) = &metrics {
+        m.insert("test_one_step_mse".into(), t.one_step_mse);
+        m.insert("test_rollout10_mse".into(), t.rollout10_mse);
+        m.insert("test_physics_mse".into(), t.physics_mse);
+        m.insert("test_vpt_s".into(), t.vpt_s);
+    }
+    m.insert("train_seconds".into(), outcome.seconds);
+    m.insert("step_ms".into(), outcome.step_ms);
+    m.insert("best_epoch".into(), outcome.best_epoch as f64);
+    m.insert("epochs_run".into(), outcome.history.len() as f64);
+    model.save(&a.out).map_err(|e| e.to_string())?;
+    let png = sibling(&a.out, "png");
+    plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
+    if a.json {
+        let v = serde_json::json!({
+            "model": a.out.display().to_string(),
+            "test": metrics,
+            "best_epoch": outcome.best_epoch,
+            "epochs_run": outcome.history.len(),
+            "train_seconds": outcome.seconds,
+            "step_ms": outcome.step_ms,
+            "stop": outcome.stop,
+            "csv": csv_path.display().to_string(),
+            "plot": png.display().to_string(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{} epochs in {:.1} s ({:.2} ms per step); best on dev: epoch {} -> {}",
+            outcome.history.len(),
+            outcome.seconds,
+            outcome.step_ms,
+            outcome.best_epoch,
+            a.out.display()
+        );
+        match &metrics {
+            Some(t) => crate::eval_cmd::print_set_metrics(t),
+            None => println!("no test split to evaluate on"),
+        }
+        println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
+    }
+    Ok(())
 }
 
 /// The per-epoch CSV: a header naming every active loss, then one row per epoch. A write

@@ -1,0 +1,65 @@
+//! Recorded runs as CSV: header `t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz` (s, m, rad, m/s, rad/s, N,
+//! N m), one row per sample, the inputs of a row held until the next row.
+
+use super::{ImportError, Recording};
+use crate::types::{Input, SimState};
+use std::path::Path;
+
+/// The required header, in order.
+pub const CSV_COLUMNS: [&str; 13] = ["t", "x", "y", "z", "psi", "u", "v", "w", "r", "X", "Y", "Z", "Mz"];
+
+/// Reads one run. An empty field or `nan` is kept as NaN (the windowing skips that row and
+/// counts it); anything else that is not a number is an error naming the line and column.
+///
+/// # Errors
+/// The file cannot be read, the header differs, a row has the wrong number of fields (a
+/// truncated file) or a field is not a number.
+pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
+    let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
+    let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let mut reader = csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::All).from_reader(file);
+    let header = reader.headers().map_err(|e| malformed(format!("line 1: {e}")))?.clone();
+    if header.iter().ne(CSV_COLUMNS) {
+        return Err(malformed(format!(
+            "line 1: header must be {}, found {}",
+            CSV_COLUMNS.join(","),
+            header.iter().collect::<Vec<_>>().join(",")
+        )));
+    }
+    let mut rec = Recording { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new() };
+    let mut record = csv::StringRecord::new();
+    loop {
+        match reader.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => {
+                let line = e.position().map_or(0, |p| p.line());
+                let what = match e.kind() {
+                    csv::ErrorKind::UnequalLengths { len, .. } => {
+                        format!("{len} fields, the header has {} (truncated or damaged row)", CSV_COLUMNS.len())
+                    }
+                    _ => e.to_string(),
+                };
+                return Err(malformed(format!("line {line}: {what}")));
+            }
+        }
+        let line = record.position().map_or(0, |p| p.line());
+        let mut v = [0.0; 13];
+        for (j, field) in record.iter().enumerate() {
+            v[j] = if field.is_empty() || field.eq_ignore_ascii_case("nan") {
+                f64::NAN
+            } else {
+                field.parse().map_err(|_| {
+                    malformed(format!("line {line}: column {}: {field:?} is not a number", CSV_COLUMNS[j]))
+                })?
+            };
+        }
+        rec.t.push(v[0]);
+        rec.states.push(SimState::from_column_slice(&v[1..9]));
+        rec.inputs.push(Input::from_column_slice(&v[9..13]));
+    }
+    if rec.t.is_empty() {
+        return Err(malformed("no rows after the header".into()));
+    }
+    Ok(rec)
+}
