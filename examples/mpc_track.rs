@@ -4,6 +4,7 @@
 //! ```sh
 //! cargo run --release --example mpc_track                       # PINC-MPC, scenario default
 //! cargo run --release --example mpc_track -- --oracle --scenario disturbed --json
+//! cargo run --release --example mpc_track -- --reference examples/references/zigzag.csv
 //! ```
 //!
 //! Prints a summary table (or `--json`) and writes a PNG of the run and its MCAP log (open it
@@ -34,9 +35,16 @@ struct Args {
     /// Run the identical controller on the analytic vehicle model instead (bounds still from --model).
     #[arg(long)]
     oracle: bool,
-    /// Which scenario.
-    #[arg(long, value_enum, default_value = "default")]
+    /// Which built-in scenario.
+    #[arg(long, value_enum, default_value = "default", conflicts_with = "reference")]
     scenario: ScenarioName,
+    /// References from a CSV file with header t,depth_m,heading_deg (linear between rows, a
+    /// step where two rows share a time, held after the last; examples/references/).
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// Length of the run (s) [default: the scenario's; a reference file's last time].
+    #[arg(long)]
+    duration: Option<f64>,
     /// Prediction horizon (samples).
     #[arg(long, default_value_t = 20)]
     horizon: usize,
@@ -69,10 +77,17 @@ fn main() -> ExitCode {
 }
 
 fn try_main(a: Args) -> Result<(), String> {
-    let scenario = match a.scenario {
-        ScenarioName::Default => Scenario::Default,
-        ScenarioName::Disturbed => Scenario::Disturbed,
+    let mut scenario = match (&a.reference, a.scenario) {
+        (Some(path), _) => Scenario::from_file(path, a.duration).map_err(|e| e.to_string())?,
+        (None, ScenarioName::Default) => Scenario::default(),
+        (None, ScenarioName::Disturbed) => Scenario::disturbed(),
     };
+    if let Some(d) = a.duration {
+        if !(d.is_finite() && d > 0.0) {
+            return Err(format!("--duration must be a positive number of seconds, got {d}"));
+        }
+        scenario.duration = d;
+    }
     let model = PincModel::load(&a.model).map_err(|e| format!("{}: {e}", a.model.display()))?;
     let vehicle = match &a.vehicle {
         Some(path) => VehicleParams::load(path).map_err(|e| e.to_string())?,
@@ -88,16 +103,23 @@ fn try_main(a: Args) -> Result<(), String> {
     let name = format!("mpc_{}_{controller}", scenario.name());
     let png = a.out_dir.join(format!("{name}.png"));
     let mcap = a.out_dir.join(format!("{name}.mcap"));
-    let info =
-        RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
+    let info = RunInfo {
+        controller,
+        model_path: &a.model,
+        scenario: &scenario,
+        config: &cfg,
+        bounds,
+        dt: model.dt,
+        vehicle: &vehicle,
+    };
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     let (samples, log_error) = if a.oracle {
         let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-        closed_loop(Mpc::new(oracle, cfg).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
     } else {
-        closed_loop(Mpc::new(predictor, cfg).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
     };
-    let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
+    let summary = summarise(&samples, &scenario, a.horizon as f64 * model.dt);
     // The log is finished even when a write failed mid-run, so what was written stays readable.
     let t_end = samples.last().map_or(0.0, |s| s.t);
     let finished = log.finish(&summary, t_end);
@@ -138,7 +160,7 @@ fn try_main(a: Args) -> Result<(), String> {
 /// samples so far. A log write error stops the logging, not the loop, and is returned.
 fn closed_loop<M: DiscreteModel>(
     mut mpc: Mpc<M>,
-    scenario: Scenario,
+    scenario: &Scenario,
     vehicle: &VehicleParams,
     quiet: bool,
     log: &mut McapLog,
@@ -189,6 +211,18 @@ fn print_summary(s: &Summary) {
     println!("deadline misses         {}", s.deadline_misses);
     println!("bound violations        {}", s.bound_violations);
     println!("samples at a bound      {}", s.saturated_samples);
+    let tv = &s.input_total_variation;
+    println!(
+        "input total variation   X {:.1} N, Y {:.1} N, Z {:.1} N, Mz {:.2} N m",
+        tv["X"], tv["Y"], tv["Z"], tv["Mz"]
+    );
+    println!("held heading error max  {:.3} deg", s.held_heading_error_max_deg);
+    println!(
+        "steady error            depth {:.2} mm, heading {:.4} deg",
+        s.steady_depth_error_m * 1e3,
+        s.steady_heading_error_deg
+    );
+    println!("envelope exits          {} cycles", s.envelope_exits);
 }
 
 fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) -> Result<(), String> {

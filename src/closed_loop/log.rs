@@ -70,7 +70,7 @@ pub struct RunInfo<'a> {
     /// The model file whose envelope (and, for `pinc`, network) the controller uses.
     pub model_path: &'a Path,
     /// The scenario.
-    pub scenario: Scenario,
+    pub scenario: &'a Scenario,
     /// The controller's configuration.
     pub config: &'a MpcConfig,
     /// Input bounds in force `(min, max)`.
@@ -381,6 +381,9 @@ fn run_metadata(info: &RunInfo) -> Result<BTreeMap<String, String>, LogError> {
     put("model_path", info.model_path.display().to_string());
     put("model_sha256", file_sha256(info.model_path)?);
     put("scenario", info.scenario.name().into());
+    put("scenario_duration_s", info.scenario.duration().to_string());
+    put("scenario_damping_scale", info.scenario.damping_scale.to_string());
+    put("scenario_current_xy", serde_json::to_string(&info.scenario.current)?);
     put("horizon", c.horizon.to_string());
     put("dt_s", info.dt.to_string());
     put("plant_vehicle", serde_json::to_string(info.vehicle)?);

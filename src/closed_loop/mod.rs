@@ -9,6 +9,6 @@ mod scenario;
 mod summary;
 
 pub use log::{Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
-pub use run::{Sample, run};
-pub use scenario::{Plant, Scenario};
-pub use summary::{Summary, summarise};
+pub use run::{Sample, run, run_on};
+pub use scenario::{Plant, ReferenceFileError, Scenario, Track};
+pub use summary::{HOLD_LEAD_S, HOLD_SETTLE_S, Summary, summarise};

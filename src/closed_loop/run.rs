@@ -1,7 +1,7 @@
 //! One closed-loop run: the controller sees the measured state each sample, the plant
 //! applies its input.
 
-use super::scenario::Scenario;
+use super::scenario::{Plant, Scenario};
 use crate::mpc::{CycleReport, Mpc, Reference};
 use crate::traits::DiscreteModel;
 use crate::types::{NU, SimState, State};
@@ -24,16 +24,29 @@ pub struct Sample {
     pub bound_violation: bool,
 }
 
-/// Runs `scenario` with `mpc` from rest at the surface, the plant being `vehicle`. `on_sample` sees every sample and
-/// may stop the run early by returning `false` (Ctrl-C); the samples so far are returned.
+/// Runs `scenario` with `mpc` from rest at the surface, the plant being `vehicle` with the
+/// scenario's disturbance. `on_sample` sees every sample and may stop the run early by
+/// returning `false` (Ctrl-C); the samples so far are returned.
 pub fn run<M: DiscreteModel>(
     mpc: &mut Mpc<M>,
-    scenario: Scenario,
+    scenario: &Scenario,
     vehicle: &VehicleParams,
+    on_sample: impl FnMut(&Sample) -> bool,
+) -> Vec<Sample> {
+    let plant = scenario.plant(mpc.model().dt(), vehicle);
+    run_on(mpc, scenario, &plant, |s| *s, on_sample)
+}
+
+/// [`run`] against any `plant`, the controller seeing `measure(true state)` (sensor noise,
+/// say) while the samples record the true state.
+pub fn run_on<M: DiscreteModel>(
+    mpc: &mut Mpc<M>,
+    scenario: &Scenario,
+    plant: &Plant,
+    mut measure: impl FnMut(&SimState) -> SimState,
     mut on_sample: impl FnMut(&Sample) -> bool,
 ) -> Vec<Sample> {
     let dt = mpc.model().dt();
-    let plant = scenario.plant(dt, vehicle);
     let steps = (scenario.duration() / dt).round() as usize;
     let n = mpc.config().horizon;
     let (lo, hi) = mpc.bounds();
@@ -45,7 +58,7 @@ pub fn run<M: DiscreteModel>(
         for (j, r) in refs.iter_mut().enumerate() {
             *r = scenario.reference(t + (j + 1) as f64 * dt);
         }
-        let cycle = mpc.step(&to_network(&s), &refs);
+        let cycle = mpc.step(&to_network(&measure(&s)), &refs);
         let u = cycle.input;
         let bound_violation = (0..NU).any(|j| !(u[j] >= lo[j] - 1e-9 && u[j] <= hi[j] + 1e-9));
         let sample = Sample {

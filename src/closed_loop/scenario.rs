@@ -1,60 +1,191 @@
-//! The tracking scenarios: references over time and the plant each runs against.
+//! The tracking scenarios: references over time (built in, or from a CSV file) and the plant
+//! each runs against.
 
 use crate::mpc::Reference;
 use crate::types::{Input, SimState};
 use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use serde::Serialize;
+use std::path::{Path, PathBuf};
 
-/// A closed-loop scenario: references over time and the plant they run against.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Scenario {
-    /// 60 s from rest at the surface; depth 0 -> 1 m (2 s) -> 2 m (20 s) -> 0.5 m (40 s);
-    /// heading 0 -> 45 deg (10 s) -> -30 deg (30 s) -> 0 (50 s). The plant is the nominal vehicle.
-    Default,
-    /// The same references; the plant's damping is 20 % higher and a 0.1 m/s current flows
-    /// along the world x axis.
-    Disturbed,
+/// A reference signal: linear between points, a step where two points share a time, held
+/// before the first point and after the last.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Track {
+    /// `(time s, value)`, times non-decreasing.
+    points: Vec<(f64, f64)>,
 }
 
-/// Depth reference steps `(time s, depth m)`.
-pub(super) const DEPTH_STEPS: [(f64, f64); 4] = [(0.0, 0.0), (2.0, 1.0), (20.0, 2.0), (40.0, 0.5)];
-/// Heading reference steps `(time s, heading deg)`.
-pub(super) const HEADING_STEPS: [(f64, f64); 4] = [(0.0, 0.0), (10.0, 45.0), (30.0, -30.0), (50.0, 0.0)];
+impl Track {
+    /// Steps: `value_i` from `t_i` on.
+    fn steps(steps: &[(f64, f64)]) -> Self {
+        let mut points = vec![steps[0]];
+        for w in steps.windows(2) {
+            points.push((w[1].0, w[0].1));
+            points.push(w[1]);
+        }
+        Self { points }
+    }
 
-fn piecewise(steps: &[(f64, f64)], t: f64) -> f64 {
-    steps.iter().rev().find(|(t0, _)| t >= *t0 - 1e-9).map_or(steps[0].1, |s| s.1)
+    /// The value at `t`.
+    pub fn at(&self, t: f64) -> f64 {
+        // The last point at or before t (the later of two at the same time: a step).
+        let i = self.points.partition_point(|p| p.0 <= t + 1e-9);
+        match i {
+            0 => self.points[0].1,
+            i if i == self.points.len() => self.points[i - 1].1,
+            i => {
+                let ((t0, v0), (t1, v1)) = (self.points[i - 1], self.points[i]);
+                v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+            }
+        }
+    }
+
+    /// Time of the last point.
+    pub fn end(&self) -> f64 {
+        self.points.last().map_or(0.0, |p| p.0)
+    }
+}
+
+/// A reference file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceFileError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The content is not a reference table.
+    #[error("{path}: line {line}: {message}")]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line.
+        line: u64,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Depth reference steps of the built-in scenarios `(time s, depth m)`.
+const DEPTH_STEPS: [(f64, f64); 4] = [(0.0, 0.0), (2.0, 1.0), (20.0, 2.0), (40.0, 0.5)];
+/// Heading reference steps `(time s, heading deg)`.
+const HEADING_STEPS: [(f64, f64); 4] = [(0.0, 0.0), (10.0, 45.0), (30.0, -30.0), (50.0, 0.0)];
+
+/// A closed-loop scenario: depth and heading references over time and the plant they run
+/// against (the vehicle given to [`Scenario::plant`], with this scenario's disturbance).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Scenario {
+    /// The name used on the command line and in logs (a file's stem for a reference file).
+    pub name: String,
+    /// Depth reference (m, positive down).
+    pub depth: Track,
+    /// Heading reference (deg).
+    pub heading: Track,
+    /// Length of the run (s).
+    pub duration: f64,
+    /// Factor on every damping coefficient of the plant.
+    pub damping_scale: f64,
+    /// Water velocity in the world frame `(x, y)` (m/s).
+    pub current: [f64; 2],
+}
+
+impl Default for Scenario {
+    /// `default`: 60 s from rest at the surface; depth 0 -> 1 m (2 s) -> 2 m (20 s) -> 0.5 m
+    /// (40 s); heading 0 -> 45 deg (10 s) -> -30 deg (30 s) -> 0 (50 s); the nominal plant.
+    fn default() -> Self {
+        Self {
+            name: "default".into(),
+            depth: Track::steps(&DEPTH_STEPS),
+            heading: Track::steps(&HEADING_STEPS),
+            duration: 60.0,
+            damping_scale: 1.0,
+            current: [0.0, 0.0],
+        }
+    }
 }
 
 impl Scenario {
-    /// The name used on the command line and in logs.
-    pub fn name(self) -> &'static str {
-        match self {
-            Scenario::Default => "default",
-            Scenario::Disturbed => "disturbed",
+    /// `disturbed`: the references of `default`; the plant's damping is 20 % higher and a
+    /// 0.1 m/s current flows along the world x axis.
+    pub fn disturbed() -> Self {
+        Self { name: "disturbed".into(), damping_scale: 1.2, current: [0.1, 0.0], ..Self::default() }
+    }
+
+    /// References from a CSV file with header `t,depth_m,heading_deg`: linear between rows
+    /// (heading in the numbers given: write 190, not -170, to turn on through 180), a step
+    /// where two rows share a time, held after the last row. The run lasts until the last
+    /// row's time unless `duration` says otherwise. The plant is the nominal one.
+    ///
+    /// # Errors
+    /// The file cannot be read, its header differs, a field is not a finite number, a time
+    /// goes backwards, there are no rows, or the run would last no time.
+    pub fn from_file(path: &Path, duration: Option<f64>) -> Result<Self, ReferenceFileError> {
+        let bad = |line: u64, message: String| ReferenceFileError::Malformed { path: path.into(), line, message };
+        let file = std::fs::File::open(path).map_err(|source| ReferenceFileError::Io { path: path.into(), source })?;
+        let mut reader = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(file);
+        let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+        if header.iter().ne(["t", "depth_m", "heading_deg"]) {
+            let found: Vec<&str> = header.iter().collect();
+            return Err(bad(1, format!("header must be t,depth_m,heading_deg, found {}", found.join(","))));
         }
+        let (mut depth, mut heading) = (Vec::new(), Vec::new());
+        for record in reader.records() {
+            let record = record.map_err(|e| bad(e.position().map_or(0, |p| p.line()), e.to_string()))?;
+            let line = record.position().map_or(0, |p| p.line());
+            let mut v = [0.0; 3];
+            for (j, name) in ["t", "depth_m", "heading_deg"].iter().enumerate() {
+                let text = record.get(j).unwrap_or("");
+                v[j] = text
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| bad(line, format!("{name}: {text:?} is not a finite number")))?;
+            }
+            if let Some(&(t_prev, _)) = depth.last()
+                && v[0] < t_prev
+            {
+                return Err(bad(line, format!("t = {} comes before the previous row's {t_prev}", v[0])));
+            }
+            depth.push((v[0], v[1]));
+            heading.push((v[0], v[2]));
+        }
+        if depth.is_empty() {
+            return Err(bad(1, "no rows after the header".into()));
+        }
+        let depth = Track { points: depth };
+        let duration = duration.unwrap_or(depth.end());
+        if !(duration.is_finite() && duration > 0.0) {
+            return Err(bad(1, format!("the run would last {duration} s; give --duration or rows up to a later time")));
+        }
+        let name = path.file_stem().map_or_else(|| "reference".into(), |s| s.to_string_lossy().into_owned());
+        Ok(Self { name, depth, heading: Track { points: heading }, duration, damping_scale: 1.0, current: [0.0, 0.0] })
+    }
+
+    /// The name used on the command line and in logs.
+    pub fn name(&self) -> &str {
+        &self.name
     }
 
     /// Length of the run (s).
-    pub fn duration(self) -> f64 {
-        60.0
+    pub fn duration(&self) -> f64 {
+        self.duration
     }
 
     /// The reference at time `t`.
-    pub fn reference(self, t: f64) -> Reference {
-        Reference { depth: piecewise(&DEPTH_STEPS, t), heading: piecewise(&HEADING_STEPS, t).to_radians() }
+    pub fn reference(&self, t: f64) -> Reference {
+        Reference { depth: self.depth.at(t), heading: self.heading.at(t).to_radians() }
     }
 
     /// The plant of this scenario for `vehicle`, sampled at `dt`.
-    pub fn plant(self, dt: f64, vehicle: &VehicleParams) -> Plant {
+    pub fn plant(&self, dt: f64, vehicle: &VehicleParams) -> Plant {
         let mut vehicle = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(dt) };
-        match self {
-            Scenario::Default => Plant { vehicle, current: [0.0, 0.0] },
-            Scenario::Disturbed => {
-                vehicle.params = vehicle.params.with_damping_scaled(1.2);
-                Plant { vehicle, current: [0.1, 0.0] }
-            }
+        if self.damping_scale != 1.0 {
+            vehicle.params = vehicle.params.with_damping_scaled(self.damping_scale);
         }
+        Plant { vehicle, current: self.current }
     }
 }
 
@@ -84,20 +215,31 @@ mod tests {
     use super::*;
     #[test]
     fn references_follow_the_scenario_schedule() {
-        let s = Scenario::Default;
+        let s = Scenario::default();
         assert_eq!(s.reference(1.99).depth, 0.0);
         assert_eq!(s.reference(2.0).depth, 1.0);
         assert_eq!(s.reference(45.0).depth, 0.5);
         assert!((s.reference(10.0).heading - 45f64.to_radians()).abs() < 1e-12);
         assert!((s.reference(35.0).heading + 30f64.to_radians()).abs() < 1e-12);
         assert_eq!(s.reference(59.0).heading, 0.0);
+        assert_eq!(s.reference(100.0).depth, 0.5);
+    }
+
+    #[test]
+    fn tracks_are_linear_between_points_and_step_at_shared_times() {
+        let t = Track { points: vec![(1.0, 0.0), (3.0, 2.0), (3.0, 5.0), (4.0, 5.0)] };
+        assert_eq!(t.at(0.0), 0.0);
+        assert!((t.at(2.0) - 1.0).abs() < 1e-12);
+        assert!((t.at(2.999) - 1.999).abs() < 1e-9);
+        assert_eq!(t.at(3.0), 5.0);
+        assert_eq!(t.at(10.0), 5.0);
     }
 
     #[test]
     fn the_current_moves_the_disturbed_plant_exactly_by_current_times_dt() {
         let (nominal, disturbed) = {
             let v = VehicleParams::default();
-            (Scenario::Default.plant(0.08, &v), Scenario::Disturbed.plant(0.08, &v))
+            (Scenario::default().plant(0.08, &v), Scenario::disturbed().plant(0.08, &v))
         };
         let s = SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
         let u = Input::zeros();

@@ -2,9 +2,17 @@
 //! bound violations.
 
 use super::run::Sample;
-use super::scenario::{DEPTH_STEPS, HEADING_STEPS, Scenario};
+use super::scenario::Scenario;
+use crate::types::{INPUT_NAMES, NU};
 use crate::vehicle::wrap_angle;
 use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// A held reference counts from this long after it was set (s)...
+pub const HOLD_SETTLE_S: f64 = 8.0;
+/// ... to this long before the next change (s), where a controller that previews the
+/// reference starts moving on purpose.
+pub const HOLD_LEAD_S: f64 = 2.0;
 
 /// The numbers of a run.
 #[derive(Debug, Clone, Serialize)]
@@ -41,6 +49,38 @@ pub struct Summary {
     pub bound_violations: usize,
     /// Samples with at least one input channel at a bound.
     pub saturated_samples: usize,
+    /// Sum of `|u_k - u_{k-1}|` over the run, per channel `X, Y, Z, Mz` (N, N m).
+    pub input_total_variation: BTreeMap<&'static str, f64>,
+    /// Largest heading error while the heading reference is held (deg): from
+    /// [`HOLD_SETTLE_S`] after each heading change to [`HOLD_LEAD_S`] before the next (depth
+    /// may change in between). NaN if the run holds no heading that long.
+    pub held_heading_error_max_deg: f64,
+    /// Mean `|z - z_ref|` while the depth reference is held (m), held as for
+    /// `held_heading_error_max_deg`. NaN if the run holds no depth that long.
+    pub steady_depth_error_m: f64,
+    /// Mean wrapped heading error while the heading reference is held (deg).
+    pub steady_heading_error_deg: f64,
+    /// Cycles whose nominal rollout left the model's training envelope.
+    pub envelope_exits: usize,
+}
+
+/// The maximal stretches `(start s, end s, value)` over which `value` stays constant; the end is
+/// the time of the next change (or one sample past the last).
+fn held_stretches(t: &[f64], value: &[f64]) -> Vec<(f64, f64, f64)> {
+    let mut out: Vec<(f64, f64, f64)> = Vec::new();
+    let step = if t.len() > 1 { t[1] - t[0] } else { 0.0 };
+    for (&ti, &v) in t.iter().zip(value) {
+        match out.last_mut() {
+            Some(last) if last.2 == v => last.1 = ti + step,
+            _ => out.push((ti, ti + step, v)),
+        }
+    }
+    out
+}
+
+/// Whether `t` lies in the held part of one of `stretches`.
+fn held_at(stretches: &[(f64, f64, f64)], t: f64) -> bool {
+    stretches.iter().any(|&(a, b, _)| t >= a + HOLD_SETTLE_S - 1e-9 && t < b - HOLD_LEAD_S - 1e-9)
 }
 
 /// Nearest-rank percentile of `v` (sorted in place).
@@ -82,7 +122,7 @@ fn step_response(t: &[f64], y: &[f64], steps: &[(f64, f64)], end: f64, preview: 
 
 /// Summarises `samples` of `scenario` run by a controller that previews the reference
 /// `preview` seconds ahead (horizon times sample period).
-pub fn summarise(samples: &[Sample], scenario: Scenario, preview: f64) -> Summary {
+pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summary {
     let t: Vec<f64> = samples.iter().map(|s| s.t).collect();
     let depth: Vec<f64> = samples.iter().map(|s| s.state[2]).collect();
     let n = samples.len().max(1) as f64;
@@ -92,8 +132,28 @@ pub fn summarise(samples: &[Sample], scenario: Scenario, preview: f64) -> Summar
     // Heading unwrapped around each reference so overshoot is measured in degrees.
     let heading: Vec<f64> = samples.iter().map(|s| s.reference.heading.to_degrees() + heading_err(s)).collect();
     let end = scenario.duration();
-    let (os_d, settle_d) = step_response(&t, &depth, &DEPTH_STEPS, end, preview);
-    let (os_h, settle_h) = step_response(&t, &heading, &HEADING_STEPS, end, preview);
+    let depth_ref: Vec<f64> = samples.iter().map(|s| s.reference.depth).collect();
+    let heading_ref: Vec<f64> = samples.iter().map(|s| s.reference.heading.to_degrees()).collect();
+    let (depth_held, heading_held) = (held_stretches(&t, &depth_ref), held_stretches(&t, &heading_ref));
+    // Steps for overshoot and settling: the references' constant stretches of 1 s or more
+    // (a ramp is a sequence of short stretches and gives none).
+    let steps = |h: &[(f64, f64, f64)]| -> Vec<(f64, f64)> {
+        h.iter().filter(|s| s.1 - s.0 >= 1.0).map(|s| (s.0, s.2)).collect()
+    };
+    let (os_d, settle_d) = step_response(&t, &depth, &steps(&depth_held), end, preview);
+    let (os_h, settle_h) = step_response(&t, &heading, &steps(&heading_held), end, preview);
+    let held_heading: Vec<f64> =
+        samples.iter().filter(|s| held_at(&heading_held, s.t)).map(|s| heading_err(s).abs()).collect();
+    let mean = |v: &mut dyn Iterator<Item = f64>| {
+        let (sum, n) = v.fold((0.0, 0usize), |(a, n), x| (a + x, n + 1));
+        if n == 0 { f64::NAN } else { sum / n as f64 }
+    };
+    let mut variation = [0.0; NU];
+    for w in samples.windows(2) {
+        for j in 0..NU {
+            variation[j] += (w[1].cycle.input[j] - w[0].cycle.input[j]).abs();
+        }
+    }
     let mut solve: Vec<f64> = samples.iter().map(|s| s.cycle.solve_us / 1e3).collect();
     let mut cycle: Vec<f64> = samples.iter().map(|s| s.cycle.cycle_us / 1e3).collect();
     Summary {
@@ -113,6 +173,13 @@ pub fn summarise(samples: &[Sample], scenario: Scenario, preview: f64) -> Summar
         deadline_misses: samples.iter().filter(|s| s.cycle.deadline_missed).count(),
         bound_violations: samples.iter().filter(|s| s.bound_violation).count(),
         saturated_samples: samples.iter().filter(|s| s.cycle.saturated.iter().any(|&b| b)).count(),
+        input_total_variation: INPUT_NAMES.into_iter().zip(variation).collect(),
+        held_heading_error_max_deg: held_heading.iter().copied().fold(f64::NAN, f64::max),
+        steady_depth_error_m: mean(
+            &mut samples.iter().filter(|s| held_at(&depth_held, s.t)).map(|s| (s.state[2] - s.reference.depth).abs()),
+        ),
+        steady_heading_error_deg: mean(&mut held_heading.iter().copied()),
+        envelope_exits: samples.iter().filter(|s| !s.cycle.envelope.inside()).count(),
     }
 }
 
@@ -142,5 +209,17 @@ mod tests {
         let mut v = vec![5.0, 1.0, 3.0, 2.0, 4.0];
         assert_eq!(percentile(&mut v, 50.0), 3.0);
         assert_eq!(percentile(&mut v, 99.0), 5.0);
+    }
+
+    #[test]
+    fn held_windows_start_8_s_after_a_change_and_end_2_s_before_the_next() {
+        let t: Vec<f64> = (0..300).map(|k| k as f64 * 0.1).collect();
+        let v: Vec<f64> = t.iter().map(|&t| if t < 10.0 { 0.0 } else { 1.0 }).collect();
+        let h = held_stretches(&t, &v);
+        assert_eq!(h.len(), 2);
+        assert!((h[0].1 - 10.0).abs() < 1e-9 && (h[1].1 - 30.0).abs() < 1e-9, "{h:?}");
+        // The first stretch is 10 s long: held from 8 s to 8 s, i.e. never.
+        assert!(!held_at(&h, 7.9) && !held_at(&h, 8.0) && !held_at(&h, 8.05));
+        assert!(held_at(&h, 18.0) && held_at(&h, 27.9) && !held_at(&h, 28.0) && !held_at(&h, 9.0));
     }
 }

@@ -26,8 +26,8 @@ fn oracle(cfg: MpcConfig) -> Mpc<Rk4Vehicle> {
 #[test]
 fn the_oracle_loop_settles_the_first_depth_step_and_tracks_heading() {
     let mut mpc = oracle(common::untimed());
-    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |_| true);
-    let s = summarise(&samples, Scenario::Default, 1.6);
+    let samples = run(&mut mpc, &Scenario::default(), &VehicleParams::default(), |_| true);
+    let s = summarise(&samples, &Scenario::default(), 1.6);
     assert_eq!(s.samples, 750);
     assert_eq!((s.fallbacks, s.bound_violations), (0, 0), "{s:?}");
     // The 0 -> 1 m step at 2 s: within 5 cm and staying there well before the next step at 20 s.
@@ -43,13 +43,13 @@ fn the_oracle_loop_settles_the_first_depth_step_and_tracks_heading() {
 fn failed_solves_fall_back_to_the_shifted_plan_and_the_loop_goes_on() {
     // A time limit no solve can meet: every cycle ends in Clarabel's MaxTime.
     let mut mpc = oracle(MpcConfig { solver_time_limit: 1e-12, ..MpcConfig::default() });
-    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |s| s.t < 2.0);
+    let samples = run(&mut mpc, &Scenario::default(), &VehicleParams::default(), |s| s.t < 2.0);
     assert!(samples.len() > 20);
     for s in &samples {
         assert!(matches!(s.cycle.fallback, Some(Fallback::Solver(_))), "{:?}", s.cycle);
         assert!(!s.bound_violation);
     }
-    let summary = summarise(&samples, Scenario::Default, 1.6);
+    let summary = summarise(&samples, &Scenario::default(), 1.6);
     assert_eq!(summary.fallbacks, samples.len());
 }
 
@@ -71,16 +71,16 @@ fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     let bounds = pinc.input_bounds().unwrap();
     let cfg = MpcConfig { bounds: Some(bounds), ..common::untimed() };
     let samples =
-        run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), Scenario::Default, &VehicleParams::default(), |_| true);
-    let s = summarise(&samples, Scenario::Default, 1.6);
+        run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), &Scenario::default(), &VehicleParams::default(), |_| true);
+    let s = summarise(&samples, &Scenario::default(), 1.6);
     let o = summarise(
         &run(
             &mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(),
-            Scenario::Default,
+            &Scenario::default(),
             &VehicleParams::default(),
             |_| true,
         ),
-        Scenario::Default,
+        &Scenario::default(),
         1.6,
     );
     assert_eq!((s.samples, s.fallbacks, s.bound_violations), (750, 0, 0), "{s:?}");
@@ -156,4 +156,41 @@ fn envelope_exits_are_reported_and_fall_back_only_when_asked() {
         assert_eq!(exit.value, w_min - 0.2);
         assert_eq!(r.fallback, if ask { Some(Fallback::Envelope) } else { None }, "{r:?}");
     }
+}
+
+#[test]
+fn the_default_reference_file_is_the_built_in_scenario_and_bad_files_name_the_line() {
+    let dir = env!("CARGO_MANIFEST_DIR");
+    let file =
+        Scenario::from_file(std::path::Path::new(&format!("{dir}/examples/references/default.csv")), None).unwrap();
+    let built_in = Scenario::default();
+    assert_eq!(file.duration(), built_in.duration());
+    for k in 0..=6000 {
+        let t = k as f64 * 0.01;
+        let (a, b) = (file.reference(t), built_in.reference(t));
+        assert!((a.depth - b.depth).abs() < 1e-12 && (a.heading - b.heading).abs() < 1e-12, "t = {t}");
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let write = |name: &str, body: &str| {
+        let p = tmp.path().join(name);
+        std::fs::write(&p, body).unwrap();
+        p
+    };
+    let err = |p: &std::path::Path| Scenario::from_file(p, None).unwrap_err().to_string();
+    let p = write("back.csv", "t,depth_m,heading_deg\n0,0,0\n5,1,0\n4,1,0\n");
+    assert_eq!(err(&p), format!("{}: line 4: t = 4 comes before the previous row's 5", p.display()));
+    let p = write("word.csv", "t,depth_m,heading_deg\n0,deep,0\n");
+    assert_eq!(err(&p), format!("{}: line 2: depth_m: \"deep\" is not a finite number", p.display()));
+    let p = write("short.csv", "t,depth_m,heading_deg\n0,1,0\n3,1\n");
+    assert!(err(&p).starts_with(&format!("{}: line 3: ", p.display())), "{}", err(&p));
+    let p = write("header.csv", "time,depth,heading\n0,1,0\n");
+    assert!(err(&p).contains("line 1: header must be t,depth_m,heading_deg"), "{}", err(&p));
+    // A ramp: linear between rows, held after the last; the run ends at the last row.
+    let p = write("ramp.csv", "t,depth_m,heading_deg\n0,0,0\n10,2,90\n");
+    let s = Scenario::from_file(&p, None).unwrap();
+    assert_eq!(s.duration(), 10.0);
+    assert!(
+        (s.reference(2.5).depth - 0.5).abs() < 1e-12 && (s.reference(5.0).heading - 45f64.to_radians()).abs() < 1e-12
+    );
+    assert_eq!(s.reference(12.0).depth, 2.0);
 }

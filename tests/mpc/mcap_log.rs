@@ -30,7 +30,7 @@ fn logged_run(cfg: MpcConfig, seconds: f64) -> (Vec<Sample>, LogStats, Vec<u8>) 
     let info = RunInfo {
         controller: "pinc",
         model_path: Path::new(MODEL),
-        scenario: Scenario::Default,
+        scenario: &Scenario::default(),
         config: &cfg,
         bounds,
         dt: model.dt,
@@ -38,11 +38,11 @@ fn logged_run(cfg: MpcConfig, seconds: f64) -> (Vec<Sample>, LogStats, Vec<u8>) 
     };
     let mut log = McapLog::create(&path, &info).unwrap();
     let mut mpc = Mpc::new(predictor, cfg.clone()).unwrap();
-    let samples = run(&mut mpc, Scenario::Default, &VehicleParams::default(), |s| {
+    let samples = run(&mut mpc, &Scenario::default(), &VehicleParams::default(), |s| {
         log.record(s).unwrap();
         s.t + 1e-9 < seconds
     });
-    let summary = summarise(&samples, Scenario::Default, 1.6);
+    let summary = summarise(&samples, &Scenario::default(), 1.6);
     let stats = log.finish(&summary, samples.last().unwrap().t).unwrap();
     (samples, stats, std::fs::read(&path).unwrap())
 }
