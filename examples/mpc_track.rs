@@ -54,6 +54,21 @@ struct Args {
     /// Where the plot and the MCAP log go.
     #[arg(long, default_value = "out")]
     out_dir: PathBuf,
+    /// Gain of the disturbance estimate (0: no offset-free action).
+    #[arg(long, default_value_t = MpcConfig::default().disturbance_gain)]
+    disturbance_gain: f64,
+    /// Leave the predicted velocities unconstrained by the model's training envelope.
+    #[arg(long)]
+    no_envelope_constraints: bool,
+    /// Linear penalty per unit of envelope slack.
+    #[arg(long, default_value_t = MpcConfig::default().envelope_penalty)]
+    envelope_penalty: f64,
+    /// Fraction of each velocity range the envelope bounds sit inside the envelope.
+    #[arg(long, default_value_t = MpcConfig::default().envelope_margin)]
+    envelope_margin: f64,
+    /// Weights on input changes between samples, X,Y,Z,Mz [default: MpcConfig's].
+    #[arg(long, value_delimiter = ',')]
+    input_rate: Option<Vec<f64>>,
     /// Vehicle file of the plant, and of the oracle's model (the oracle knows the plant)
     /// [default: the BlueROV2].
     #[arg(long)]
@@ -97,7 +112,21 @@ fn try_main(a: Args) -> Result<(), String> {
     let bounds = predictor
         .input_bounds()
         .ok_or_else(|| format!("{}: no training envelope to bound the inputs", a.model.display()))?;
-    let cfg = MpcConfig { horizon: a.horizon, bounds: Some(bounds), ..MpcConfig::default() };
+    let defaults = MpcConfig::default();
+    let input_rate = match &a.input_rate {
+        Some(v) => v.clone().try_into().map_err(|_| "--input-rate: four weights X,Y,Z,Mz".to_string())?,
+        None => defaults.input_rate,
+    };
+    let cfg = MpcConfig {
+        input_rate,
+        horizon: a.horizon,
+        bounds: Some(bounds),
+        disturbance_gain: a.disturbance_gain,
+        envelope_constraints: !a.no_envelope_constraints,
+        envelope_penalty: a.envelope_penalty,
+        envelope_margin: a.envelope_margin,
+        ..MpcConfig::default()
+    };
     std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
     let controller = if a.oracle { "oracle" } else { "pinc" };
     let name = format!("mpc_{}_{controller}", scenario.name());

@@ -41,6 +41,12 @@ pub trait DiscreteModel {
         lin: &mut HorizonLinearisation,
     ) -> Result<(), RuntimeError>;
 
+    /// State bounds `(min, max)` of the network form the model is valid in (its training
+    /// envelope), if it knows them.
+    fn state_bounds(&self) -> Option<(State, State)> {
+        None
+    }
+
     /// Training-envelope exits seen by the last call on `ws` (a model without an envelope,
     /// like the analytic vehicle, is valid everywhere).
     fn envelope_status(&self, _ws: &Self::Workspace) -> EnvelopeStatus {
@@ -68,6 +74,10 @@ impl<T: Real> DiscreteModel for Predictor<T> {
 
     fn input_bounds(&self) -> Option<(Input, Input)> {
         self.envelope().map(|e| (Input::from(e.input_min), Input::from(e.input_max)))
+    }
+
+    fn state_bounds(&self) -> Option<(State, State)> {
+        self.envelope().map(|e| (State::from(e.state_min), State::from(e.state_max)))
     }
 
     fn step(&self, ws: &mut Workspace<T>, x: &State, u: &Input, out: &mut State) -> Result<(), RuntimeError> {

@@ -55,10 +55,12 @@ pub struct Summary {
     /// [`HOLD_SETTLE_S`] after each heading change to [`HOLD_LEAD_S`] before the next (depth
     /// may change in between). NaN if the run holds no heading that long.
     pub held_heading_error_max_deg: f64,
-    /// Mean `|z - z_ref|` while the depth reference is held (m), held as for
-    /// `held_heading_error_max_deg`. NaN if the run holds no depth that long.
+    /// Mean `|z - z_ref|` while the depth reference is held (m): from [`HOLD_SETTLE_S`] after
+    /// each depth change to [`HOLD_LEAD_S`] before the next (heading may change in between).
+    /// NaN if the run holds no depth that long.
     pub steady_depth_error_m: f64,
-    /// Mean wrapped heading error while the heading reference is held (deg).
+    /// Mean wrapped `|psi - psi_ref|` while the heading reference is held (deg), held as for
+    /// `held_heading_error_max_deg`.
     pub steady_heading_error_deg: f64,
     /// Cycles whose nominal rollout left the model's training envelope.
     pub envelope_exits: usize,
@@ -144,6 +146,8 @@ pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summa
     let (os_h, settle_h) = step_response(&t, &heading, &steps(&heading_held), end, preview);
     let held_heading: Vec<f64> =
         samples.iter().filter(|s| held_at(&heading_held, s.t)).map(|s| heading_err(s).abs()).collect();
+    let mut held_depth =
+        samples.iter().filter(|s| held_at(&depth_held, s.t)).map(|s| (s.state[2] - s.reference.depth).abs());
     let mean = |v: &mut dyn Iterator<Item = f64>| {
         let (sum, n) = v.fold((0.0, 0usize), |(a, n), x| (a + x, n + 1));
         if n == 0 { f64::NAN } else { sum / n as f64 }
@@ -175,9 +179,7 @@ pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summa
         saturated_samples: samples.iter().filter(|s| s.cycle.saturated.iter().any(|&b| b)).count(),
         input_total_variation: INPUT_NAMES.into_iter().zip(variation).collect(),
         held_heading_error_max_deg: held_heading.iter().copied().fold(f64::NAN, f64::max),
-        steady_depth_error_m: mean(
-            &mut samples.iter().filter(|s| held_at(&depth_held, s.t)).map(|s| (s.state[2] - s.reference.depth).abs()),
-        ),
+        steady_depth_error_m: mean(&mut held_depth),
         steady_heading_error_deg: mean(&mut held_heading.iter().copied()),
         envelope_exits: samples.iter().filter(|s| !s.cycle.envelope.inside()).count(),
     }
@@ -219,7 +221,8 @@ mod tests {
         assert_eq!(h.len(), 2);
         assert!((h[0].1 - 10.0).abs() < 1e-9 && (h[1].1 - 30.0).abs() < 1e-9, "{h:?}");
         // The first stretch is 10 s long: held from 8 s to 8 s, i.e. never.
-        assert!(!held_at(&h, 7.9) && !held_at(&h, 8.0) && !held_at(&h, 8.05));
-        assert!(held_at(&h, 18.0) && held_at(&h, 27.9) && !held_at(&h, 28.0) && !held_at(&h, 9.0));
+        let held = |t| held_at(&h, t);
+        assert!(!held(7.9) && !held(8.0) && !held(8.05));
+        assert!(held(18.0) && held(27.9) && !held(28.0) && !held(9.0));
     }
 }

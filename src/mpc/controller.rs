@@ -54,6 +54,14 @@ pub struct Mpc<M: DiscreteModel> {
     lin: HorizonLinearisation,
     predicted: Vec<State>,
     last_applied: Input,
+    /// Soft velocity bounds `(component, min, max)`, in the order of `qp.soft`.
+    soft_bounds: Vec<(usize, f64, f64)>,
+    /// The offset the prediction carries at every step (offset-free tracking).
+    disturbance: State,
+    /// The model's prediction, made last cycle, of the state this cycle will measure.
+    expected: Option<State>,
+    /// Where each input channel's weight pulls it (see `MpcConfig::input_target_tau`).
+    input_target: Input,
 }
 
 impl<M: DiscreteModel> Mpc<M> {
@@ -75,7 +83,23 @@ impl<M: DiscreteModel> Mpc<M> {
         let w = Weights { state: state_weights, terminal: cfg.terminal, input: cfg.input, input_rate: cfg.input_rate };
         let n = cfg.horizon;
         let states: &[usize] = if model.position_free() { &WITHOUT_POSITION } else { &ALL_STATES };
-        let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states);
+        // The body velocities the network sees, inside its envelope less the margin.
+        let soft_bounds: Vec<(usize, f64, f64)> = match model.state_bounds() {
+            Some((lo, hi)) if cfg.envelope_constraints => (5..NX)
+                .map(|i| {
+                    let margin = cfg.envelope_margin * (hi[i] - lo[i]);
+                    (i, lo[i] + margin, hi[i] - margin)
+                })
+                .collect(),
+            _ => Vec::new(),
+        };
+        let soft: Vec<usize> = soft_bounds
+            .iter()
+            .map(|(i, ..)| states.iter().position(|s| s == i).expect("velocities are always kept"))
+            .collect();
+        // A small quadratic price beside the exact linear one keeps the QP strictly convex in
+        // the slacks.
+        let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
         let n_ineq = qp.b.len() - qp.n_eq;
         let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
         // A placeholder problem with the final pattern; every cycle overwrites its data.
@@ -97,6 +121,10 @@ impl<M: DiscreteModel> Mpc<M> {
             lin: HorizonLinearisation::new(n),
             predicted: vec![State::zeros(); n + 1],
             last_applied: rest,
+            soft_bounds,
+            disturbance: State::zeros(),
+            expected: None,
+            input_target: rest,
             cfg,
         })
     }
@@ -127,6 +155,12 @@ impl<M: DiscreteModel> Mpc<M> {
         &self.plan
     }
 
+    /// The disturbance estimate: the offset added to every predicted step (zero with
+    /// `disturbance_gain = 0`).
+    pub fn disturbance(&self) -> &State {
+        &self.disturbance
+    }
+
     fn clip(&self, u: &Input) -> Input {
         Input::from_fn(|j, _| u[j].clamp(self.lo[j], self.hi[j]))
     }
@@ -139,6 +173,7 @@ impl<M: DiscreteModel> Mpc<M> {
     pub fn step(&mut self, x: &State, refs: &[Reference]) -> CycleReport {
         assert!(!refs.is_empty(), "at least one reference");
         let t0 = Instant::now();
+        self.update_disturbance(x);
         self.shift_plan();
         let mut report = CycleReport::holding(self.nominal[0]);
         let linearised = self.model.linearise_horizon(&mut self.ws, x, &self.nominal, &mut self.lin);
@@ -155,8 +190,41 @@ impl<M: DiscreteModel> Mpc<M> {
         if report.fallback.is_some() {
             self.plan.copy_from_slice(&self.nominal);
         }
+        self.expect_next(x, &report.input);
         self.finish_report(&mut report, t0);
         report
+    }
+
+    /// Moves the disturbance estimate towards what the model got wrong about `x`: the
+    /// difference between `x` and last cycle's prediction of it, for the components in the QP.
+    fn update_disturbance(&mut self, x: &State) {
+        let gain = self.cfg.disturbance_gain;
+        if let Some(e) = self.expected.take()
+            && gain > 0.0
+        {
+            let miss = x - e;
+            if miss.iter().all(|v| v.is_finite()) {
+                for &i in &self.qp.states {
+                    self.disturbance[i] += gain * miss[i];
+                }
+            }
+        }
+    }
+
+    /// The model's prediction of the next measured state under the applied input, with the
+    /// disturbance, for the next cycle's estimate; and the input targets' averages.
+    fn expect_next(&mut self, x: &State, applied: &Input) {
+        if self.cfg.disturbance_gain > 0.0 {
+            let mut next = State::zeros();
+            self.expected = self.model.step(&mut self.ws, x, applied, &mut next).ok().map(|()| next + self.disturbance);
+        }
+        let dt = self.model.dt();
+        for j in 0..NU {
+            let tau = self.cfg.input_target_tau[j];
+            if tau > 0.0 {
+                self.input_target[j] += (applied[j] - self.input_target[j]) * (dt / tau).min(1.0);
+            }
+        }
     }
 
     /// The nominal plan of this cycle: the previous plan shifted by one sample (`u_k <-
@@ -250,7 +318,8 @@ impl<M: DiscreteModel> Mpc<M> {
                 let ubar = self.nominal[k][j];
                 let rate_w = 2.0 * self.cfg.input_rate[j];
                 let d_here = ubar - prev[j];
-                let mut q = 2.0 * self.cfg.input[j] * ubar + rate_w * d_here;
+                let target = if self.cfg.input_target_tau[j] > 0.0 { self.input_target[j] } else { 0.0 };
+                let mut q = 2.0 * self.cfg.input[j] * (ubar - target) + rate_w * d_here;
                 if k + 1 < n {
                     q -= rate_w * (self.nominal[k + 1][j] - ubar);
                 }
@@ -266,7 +335,23 @@ impl<M: DiscreteModel> Mpc<M> {
                 }
             }
         }
-        // The equality rows of `b` stay zero from construction (the rollout has no defect).
+        // The rollout has no defect: the equality rows carry only the disturbance.
+        let m = qp.states.len();
+        for k in 0..n {
+            for (r, &i) in qp.states.iter().enumerate() {
+                qp.b[m * k + r] = self.disturbance[i];
+            }
+        }
+        for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
+            for (j, &k) in qp.soft_steps.iter().enumerate() {
+                let (upper, lower, sign) = (qp.soft_row(j, b, 0), qp.soft_row(j, b, 1), qp.soft_row(j, b, 2));
+                qp.b[upper] = hi - traj[k][i];
+                qp.b[lower] = traj[k][i] - lo;
+                qp.b[sign] = 0.0;
+                let at = qp.slack_index(j, b);
+                qp.q[at] = self.cfg.envelope_penalty;
+            }
+        }
     }
 }
 

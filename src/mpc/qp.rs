@@ -11,7 +11,16 @@
 //! - `mN` equalities `dx_{k+1} - A_k dx_k - B_k du_k = 0` for `m` kept states (the nominal
 //!   rollout has no defect);
 //! - `8N` input bounds `u_min <= ubar_k + du_k <= u_max`;
-//! - with rate limits, `8N` more: `|u_k - u_{k-1}| <= rate` (`u_{-1}`: the applied input).
+//! - with rate limits, `8N` more: `|u_k - u_{k-1}| <= rate` (`u_{-1}`: the applied input);
+//! - with soft state bounds on `b` components, checked at every [`SOFT_STRIDE`]-th step and
+//!   the last (`K` steps), `3bK` more: `lo <= xbar_k + dx_k + s_k`, `xbar_k + dx_k - s_k <=
+//!   hi`, `s_k >= 0`, one slack per bound and step, after the inputs in `z`, priced by an
+//!   exact (linear) penalty in `q` plus a small quadratic one in `P`. Velocities change
+//!   slowly over a step, so bounds at every 4th step cost a quarter of the rows; one slack per
+//!   step (not one for the whole horizon) keeps the KKT system free of dense columns.
+//!
+//! The equality rows' right-hand side is the disturbance estimate, the same at every step
+//! (zero without one: the nominal rollout itself has no defect).
 //!
 //! The sparsity pattern of `A` holds every entry of every `A_k` and `B_k`, zeros included,
 //! so each sample only overwrites values (`update_A`); `P` never changes.
@@ -23,6 +32,24 @@ pub(crate) const ALL_STATES: [usize; NX] = [0, 1, 2, 3, 4, 5, 6, 7, 8];
 /// Everything but the horizontal position `x, y`.
 pub(crate) const WITHOUT_POSITION: [usize; NX - 2] = [2, 3, 4, 5, 6, 7, 8];
 use clarabel::algebra::CscMatrix;
+
+/// Soft state bounds apply at every this many steps of the horizon (and at its end).
+pub(crate) const SOFT_STRIDE: usize = 4;
+
+/// The steps `k` of a horizon `n` with soft state bounds.
+pub(crate) fn soft_steps(n: usize) -> Vec<usize> {
+    let mut steps: Vec<usize> = (1..=n).filter(|k| k % SOFT_STRIDE == 0).collect();
+    if steps.last() != Some(&n) {
+        steps.push(n);
+    }
+    steps
+}
+
+/// Row of soft bound `i` of `ns` (see [`Qp::soft_row`]) in a block starting at `base`; `j`
+/// indexes [`soft_steps`].
+fn soft_row_of(base: usize, ns: usize, j: usize, i: usize, which: usize) -> usize {
+    base + (j * ns + i) * 3 + which
+}
 
 /// Column-wise triplets, assembled into CSC with a record of where each entry landed.
 struct CscBuilder {
@@ -88,18 +115,38 @@ pub(crate) struct Qp {
     /// `nzval` index of `B_k[(r, j)]` at `(k * 4 + j) * m + r`.
     idx_b: Vec<usize>,
     pub(crate) n_eq: usize,
+    /// Positions in `states` of the softly bounded components.
+    pub(crate) soft: Vec<usize>,
+    /// The steps with soft bounds ([`soft_steps`]).
+    pub(crate) soft_steps: Vec<usize>,
+    /// First row of the soft-bound block.
+    soft_base: usize,
 }
 
 impl Qp {
-    /// The structure for `horizon` steps over the 9-state components `states`.
-    pub(crate) fn new(horizon: usize, w: &Weights, rate_limited: bool, states: &[usize]) -> Self {
+    /// The structure for `horizon` steps over the 9-state components `states`, with soft
+    /// bounds on the components at positions `soft` of `states` (slack weight `slack_quad` in
+    /// `P`).
+    pub(crate) fn new(
+        horizon: usize,
+        w: &Weights,
+        rate_limited: bool,
+        states: &[usize],
+        soft: &[usize],
+        slack_quad: f64,
+    ) -> Self {
         let n = horizon;
         let m = states.len();
+        let ns = soft.len();
         let col_x = |k: usize, s: usize| (k - 1) * m + s;
-        let n_var = n * (m + NU);
+        let steps = soft_steps(n);
+        let n_var = n * (m + NU) + ns * steps.len();
         let col_u = |k: usize, j: usize| n * m + k * NU + j;
+        let col_s = |j: usize, i: usize| n * (m + NU) + j * ns + i;
         let n_eq = n * m;
-        let n_rows = n_eq + 2 * NU * n + if rate_limited { 2 * NU * n } else { 0 };
+        let soft_base = n_eq + 2 * NU * n + if rate_limited { 2 * NU * n } else { 0 };
+        let soft_row = |j: usize, i: usize, which: usize| soft_row_of(soft_base, ns, j, i, which);
+        let n_rows = soft_base + 3 * ns * steps.len();
         let bound_row = |k: usize, j: usize, upper: bool| n_eq + k * 2 * NU + j + if upper { 0 } else { NU };
         let rate_row =
             |k: usize, j: usize, upper: bool| n_eq + 2 * NU * n + k * 2 * NU + j + if upper { 0 } else { NU };
@@ -115,6 +162,10 @@ impl Qp {
                         a_slot.push(((k - 1) * m * m + c * m + r, col_x(k, c)));
                         a.push(m * k + r, col_x(k, c), 0.0);
                     }
+                }
+                if let (Some(i), Some(j)) = (soft.iter().position(|&s| s == c), steps.iter().position(|&s| s == k)) {
+                    a.push(soft_row(j, i, 0), col_x(k, c), 1.0);
+                    a.push(soft_row(j, i, 1), col_x(k, c), -1.0);
                 }
             }
         }
@@ -134,6 +185,13 @@ impl Qp {
                         a.push(rate_row(k + 1, j, true), c, -1.0);
                         a.push(rate_row(k + 1, j, false), c, 1.0);
                     }
+                }
+            }
+        }
+        for j in 0..steps.len() {
+            for i in 0..ns {
+                for which in 0..3 {
+                    a.push(soft_row(j, i, which), col_s(j, i), -1.0);
                 }
             }
         }
@@ -167,6 +225,11 @@ impl Qp {
                 p.push(c, c, 2.0 * w.input[j] + 2.0 * w.input_rate[j] + next);
             }
         }
+        for j in 0..steps.len() {
+            for i in 0..ns {
+                p.push(col_s(j, i), col_s(j, i), 2.0 * slack_quad);
+            }
+        }
         let p = p.build();
         Self {
             horizon,
@@ -179,6 +242,9 @@ impl Qp {
             idx_a,
             idx_b,
             n_eq,
+            soft: soft.to_vec(),
+            soft_steps: steps,
+            soft_base,
         }
     }
 
@@ -222,6 +288,17 @@ impl Qp {
         self.n_eq + k * 2 * NU + j + if upper { 0 } else { NU }
     }
 
+    /// Index in `z` of the slack of soft bound `i` at step `soft_steps[j]`.
+    pub(crate) fn slack_index(&self, j: usize, i: usize) -> usize {
+        self.horizon * (self.states.len() + NU) + j * self.soft.len() + i
+    }
+
+    /// Row of soft bound `i` at step `soft_steps[j]`: the upper (`which = 0`) or lower (`1`)
+    /// bound, or the slack's sign (`2`).
+    pub(crate) fn soft_row(&self, j: usize, i: usize, which: usize) -> usize {
+        soft_row_of(self.soft_base, self.soft.len(), j, i, which)
+    }
+
     /// Row of the upper or lower rate bound of `u_k[j] - u_{k-1}[j]`.
     pub(crate) fn rate_row(&self, k: usize, j: usize, upper: bool) -> usize {
         self.n_eq + 2 * NU * self.horizon + k * 2 * NU + j + if upper { 0 } else { NU }
@@ -257,7 +334,7 @@ mod tests {
         let n = 3;
         for states in [&ALL_STATES[..], &WITHOUT_POSITION[..]] {
             let m = states.len();
-            let mut qp = Qp::new(n, &weights(), true, states);
+            let mut qp = Qp::new(n, &weights(), true, states, &[], 0.0);
             let a: Vec<StateMatrix> =
                 (0..n).map(|k| StateMatrix::from_fn(|r, c| (100 * k + 10 * r + c) as f64 + 0.5)).collect();
             let b: Vec<InputMatrix> =
@@ -294,9 +371,33 @@ mod tests {
     }
 
     #[test]
+    fn soft_bounds_tie_each_bounded_state_to_its_own_slack_at_every_fourth_step() {
+        let n = 10;
+        let soft = [3usize, 5]; // positions in WITHOUT_POSITION: u and w
+        let qp = Qp::new(n, &weights(), false, &WITHOUT_POSITION, &soft, 7.0);
+        assert_eq!(qp.soft_steps, [4, 8, 10]);
+        let d = dense(&qp.a, &qp.a.nzval);
+        let p = dense(&qp.p, &qp.p.nzval);
+        for (j, &k) in qp.soft_steps.iter().enumerate() {
+            for (i, &s) in soft.iter().enumerate() {
+                let (up, lo, sign) = (qp.soft_row(j, i, 0), qp.soft_row(j, i, 1), qp.soft_row(j, i, 2));
+                let slack = qp.slack_index(j, i);
+                let nonzero = |row: usize| (0..qp.n_var()).filter(|&c| d[row][c] != 0.0).collect::<Vec<_>>();
+                assert_eq!(nonzero(up), [qp.x_index(k, s), slack]);
+                assert_eq!((d[up][qp.x_index(k, s)], d[up][slack]), (1.0, -1.0));
+                assert_eq!((d[lo][qp.x_index(k, s)], d[lo][slack]), (-1.0, -1.0));
+                assert_eq!(nonzero(sign), [slack]);
+                assert_eq!(p[slack][slack], 14.0);
+            }
+        }
+        assert_eq!(qp.b.len(), qp.n_eq + 2 * NU * n + 3 * soft.len() * 3);
+        qp.a.check_format().unwrap();
+    }
+
+    #[test]
     fn cost_matrix_is_upper_triangular_and_couples_consecutive_inputs() {
         let w = weights();
-        let qp = Qp::new(4, &w, false, &ALL_STATES);
+        let qp = Qp::new(4, &w, false, &ALL_STATES, &[], 0.0);
         let d = dense(&qp.p, &qp.p.nzval);
         for r in 0..qp.n_var() {
             for c in 0..r {

@@ -39,6 +39,23 @@ pub struct MpcConfig {
     /// envelope. Off by default: exits are reported in every [`CycleReport`](super::CycleReport) either way, and
     /// the previous plan came from the same model, so it is rarely the safer choice.
     pub envelope_fallback: bool,
+    /// Soft bounds keeping the predicted body velocities `u, v, w, r` inside the model's
+    /// training envelope (for a model that has one): slack variables with an exact (linear)
+    /// penalty, so a plan always exists and the bounds hold whenever they can.
+    pub envelope_constraints: bool,
+    /// Linear penalty per unit of slack on a velocity bound (per sample).
+    pub envelope_penalty: f64,
+    /// The velocity bounds sit this fraction of each range inside the envelope.
+    pub envelope_margin: f64,
+    /// Gain of the disturbance estimate (0 disables it): each cycle the difference between
+    /// the measured state and the model's one-step prediction of it, times this gain, is added
+    /// to a constant offset the prediction carries at every step (offset-free tracking).
+    pub disturbance_gain: f64,
+    /// Per input channel: 0 weighs the input itself (`input * u^2`); a time constant (s)
+    /// weighs its distance from the applied input averaged over that time instead, so a
+    /// channel that must hold a non-zero value (heave against buoyancy, yaw against a
+    /// moment) costs nothing for it at steady state and leaves no offset.
+    pub input_target_tau: [f64; NU],
 }
 
 impl Default for MpcConfig {
@@ -61,12 +78,18 @@ impl Default for MpcConfig {
             solver_tolerance: 1e-5,
             deadline: 0.08,
             envelope_fallback: false,
+            envelope_constraints: true,
+            envelope_penalty: 1e3,
+            envelope_margin: 0.05,
+            disturbance_gain: 0.2,
+            input_target_tau: [0.0, 0.0, 2.0, 2.0],
         }
     }
 }
 
 impl MpcConfig {
-    /// Refuses a horizon under 2 and weights or rate limits that are negative or not finite.
+    /// Refuses a horizon under 2, weights, penalties, time constants or rate limits that are
+    /// negative or not finite, a disturbance gain outside `[0, 1]` and a margin outside `[0, 0.5)`.
     ///
     /// # Errors
     /// [`MpcError::Config`] naming what is wrong.
@@ -74,8 +97,15 @@ impl MpcConfig {
         if self.horizon < 2 {
             return Err(MpcError::Config(format!("horizon {} (at least 2)", self.horizon)));
         }
-        let all = [self.depth, self.heading, self.terminal]
+        if !(self.disturbance_gain.is_finite() && (0.0..=1.0).contains(&self.disturbance_gain)) {
+            return Err(MpcError::Config(format!("disturbance gain {} (0 to 1)", self.disturbance_gain)));
+        }
+        if !(self.envelope_margin.is_finite() && (0.0..0.5).contains(&self.envelope_margin)) {
+            return Err(MpcError::Config(format!("envelope margin {} (0 to 0.5)", self.envelope_margin)));
+        }
+        let all = [self.depth, self.heading, self.terminal, self.envelope_penalty]
             .into_iter()
+            .chain(self.input_target_tau)
             .chain(self.velocity)
             .chain(self.input)
             .chain(self.input_rate)
