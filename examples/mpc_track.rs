@@ -69,6 +69,17 @@ struct Args {
     /// Weights on input changes between samples, X,Y,Z,Mz [default: MpcConfig's].
     #[arg(long, value_delimiter = ',')]
     input_rate: Option<Vec<f64>>,
+    /// Run N closed loops on perturbed plants (damping and added masses +-20 %, net buoyancy
+    /// +-30 %, a current up to 0.2 m/s, sensor noise) for both controllers on the same draws,
+    /// and summarise them instead of one run.
+    #[arg(long, value_name = "N")]
+    monte_carlo: Option<usize>,
+    /// First seed of the Monte-Carlo draws (run i uses seed + i).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Threads for the Monte-Carlo runs [default: every core].
+    #[arg(long)]
+    jobs: Option<usize>,
     /// Vehicle file of the plant, and of the oracle's model (the oracle knows the plant)
     /// [default: the BlueROV2].
     #[arg(long)]
@@ -128,6 +139,9 @@ fn try_main(a: Args) -> Result<(), String> {
         ..MpcConfig::default()
     };
     std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
+    if let Some(n) = a.monte_carlo {
+        return monte_carlo(&a, n, &model, &cfg, &scenario, &vehicle);
+    }
     let controller = if a.oracle { "oracle" } else { "pinc" };
     let name = format!("mpc_{}_{controller}", scenario.name());
     let png = a.out_dir.join(format!("{name}.png"));
@@ -215,6 +229,154 @@ fn closed_loop<M: DiscreteModel>(
     });
     bar.finish_and_clear();
     (samples, log_error)
+}
+
+/// `--monte-carlo N`: both controllers on the same N perturbed plants, on every core.
+fn monte_carlo(
+    a: &Args,
+    n: usize,
+    model: &PincModel,
+    cfg: &MpcConfig,
+    scenario: &Scenario,
+    vehicle: &VehicleParams,
+) -> Result<(), String> {
+    use pinc::closed_loop::monte_carlo::{Outcome, draw, robustness, run_perturbed};
+    use rayon::prelude::*;
+    if n == 0 {
+        return Err("--monte-carlo: at least one run".into());
+    }
+    let pool =
+        rayon::ThreadPoolBuilder::new().num_threads(a.jobs.unwrap_or(0)).build().map_err(|e| format!("--jobs: {e}"))?;
+    let bar = if a.json { ProgressBar::hidden() } else { ProgressBar::new(2 * n as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} runs ({elapsed}, ETA {eta})")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(format!("Monte Carlo, {} threads", pool.current_num_threads()));
+    let draws: Vec<_> = (0..n as u64).map(|i| draw(vehicle, a.seed + i)).collect();
+    // Each run builds its own controller: the model's nominal coefficients, never the draw's.
+    let one = |d: &pinc::closed_loop::monte_carlo::Draw, oracle: bool| -> Outcome {
+        let outcome = if oracle {
+            let m = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(model.dt) };
+            match Mpc::new(m, cfg.clone()) {
+                Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
+                Err(e) => unreachable_setup(d.seed, e),
+            }
+        } else {
+            match Mpc::new(Predictor::reference(model), cfg.clone()) {
+                Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
+                Err(e) => unreachable_setup(d.seed, e),
+            }
+        };
+        bar.inc(1);
+        outcome
+    };
+    let (pinc, oracle): (Vec<Outcome>, Vec<Outcome>) =
+        pool.install(|| draws.par_iter().map(|d| (one(d, false), one(d, true))).unzip());
+    bar.finish_and_clear();
+    let (rp, ro) = (robustness(&pinc), robustness(&oracle));
+    let png = a.out_dir.join(format!("mpc_{}_monte_carlo.png", scenario.name()));
+    histogram(&png, &pinc, &oracle, n)?;
+    let json = serde_json::json!({
+        "runs": n, "seed": a.seed, "scenario": scenario.name(),
+        "pinc": rp, "oracle": ro, "plot": png.display().to_string(),
+    });
+    let text = serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?;
+    let json_path = a.out_dir.join(format!("mpc_{}_monte_carlo.json", scenario.name()));
+    std::fs::write(&json_path, &text).map_err(|e| format!("{}: {e}", json_path.display()))?;
+    if a.json {
+        println!("{text}");
+        return Ok(());
+    }
+    println!("{n} perturbed runs of scenario {} (seeds {}..{})", scenario.name(), a.seed, a.seed + n as u64 - 1);
+    println!("{:<28} {:>26} {:>26}", "", "PINC", "oracle");
+    println!("{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
+    let spread = |s: &pinc::closed_loop::monte_carlo::Spread, f: f64| {
+        format!("{:.3} / {:.3} / {:.3}", s.median * f, s.p95 * f, s.max * f)
+    };
+    println!(
+        "{:<28} {:>26} {:>26}",
+        "RMS depth, cm (med/p95/max)",
+        spread(&rp.rms_depth_m, 100.0),
+        spread(&ro.rms_depth_m, 100.0)
+    );
+    println!(
+        "{:<28} {:>26} {:>26}",
+        "RMS heading, deg",
+        spread(&rp.rms_heading_deg, 1.0),
+        spread(&ro.rms_heading_deg, 1.0)
+    );
+    println!("{:<28} {:>26.3} {:>26.3}", "solve time p99, ms", rp.solve_ms_p99, ro.solve_ms_p99);
+    for (name, r) in [("PINC", &rp), ("oracle", &ro)] {
+        for (seed, why) in r.failures.iter().take(10) {
+            println!("  {name} failed, seed {seed}: {why}");
+        }
+        if r.failures.len() > 10 {
+            println!("  ... and {} more {name} failures (all in {})", r.failures.len() - 10, json_path.display());
+        }
+    }
+    println!("histogram: {}\nfigures:   {}", png.display(), json_path.display());
+    Ok(())
+}
+
+/// A controller that cannot be built from a configuration that built before is a bug, but a
+/// Monte-Carlo batch reports it as that run's failure rather than stopping.
+fn unreachable_setup(seed: u64, e: pinc::mpc::MpcError) -> pinc::closed_loop::monte_carlo::Outcome {
+    pinc::closed_loop::monte_carlo::Outcome {
+        seed,
+        success: false,
+        failure: Some(format!("controller set-up: {e}")),
+        rms_depth_m: f64::INFINITY,
+        rms_heading_deg: f64::INFINITY,
+        solve_ms: Vec::new(),
+    }
+}
+
+/// Histograms (as step outlines) of the runs' RMS depth and heading errors, both controllers.
+fn histogram(
+    path: &Path,
+    pinc: &[pinc::closed_loop::monte_carlo::Outcome],
+    oracle: &[pinc::closed_loop::monte_carlo::Outcome],
+    n: usize,
+) -> Result<(), String> {
+    let bins = 30usize.min(n.max(5));
+    let outline = |values: Vec<f64>, hi: f64| -> Vec<(f64, f64)> {
+        let w = hi / bins as f64;
+        let mut counts = vec![0usize; bins];
+        for v in values.into_iter().filter(|v| v.is_finite()) {
+            counts[((v / w) as usize).min(bins - 1)] += 1;
+        }
+        let mut pts = vec![(0.0, 0.0)];
+        for (i, c) in counts.iter().enumerate() {
+            pts.push((i as f64 * w, *c as f64));
+            pts.push(((i + 1) as f64 * w, *c as f64));
+        }
+        pts.push((hi, 0.0));
+        pts
+    };
+    let range = |f: &dyn Fn(&pinc::closed_loop::monte_carlo::Outcome) -> f64| {
+        pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.05 + 1e-9
+    };
+    let mut panels = Vec::new();
+    let quantities: [(&str, &str, fn(&pinc::closed_loop::monte_carlo::Outcome) -> f64); 2] = [
+        ("RMS depth error per run", "cm", |o| o.rms_depth_m * 100.0),
+        ("RMS heading error per run", "deg", |o| o.rms_heading_deg),
+    ];
+    for (title, unit, f) in quantities {
+        let hi = range(&f);
+        panels.push(Panel {
+            title,
+            x_label: unit,
+            y_label: "runs",
+            log_y: false,
+            series: vec![
+                Series { label: "PINC", points: outline(pinc.iter().map(f).collect(), hi), color: 0, dashed: false },
+                Series { label: "oracle", points: outline(oracle.iter().map(f).collect(), hi), color: 1, dashed: true },
+            ],
+        });
+    }
+    figure(path, 1400, 560, 2, &panels)
 }
 
 fn print_summary(s: &Summary) {

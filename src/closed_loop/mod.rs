@@ -4,6 +4,7 @@
 //! bound violations) and its MCAP log for Foxglove.
 
 mod log;
+pub mod monte_carlo;
 mod run;
 mod scenario;
 mod summary;

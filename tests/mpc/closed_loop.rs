@@ -247,3 +247,30 @@ fn soft_envelope_bounds_keep_the_pinc_predictions_inside_more_often() {
     assert!(on.envelope_exits * 3 < off.envelope_exits * 2, "with bounds {on:?}\nwithout {off:?}");
     assert!(on.held_heading_error_max_deg < off.held_heading_error_max_deg, "with {on:?}\nwithout {off:?}");
 }
+
+#[test]
+fn perturbed_runs_are_judged_and_a_diverging_plant_is_a_counted_failure_not_a_crash() {
+    use pinc::closed_loop::monte_carlo::{Draw, draw, robustness, run_perturbed};
+    let base = VehicleParams::default();
+    let mut outcomes = Vec::new();
+    for seed in 0..3 {
+        let d = draw(&base, seed);
+        let mut mpc = oracle(common::untimed());
+        let o = run_perturbed(&mut mpc, &Scenario::default(), &d);
+        assert_eq!(o.solve_ms.len(), 750);
+        assert!(o.success, "seed {seed}: {:?}", o.failure);
+        outcomes.push(o);
+    }
+    // A plant with almost no heave inertia and no damping cannot be held by a controller that
+    // believes in the BlueROV2: it fails (here or there) but the batch goes on.
+    let wild =
+        Draw { seed: 99, vehicle: VehicleParams { z_wd: 11.39, z_w: 0.0, z_ww: 0.0, ..base }, current: [0.0, 0.0] };
+    let o = run_perturbed(&mut oracle(common::untimed()), &Scenario::default(), &wild);
+    assert!(!o.success && o.failure.is_some(), "{o:?}");
+    outcomes.push(o);
+    let r = robustness(&outcomes);
+    assert_eq!((r.runs, r.success_rate), (4, 0.75));
+    assert_eq!(r.failures.len(), 1);
+    assert_eq!(r.failures[0].0, 99);
+    assert!(r.rms_depth_m.median < 0.25 && r.solve_ms_p99.is_finite(), "{r:?}");
+}
