@@ -1,3 +1,4 @@
 //! The `pinc` command line: CSV contracts, exit codes and one-line errors.
 
 mod commands;
+mod own_vehicle;

@@ -8,8 +8,9 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct IdentifyArgs {
     /// Dataset folder (`pinc dataset import` or `pinc gen-data`); its train split is used.
-    #[arg(long)]
-    pub data: PathBuf,
+    /// Repeat it to fit the train splits of several folders together.
+    #[arg(long, required = true)]
+    pub data: Vec<PathBuf>,
     /// Vehicle file giving m, g, rho and izz, and the values of coefficients the data do not
     /// excite [default: the BlueROV2].
     #[arg(long)]
@@ -24,14 +25,23 @@ pub struct IdentifyArgs {
 
 pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
     let base = load_vehicle(a.vehicle.as_deref())?;
-    let data = pinc::dataset::load(&a.data).map_err(|e| e.to_string())?;
-    let train = data.set("train").ok_or_else(|| format!("{}: the dataset has no train split", a.data.display()))?;
-    let id = identify(&[train], &base).map_err(|e| format!("{}: {e}", a.data.display()))?;
+    let mut folders = Vec::new();
+    for dir in &a.data {
+        let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
+        if data.set("train").is_none() {
+            return Err(format!("{}: the dataset has no train split", dir.display()));
+        }
+        folders.push(data);
+    }
+    let trains: Vec<&pinc::dataset::TrajectorySet> = folders.iter().filter_map(|d| d.set("train")).collect();
+    let shown: Vec<String> = a.data.iter().map(|d| d.display().to_string()).collect();
+    let shown = shown.join(", ");
+    let id = identify(&trains, &base).map_err(|e| format!("{shown}: {e}"))?;
     if let Some(out) = &a.out {
         let header = format!(
             "# Identified by `pinc identify` from {} ({} sample periods of its train split).\n\
              # m, g, rho, izz from the base vehicle{}.\n",
-            a.data.display(),
+            shown,
             id.samples,
             if id.not_identifiable.is_empty() {
                 String::new()
@@ -64,7 +74,7 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
         return Ok(());
     }
-    println!("{} sample periods from {}", id.samples, a.data.display());
+    println!("{} sample periods from {shown}", id.samples);
     println!("{:<8} {:>14} {:>12} {:>14}", "", "identified", "std. error", "base");
     let base_named = base.named();
     for ((k, x), (_, b)) in id.vehicle.named().into_iter().zip(base_named) {

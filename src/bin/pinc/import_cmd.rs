@@ -6,9 +6,9 @@ use std::path::PathBuf;
 /// Arguments of `pinc dataset import`.
 #[derive(clap::Args)]
 pub struct ImportArgs {
-    /// Format of the files.
+    /// Format of the files [default: each file's extension, .csv or .mcap].
     #[arg(long, value_enum)]
-    pub format: LogFormat,
+    pub format: Option<LogFormat>,
     /// Output dataset folder (written whole or not at all).
     #[arg(long)]
     pub out: PathBuf,
@@ -19,7 +19,7 @@ pub struct ImportArgs {
     #[arg(long, default_value_t = pinc::dataset::TRAJECTORY_POINTS)]
     pub window: usize,
     /// Fractions of train, dev and test, split by run.
-    #[arg(long, value_delimiter = ',', num_args = 3, default_value = "0.7,0.15,0.15")]
+    #[arg(long, value_delimiter = ',', default_value = "0.7,0.15,0.15")]
     pub split: Vec<f64>,
     /// Seed of the run shuffle and of the collocation times.
     #[arg(long, default_value_t = 0)]
@@ -65,26 +65,41 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
     };
     let split: [f64; 3] =
         a.split.clone().try_into().map_err(|_| "--split: three fractions, e.g. 0.7,0.15,0.15".to_string())?;
+    let formats: Vec<LogFormat> = a
+        .files
+        .iter()
+        .map(|path| match a.format {
+            Some(f) => Ok(f),
+            None => match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+                Some("csv") => Ok(LogFormat::Csv),
+                Some("mcap") => Ok(LogFormat::Mcap),
+                _ => Err(format!("{}: not .csv or .mcap; give --format", path.display())),
+            },
+        })
+        .collect::<Result<_, _>>()?;
+    let name = |f: &LogFormat| match f {
+        LogFormat::Csv => "csv",
+        LogFormat::Mcap => "mcap",
+    };
+    let mut names: Vec<&str> = formats.iter().map(name).collect();
+    names.dedup();
+    let uses_mcap = formats.iter().any(|f| matches!(f, LogFormat::Mcap));
     let options = ImportOptions {
-        format: match a.format {
-            LogFormat::Csv => "csv",
-            LogFormat::Mcap => "mcap",
-        }
-        .into(),
+        format: names.join("+"),
         dt: a.dt,
         window: a.window,
         split,
         seed: a.seed,
         collocation_points: a.collocation,
-        topics: matches!(a.format, LogFormat::Mcap).then(|| topics.clone()),
+        topics: uses_mcap.then(|| topics.clone()),
     };
     options.check().map_err(|e| e.to_string())?;
     let mut recordings: Vec<Recording> = Vec::with_capacity(a.files.len());
     let mut hashes = Vec::with_capacity(a.files.len());
-    for path in &a.files {
+    for (path, format) in a.files.iter().zip(&formats) {
         let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
         hashes.push(sha256_hex(&bytes));
-        let rec = match a.format {
+        let rec = match format {
             LogFormat::Csv => read_csv(path),
             LogFormat::Mcap => read_mcap(path, &topics),
         }

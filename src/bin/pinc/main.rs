@@ -11,7 +11,7 @@ use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
-use trajectory_csv::{parse_sim_state, read_inputs, write_trajectory};
+use trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
 
 mod eval_cmd;
 mod identify_cmd;
@@ -43,6 +43,30 @@ enum Command {
         /// Vehicle file (TOML, keys of models/bluerov2.toml) [default: the BlueROV2].
         #[arg(long)]
         vehicle: Option<PathBuf>,
+        /// Print a recorded run as `pinc dataset import --format csv` reads it: the inputs
+        /// in each row (t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz).
+        #[arg(long)]
+        record: bool,
+    },
+    /// Write an excitation input file (X,Y,Z,Mz per sample period): random steps, ramps and
+    /// multisines on every channel within the controller's envelope, to run on a vehicle
+    /// (open loop) so that every coefficient can be identified from the log.
+    Excitation {
+        /// Output CSV.
+        #[arg(long)]
+        out: PathBuf,
+        /// Length (s).
+        #[arg(long, default_value_t = 120.0)]
+        duration: f64,
+        /// Sample period (s).
+        #[arg(long, default_value_t = pinc::DEFAULT_DT)]
+        dt: f64,
+        /// Seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Segment length (s): each segment draws its own steps, ramps or multisines.
+        #[arg(long, default_value_t = 10.0)]
+        segment: f64,
     },
     /// Generate every set of a dataset preset as .npy arrays plus manifest.json.
     GenData {
@@ -164,9 +188,10 @@ impl PresetName {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Simulate { x0, inputs, dt, vehicle } => {
-            load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v))
+        Command::Simulate { x0, inputs, dt, vehicle, record } => {
+            load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v, record))
         }
+        Command::Excitation { out, duration, dt, seed, segment } => run_excitation(&out, duration, dt, seed, segment),
         Command::GenData { preset, out, seed, vehicle } => {
             load_vehicle(vehicle.as_deref()).and_then(|v| run_gen_data(preset.preset_for(v), &out, seed))
         }
@@ -216,10 +241,35 @@ pub(crate) fn load_vehicle(path: Option<&Path>) -> Result<VehicleParams, String>
     path.map_or(Ok(VehicleParams::default()), |p| VehicleParams::load(p).map_err(|e| e.to_string()))
 }
 
-fn run_simulate(x0: &str, inputs: &Path, dt: f64, vehicle: VehicleParams) -> Result<(), String> {
+fn run_simulate(x0: &str, inputs: &Path, dt: f64, vehicle: VehicleParams, record: bool) -> Result<(), String> {
     let (s0, inputs_seq) = initial_and_inputs(x0, inputs, dt)?;
     let traj = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(dt) }.simulate(&s0, &inputs_seq);
-    write_trajectory(std::io::stdout().lock(), dt, &traj).map_err(|e| format!("writing output: {e}"))
+    let out = std::io::stdout().lock();
+    if record { write_record(out, dt, &traj, &inputs_seq) } else { write_trajectory(out, dt, &traj) }
+        .map_err(|e| format!("writing output: {e}"))
+}
+
+fn run_excitation(out: &Path, duration: f64, dt: f64, seed: u64, segment: f64) -> Result<(), String> {
+    use rand::SeedableRng;
+    for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", segment)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!("{name} must be a positive number of seconds, got {v}"));
+        }
+    }
+    let n = (duration / dt).round() as usize;
+    let per = ((segment / dt).round() as usize).max(1);
+    // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
+    let excitation = dataset::DatasetPreset::mpc().sets[0].excitation.clone();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut inputs = Vec::with_capacity(n);
+    while inputs.len() < n {
+        let len = per.min(n - inputs.len());
+        inputs.extend(dataset::sample_inputs(&excitation, &mut rng, len, dt));
+    }
+    let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    write_inputs(std::io::BufWriter::new(file), &inputs).map_err(|e| format!("{}: {e}", out.display()))?;
+    println!("{n} inputs ({duration} s at {dt} s, seed {seed}) -> {}", out.display());
+    Ok(())
 }
 
 pub(crate) fn load_model(path: &Path) -> Result<PincModel, String> {

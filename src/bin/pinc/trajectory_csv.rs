@@ -114,6 +114,34 @@ pub fn write_trajectory(mut w: impl Write, dt: f64, states: &[SimState]) -> std:
     w.flush()
 }
 
+/// Writes a recorded run for `pinc dataset import`: `t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz`, each
+/// row's input the one held until the next row; the last state has no input after it, so
+/// its input fields are empty (the import counts that row as skipped).
+pub fn write_record(mut w: impl Write, dt: f64, states: &[SimState], inputs: &[Input]) -> std::io::Result<()> {
+    writeln!(w, "t,{},{}", SIM_STATE_NAMES.join(","), INPUT_NAMES.join(","))?;
+    for (k, s) in states.iter().enumerate() {
+        write!(w, "{}", k as f64 * dt)?;
+        for v in s.iter() {
+            write!(w, ",{v}")?;
+        }
+        match inputs.get(k) {
+            Some(u) => u.iter().try_for_each(|v| write!(w, ",{v}"))?,
+            None => write!(w, ",,,,")?,
+        }
+        writeln!(w)?;
+    }
+    w.flush()
+}
+
+/// Writes an input sequence `X,Y,Z,Mz`, one row per sample interval.
+pub fn write_inputs(mut w: impl Write, inputs: &[Input]) -> std::io::Result<()> {
+    writeln!(w, "{}", INPUT_NAMES.join(","))?;
+    for u in inputs {
+        writeln!(w, "{},{},{},{}", u[0], u[1], u[2], u[3])?;
+    }
+    w.flush()
+}
+
 /// Parses a comma-separated state `x,y,z,psi,u,v,w,r` (all finite).
 pub fn parse_sim_state(text: &str) -> Result<SimState, String> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();

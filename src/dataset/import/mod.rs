@@ -57,7 +57,7 @@ pub enum ImportError {
 /// The options of an import, recorded in the manifest.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ImportOptions {
-    /// `csv` or `mcap`.
+    /// `csv`, `mcap`, or both (`csv+mcap`) for a mix chosen by extension.
     pub format: String,
     /// Sample period of the dataset (s).
     pub dt: f64,
