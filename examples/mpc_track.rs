@@ -13,6 +13,7 @@
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
+use pinc::closed_loop::monte_carlo::Outcome;
 use pinc::closed_loop::{LogError, McapLog, RunInfo};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
 use pinc::model::PincModel;
@@ -240,7 +241,7 @@ fn monte_carlo(
     scenario: &Scenario,
     vehicle: &VehicleParams,
 ) -> Result<(), String> {
-    use pinc::closed_loop::monte_carlo::{Outcome, draw, robustness, run_perturbed};
+    use pinc::closed_loop::monte_carlo::{draw, robustness, run_perturbed};
     use rayon::prelude::*;
     if n == 0 {
         return Err("--monte-carlo: at least one run".into());
@@ -261,12 +262,12 @@ fn monte_carlo(
             let m = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(model.dt) };
             match Mpc::new(m, cfg.clone()) {
                 Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
-                Err(e) => unreachable_setup(d.seed, e),
+                Err(e) => setup_failure(d.seed, e),
             }
         } else {
             match Mpc::new(Predictor::reference(model), cfg.clone()) {
                 Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
-                Err(e) => unreachable_setup(d.seed, e),
+                Err(e) => setup_failure(d.seed, e),
             }
         };
         bar.inc(1);
@@ -322,8 +323,8 @@ fn monte_carlo(
 
 /// A controller that cannot be built from a configuration that built before is a bug, but a
 /// Monte-Carlo batch reports it as that run's failure rather than stopping.
-fn unreachable_setup(seed: u64, e: pinc::mpc::MpcError) -> pinc::closed_loop::monte_carlo::Outcome {
-    pinc::closed_loop::monte_carlo::Outcome {
+fn setup_failure(seed: u64, e: pinc::mpc::MpcError) -> Outcome {
+    Outcome {
         seed,
         success: false,
         failure: Some(format!("controller set-up: {e}")),
@@ -334,12 +335,7 @@ fn unreachable_setup(seed: u64, e: pinc::mpc::MpcError) -> pinc::closed_loop::mo
 }
 
 /// Histograms (as step outlines) of the runs' RMS depth and heading errors, both controllers.
-fn histogram(
-    path: &Path,
-    pinc: &[pinc::closed_loop::monte_carlo::Outcome],
-    oracle: &[pinc::closed_loop::monte_carlo::Outcome],
-    n: usize,
-) -> Result<(), String> {
+fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) -> Result<(), String> {
     let bins = 30usize.min(n.max(5));
     let outline = |values: Vec<f64>, hi: f64| -> Vec<(f64, f64)> {
         let w = hi / bins as f64;
@@ -355,11 +351,12 @@ fn histogram(
         pts.push((hi, 0.0));
         pts
     };
-    let range = |f: &dyn Fn(&pinc::closed_loop::monte_carlo::Outcome) -> f64| {
+    let range = |f: &dyn Fn(&Outcome) -> f64| {
         pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.05 + 1e-9
     };
     let mut panels = Vec::new();
-    let quantities: [(&str, &str, fn(&pinc::closed_loop::monte_carlo::Outcome) -> f64); 2] = [
+    type Measure = fn(&Outcome) -> f64;
+    let quantities: [(&str, &str, Measure); 2] = [
         ("RMS depth error per run", "cm", |o| o.rms_depth_m * 100.0),
         ("RMS heading error per run", "deg", |o| o.rms_heading_deg),
     ];

@@ -4,6 +4,7 @@
 
 use super::run::{Sample, run_on};
 use super::scenario::Scenario;
+use super::summary::percentile;
 use crate::mpc::Mpc;
 use crate::traits::DiscreteModel;
 use crate::types::SimState;
@@ -146,8 +147,11 @@ fn judge(seed: u64, samples: &[Sample]) -> Outcome {
         // SETTLE_S after each change of a reference (while the run lasts), compare.
         for k in 1..samples.len() {
             let (prev, now) = (&samples[k - 1].reference, &samples[k].reference);
+            if now.depth == prev.depth && now.heading == prev.heading {
+                continue;
+            }
             let t_check = samples[k].t + SETTLE_S;
-            let Some(at) = samples.iter().find(|s| s.t >= t_check - 1e-9) else { continue };
+            let Some(at) = samples[k..].iter().find(|s| s.t >= t_check - 1e-9) else { continue };
             if now.depth != prev.depth && (at.state[2] - at.reference.depth).abs() > DEPTH_TOLERANCE_M {
                 failure =
                     Some(format!("depth {:.3} m at {:.1} s, reference {:.3} m", at.state[2], at.t, at.reference.depth));
@@ -185,16 +189,6 @@ impl Spread {
     pub fn of(v: &mut [f64]) -> Self {
         Self { median: percentile(v, 50.0), p95: percentile(v, 95.0), max: percentile(v, 100.0) }
     }
-}
-
-/// Nearest-rank percentile of `v` (sorted in place).
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let rank = ((p / 100.0) * v.len() as f64).ceil() as usize;
-    v[rank.clamp(1, v.len()) - 1]
 }
 
 /// One controller's figures over many runs.

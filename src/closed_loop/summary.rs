@@ -86,7 +86,7 @@ fn held_at(stretches: &[(f64, f64, f64)], t: f64) -> bool {
 }
 
 /// Nearest-rank percentile of `v` (sorted in place).
-fn percentile(v: &mut [f64], p: f64) -> f64 {
+pub(super) fn percentile(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -1,5 +1,6 @@
 //! The controller: its model, plan, QP and persistent solver, and one control cycle in named
-//! phases (shift, linearise, write the QP's data, solve, accept the solution).
+//! phases (disturbance update, shift, linearise, write the QP's data, solve, accept the
+//! solution, predict the next measurement); docs/MODEL.md section 11.
 
 use super::error::MpcError;
 use super::fallback::Fallback;

@@ -123,7 +123,7 @@ fn windows_of_one_run_never_land_in_two_splits() {
 #[test]
 fn a_single_run_is_split_by_time_with_one_window_left_out_between_splits() {
     let rec = run("one.csv", 0.08, 65 * 12 + 1, 0.0);
-    let data = import(&[rec.clone()], &hashes(1), &options(66, [0.7, 0.15, 0.15])).unwrap();
+    let data = import(std::slice::from_ref(&rec), &hashes(1), &options(66, [0.7, 0.15, 0.15])).unwrap();
     assert_eq!(data.source.as_ref().unwrap().split_by, "time");
     let counts: Vec<usize> = data.sets.iter().map(|s| s.count).collect();
     assert_eq!(counts.iter().sum::<usize>() + 2, 12, "{counts:?}");
