@@ -279,13 +279,24 @@ fn monte_carlo(
     let (rp, ro) = (robustness(&pinc), robustness(&oracle));
     let png = a.out_dir.join(format!("mpc_{}_monte_carlo.png", scenario.name()));
     histogram(&png, &pinc, &oracle, n)?;
+    let per_run: Vec<serde_json::Value> = pinc
+        .iter()
+        .zip(&oracle)
+        .map(|(p, o)| {
+            let figures = |x: &Outcome| serde_json::json!({"success": x.success, "rms_depth_m": x.rms_depth_m, "rms_heading_deg": x.rms_heading_deg});
+            serde_json::json!({"seed": p.seed, "pinc": figures(p), "oracle": figures(o)})
+        })
+        .collect();
     let json = serde_json::json!({
         "runs": n, "seed": a.seed, "scenario": scenario.name(),
         "pinc": rp, "oracle": ro, "plot": png.display().to_string(),
     });
+    let mut file_json = json.clone();
+    file_json["per_run"] = per_run.into();
     let text = serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?;
     let json_path = a.out_dir.join(format!("mpc_{}_monte_carlo.json", scenario.name()));
-    std::fs::write(&json_path, &text).map_err(|e| format!("{}: {e}", json_path.display()))?;
+    let file_text = serde_json::to_string_pretty(&file_json).map_err(|e| e.to_string())?;
+    std::fs::write(&json_path, file_text).map_err(|e| format!("{}: {e}", json_path.display()))?;
     if a.json {
         println!("{text}");
         return Ok(());
@@ -337,22 +348,26 @@ fn setup_failure(seed: u64, e: pinc::mpc::MpcError) -> Outcome {
 /// Histograms (as step outlines) of the runs' RMS depth and heading errors, both controllers.
 fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) -> Result<(), String> {
     let bins = 30usize.min(n.max(5));
-    let outline = |values: Vec<f64>, hi: f64| -> Vec<(f64, f64)> {
-        let w = hi / bins as f64;
+    let outline = |values: Vec<f64>, (lo, hi): (f64, f64)| -> Vec<(f64, f64)> {
+        let w = (hi - lo) / bins as f64;
         let mut counts = vec![0usize; bins];
         for v in values.into_iter().filter(|v| v.is_finite()) {
-            counts[((v / w) as usize).min(bins - 1)] += 1;
+            counts[(((v - lo) / w) as usize).min(bins - 1)] += 1;
         }
-        let mut pts = vec![(0.0, 0.0)];
+        let mut pts = vec![(lo, 0.0)];
         for (i, c) in counts.iter().enumerate() {
-            pts.push((i as f64 * w, *c as f64));
-            pts.push(((i + 1) as f64 * w, *c as f64));
+            pts.push((lo + i as f64 * w, *c as f64));
+            pts.push((lo + (i + 1) as f64 * w, *c as f64));
         }
         pts.push((hi, 0.0));
         pts
     };
+    // The range of both controllers' finite values, widened by 5 % on each side.
     let range = |f: &dyn Fn(&Outcome) -> f64| {
-        pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.05 + 1e-9
+        let v: Vec<f64> = pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).collect();
+        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let pad = 0.05 * (hi - lo).max(1e-9);
+        if lo.is_finite() { ((lo - pad).max(0.0), hi + pad) } else { (0.0, 1.0) }
     };
     let mut panels = Vec::new();
     type Measure = fn(&Outcome) -> f64;
@@ -361,15 +376,20 @@ fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) -> Res
         ("RMS heading error per run", "deg", |o| o.rms_heading_deg),
     ];
     for (title, unit, f) in quantities {
-        let hi = range(&f);
+        let span = range(&f);
         panels.push(Panel {
             title,
             x_label: unit,
             y_label: "runs",
             log_y: false,
             series: vec![
-                Series { label: "PINC", points: outline(pinc.iter().map(f).collect(), hi), color: 0, dashed: false },
-                Series { label: "oracle", points: outline(oracle.iter().map(f).collect(), hi), color: 1, dashed: true },
+                Series { label: "PINC", points: outline(pinc.iter().map(f).collect(), span), color: 0, dashed: false },
+                Series {
+                    label: "oracle",
+                    points: outline(oracle.iter().map(f).collect(), span),
+                    color: 1,
+                    dashed: true,
+                },
             ],
         });
     }

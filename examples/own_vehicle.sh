@@ -21,8 +21,8 @@ for r in default survey zigzag; do
 done
 # 2. Excitation runs: input files played open loop (in the water: as a teleoperation script),
 #    recorded as CSV. Closed-loop depth and heading runs never move surge or sway.
-for seed in 1 2 3 4; do
-  $PINC excitation --out "$OUT/excitation$seed.in.csv" --duration 300 --seed $seed
+for seed in 1 2 3 4 5 6 7 8; do
+  $PINC excitation --out "$OUT/excitation$seed.in.csv" --duration 600 --seed $seed
   $PINC simulate --vehicle $TRUE --x0 0,0,1,0,0,0,0,0 --inputs "$OUT/excitation$seed.in.csv" --record \
     > "$OUT/logs/excitation$seed.csv"
 done
@@ -33,8 +33,10 @@ printf 'm = 14.25\nizz = 0.3185\n' > "$OUT/base.toml"
 $PINC identify --data "$OUT/data" --vehicle "$OUT/base.toml" --out "$OUT/identified.toml" --json \
   > "$OUT/identified.json"
 # 5. A position-free PINC whose physics loss uses the identified vehicle.
-$PINC train --data "$OUT/data" --vehicle "$OUT/identified.toml" --position-free \
-  --time-limit "$MINUTES" --epochs 100000 --out "$OUT/own.pinc" --json > "$OUT/train.json"
+#    The settings of models/mpc_pinc.pinc (README, "Closed-loop MPC").
+$PINC train --data "$OUT/data" --vehicle "$OUT/identified.toml" --position-free --backend flex \
+  --rollout-stride 4 --patience 60 --time-limit "$MINUTES" --epochs 100000 --out "$OUT/own.pinc" --json \
+  > "$OUT/train.json"
 # 6. Held-out runs (the test split).
 $PINC eval --model "$OUT/own.pinc" --data "$OUT/data" --plot "$OUT/eval.png" --json > "$OUT/eval.json"
 # 7. The new model in the loop against the true vehicle, beside the oracle.

@@ -216,16 +216,25 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         eprintln!("warning: {}: {e}", csv_path.display());
     }
     report_stop(&outcome);
-    if let Some(data) = &folder {
-        return finish_on_folder(&a, &outcome, data, &csv_path);
-    }
-    let metrics = evaluate_and_save(&a, &outcome)?;
+    let final_metrics = match &folder {
+        Some(data) => FinalMetrics::Test(
+            data.set("test")
+                .filter(|s| s.count > 0)
+                .map(|t| pinc::eval::evaluate_set(&outcome.model, t, &outcome.model.vehicle))
+                .transpose()
+                .map_err(|e| format!("final evaluation failed: {e}"))?,
+        ),
+        None => {
+            let sets = eval_sets(&a.preset.preset_for(outcome.model.vehicle), a.seed, a.eval_count, a.json);
+            FinalMetrics::Paper(evaluate(&outcome.model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?)
+        }
+    };
+    save_with_metrics(&a.out, &outcome, &final_metrics)?;
     let png = sibling(&a.out, "png");
     plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
     if a.json {
-        let v = serde_json::json!({
+        let mut v = serde_json::json!({
             "model": a.out.display().to_string(),
-            "metrics": metrics,
             "best_epoch": outcome.best_epoch,
             "epochs_run": outcome.history.len(),
             "train_seconds": outcome.seconds,
@@ -235,6 +244,10 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             "csv": csv_path.display().to_string(),
             "plot": png.display().to_string(),
         });
+        match &final_metrics {
+            FinalMetrics::Paper(m) => v["metrics"] = serde_json::to_value(m).map_err(|e| e.to_string())?,
+            FinalMetrics::Test(m) => v["test"] = serde_json::to_value(m).map_err(|e| e.to_string())?,
+        }
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
         println!(
@@ -246,7 +259,11 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             outcome.best_epoch,
             a.out.display()
         );
-        print_metrics(&format!("seed {} eval", a.seed), &metrics);
+        match &final_metrics {
+            FinalMetrics::Paper(m) => print_metrics(&format!("seed {} eval", a.seed), m),
+            FinalMetrics::Test(Some(m)) => crate::eval_cmd::print_set_metrics(m),
+            FinalMetrics::Test(None) => println!("no test split to evaluate on"),
+        }
         println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
     }
     Ok(())
@@ -301,64 +318,6 @@ fn folder_sets(a: &TrainArgs, data: &pinc::dataset::Dataset) -> Result<(Trajecto
         return Err(format!("{dir}: the train split has no collocation times for the physics loss"));
     }
     Ok((train, split("dev", a.dev_count)?))
-}
-
-/// Metrics on the folder's test split, recorded in the model, and the model written.
-fn finish_on_folder(
-    a: &TrainArgs,
-    outcome: &TrainOutcome,
-    data: &pinc::dataset::Dataset,
-    csv_path: &Path,
-) -> Result<(), String> {
-    let mut model = outcome.model.clone();
-    let test = data.set("test").filter(|s| s.count > 0);
-    let metrics = test
-        .map(|t| pinc::eval::evaluate_set(&model, t, &model.vehicle))
-        .transpose()
-        .map_err(|e| format!("final evaluation failed: {e}"))?;
-    let m = &mut model.provenance.metrics;
-    if let Some(t) = &metrics {
-        m.insert("test_one_step_mse".into(), t.one_step_mse);
-        m.insert("test_rollout10_mse".into(), t.rollout10_mse);
-        m.insert("test_physics_mse".into(), t.physics_mse);
-        m.insert("test_vpt_s".into(), t.vpt_s);
-    }
-    m.insert("train_seconds".into(), outcome.seconds);
-    m.insert("step_ms".into(), outcome.step_ms);
-    m.insert("best_epoch".into(), outcome.best_epoch as f64);
-    m.insert("epochs_run".into(), outcome.history.len() as f64);
-    model.save(&a.out).map_err(|e| e.to_string())?;
-    let png = sibling(&a.out, "png");
-    plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
-    if a.json {
-        let v = serde_json::json!({
-            "model": a.out.display().to_string(),
-            "test": metrics,
-            "best_epoch": outcome.best_epoch,
-            "epochs_run": outcome.history.len(),
-            "train_seconds": outcome.seconds,
-            "step_ms": outcome.step_ms,
-            "stop": outcome.stop,
-            "csv": csv_path.display().to_string(),
-            "plot": png.display().to_string(),
-        });
-        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
-    } else {
-        println!(
-            "{} epochs in {:.1} s ({:.2} ms per step); best on dev: epoch {} -> {}",
-            outcome.history.len(),
-            outcome.seconds,
-            outcome.step_ms,
-            outcome.best_epoch,
-            a.out.display()
-        );
-        match &metrics {
-            Some(t) => crate::eval_cmd::print_set_metrics(t),
-            None => println!("no test split to evaluate on"),
-        }
-        println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
-    }
-    Ok(())
 }
 
 /// The per-epoch CSV: a header naming every active loss, then one row per epoch. A write
@@ -419,22 +378,32 @@ fn report_stop(outcome: &TrainOutcome) {
     }
 }
 
-/// The paper's metrics of the kept weights on fresh sets, recorded in the model with the
-/// run's timing, and the model written to `--out`.
-fn evaluate_and_save(a: &TrainArgs, outcome: &TrainOutcome) -> Result<Metrics, String> {
+/// The metrics of the kept weights: the paper's on fresh sets of the preset, or those of a
+/// dataset folder's test split (none when it has no test windows).
+enum FinalMetrics {
+    Paper(Metrics),
+    Test(Option<pinc::eval::SetMetrics>),
+}
+
+/// The model written to `out` with its final metrics and the run's timing.
+fn save_with_metrics(out: &Path, outcome: &TrainOutcome, metrics: &FinalMetrics) -> Result<(), String> {
     let mut model = outcome.model.clone();
-    let sets = eval_sets(&a.preset.preset_for(outcome.model.vehicle), a.seed, a.eval_count, a.json);
-    let metrics = evaluate(&model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?;
-    for (k, v) in metrics.entries() {
-        model.provenance.metrics.insert(k.into(), v);
-    }
     let m = &mut model.provenance.metrics;
+    match metrics {
+        FinalMetrics::Paper(p) => m.extend(p.entries().map(|(k, v)| (k.to_string(), v))),
+        FinalMetrics::Test(Some(t)) => m.extend([
+            ("test_one_step_mse".to_string(), t.one_step_mse),
+            ("test_rollout10_mse".to_string(), t.rollout10_mse),
+            ("test_physics_mse".to_string(), t.physics_mse),
+            ("test_vpt_s".to_string(), t.vpt_s),
+        ]),
+        FinalMetrics::Test(None) => {}
+    }
     m.insert("train_seconds".into(), outcome.seconds);
     m.insert("step_ms".into(), outcome.step_ms);
     m.insert("best_epoch".into(), outcome.best_epoch as f64);
     m.insert("epochs_run".into(), outcome.history.len() as f64);
-    model.save(&a.out).map_err(|e| e.to_string())?;
-    Ok(metrics)
+    model.save(out).map_err(|e| e.to_string())
 }
 
 /// Arguments of `pinc plot-training`.
