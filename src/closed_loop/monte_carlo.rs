@@ -88,7 +88,8 @@ pub struct Outcome {
     pub solve_ms: Vec<f64>,
 }
 
-/// Runs `scenario` on the plant of `d` with sensor noise from its seed; `mpc` keeps its own
+/// Runs `scenario` on the plant of `d` (the draw's current replaces the scenario's; its
+/// damping scale still applies) with sensor noise from the draw's seed; `mpc` keeps its own
 /// model. A panic inside the run is caught and reported as the failure, never propagated.
 pub fn run_perturbed<M: DiscreteModel>(mpc: &mut Mpc<M>, scenario: &Scenario, d: &Draw) -> Outcome {
     let failed = |why: String| Outcome {

@@ -98,8 +98,9 @@ impl<M: DiscreteModel> Mpc<M> {
             .iter()
             .map(|(i, ..)| states.iter().position(|s| s == i).expect("velocities are always kept"))
             .collect();
-        // A small quadratic price beside the exact linear one keeps the QP strictly convex in
-        // the slacks.
+        // The slacks' quadratic price equals the exact (linear) one: it keeps the QP strictly
+        // convex in them and Clarabel's iterations as few as without the bounds (a 1000 times
+        // smaller one took about twice as many).
         let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
         let n_ineq = qp.b.len() - qp.n_eq;
         let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
