@@ -109,7 +109,10 @@ fn try_main(a: Args) -> Result<(), String> {
         (None, ScenarioName::Default) => Scenario::default(),
         (None, ScenarioName::Disturbed) => Scenario::disturbed(),
     };
-    if let Some(d) = a.duration {
+    // A reference file took --duration above (checked there); the built-ins take it here.
+    if a.reference.is_none()
+        && let Some(d) = a.duration
+    {
         if !(d.is_finite() && d > 0.0) {
             return Err(format!("--duration must be a positive number of seconds, got {d}"));
         }

@@ -138,6 +138,21 @@ impl Problem<'_> {
             .sum()
     }
 
+    /// Unweighted RMS residual per degree of freedom, without a Jacobian.
+    fn rms(&self, p: &VehicleParams) -> [f64; 4] {
+        use rayon::prelude::*;
+        let sq = self
+            .intervals
+            .par_iter()
+            .map(|s| {
+                let r = predict(p, s) - s.v1;
+                [0, 1, 2, 3].map(|d| r[d] * r[d])
+            })
+            .reduce(|| [0.0; 4], |a, b| [0, 1, 2, 3].map(|d| a[d] + b[d]));
+        let n = self.intervals.len().max(1) as f64;
+        sq.map(|s| (s / n).sqrt())
+    }
+
     /// `J^T J`, `J^T r` (weighted, J by forward differences in the scaled unknowns), the cost
     /// and the unweighted RMS residual per degree of freedom; the residuals in parallel.
     fn normal_equations(&self, p: &VehicleParams, active: &[usize]) -> (DMatrix<f64>, DVector<f64>, f64, [f64; 4]) {
@@ -283,8 +298,7 @@ pub fn identify(sets: &[&TrajectorySet], base: &VehicleParams) -> Result<Identif
         p = problem.fit(p, &active);
         // Reweight by the residuals and refine once: the weights then are the noise levels,
         // which makes (J^T W J)^-1 the covariance of the estimates.
-        let rms = problem.normal_equations(&p, &active).3;
-        problem.sigma = rms.map(floor);
+        problem.sigma = problem.rms(&p).map(floor);
         p = problem.fit(p, &active);
         let (jtj, _, _, rms) = problem.normal_equations(&p, &active);
         let covariance = jtj.clone().cholesky().map(|c| c.inverse());
