@@ -162,9 +162,9 @@ impl DatasetPreset {
         }
     }
 
-    /// The controller's operating envelope, `|X| <= 10 N, |Y| <= 5 N, -5 <= Z <= 20 N,
-    /// |Mz| <= 1 N m`, with initial velocities inside what those inputs can reach and mixed
-    /// step / ramp / multisine excitation.
+    /// The controller's operating envelope: the BlueROV2's whole thrust range
+    /// ([`BLUEROV2_INPUT_LO`], [`BLUEROV2_INPUT_HI`]), with initial velocities inside what those
+    /// inputs can reach and mixed step / ramp / multisine excitation.
     pub fn mpc() -> Self {
         Self::mpc_for(VehicleParams::default())
     }
@@ -172,8 +172,7 @@ impl DatasetPreset {
     /// [`DatasetPreset::mpc`] for another vehicle: its initial velocities are what that
     /// vehicle reaches with the same inputs.
     pub fn mpc_for(vehicle: VehicleParams) -> Self {
-        let lo = [-10.0, -5.0, -5.0, -1.0];
-        let hi = [10.0, 5.0, 20.0, 1.0];
+        let (lo, hi) = (BLUEROV2_INPUT_LO, BLUEROV2_INPUT_HI);
         let v = reachable_velocities(&vehicle, lo, hi);
         let initial = InitialRanges {
             lo: [-1.0, -1.0, 0.0, -PI, v.lo[0], v.lo[1], v.lo[2], v.lo[3]],
@@ -211,6 +210,14 @@ impl DatasetPreset {
         }
     }
 }
+
+/// The BlueROV2's largest body forces and yaw moment `[X, Y, Z, Mz]` (N, N m), from Blue
+/// Robotics' published bollard thrust of the standard six-thruster vehicle (9 kgf forward and
+/// lateral, 7 kgf vertical) and the vectored thrusters' 0.1888 m yaw arm (docs/MODEL.md
+/// section 2.3 gives the sources and the arithmetic).
+pub const BLUEROV2_INPUT_HI: [f64; NU] = [88.3, 88.3, 68.7, 23.6];
+/// The lower limits: the vectored and vertical layouts push both ways (see [`BLUEROV2_INPUT_HI`]).
+pub const BLUEROV2_INPUT_LO: [f64; NU] = [-88.3, -88.3, -68.7, -23.6];
 
 /// Steady body velocities `[u, v, w, r]` reachable with inputs in `[lo, hi]`: each axis's
 /// terminal speed under its extreme force (heave includes the net buoyancy). Cross-coupling

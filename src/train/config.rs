@@ -60,6 +60,18 @@ impl LossKind {
     }
 }
 
+/// How the learning rate moves over a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum LrSchedule {
+    /// Reduce-on-plateau on the smoothed dev loss (`patience`, `lr_factor`, `lr_min`).
+    #[default]
+    Plateau,
+    /// Half a cosine from `lr` to `lr_min` over the run's budget (the wall-clock limit, or the
+    /// epochs when that comes first), updated every step: a fixed budget spends its end at a
+    /// small rate instead of waiting out patience.
+    Cosine,
+}
+
 /// A training run's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -107,6 +119,24 @@ pub struct TrainConfig {
     /// Default: the BlueROV2.
     #[serde(default)]
     pub vehicle: VehicleParams,
+    /// Per-loss gradients are measured every `grad_refresh`-th step; the steps between take
+    /// one backward pass of `sum_n a_n L_n` with the combination coefficients `a_n` of the
+    /// last measuring step. 1: every step measures (the paper's scheme, one backward pass per
+    /// loss). Ignored by the plain sum, which needs one pass anyway.
+    #[serde(default = "one")]
+    pub grad_refresh: usize,
+    /// The learning-rate schedule.
+    #[serde(default)]
+    pub lr_schedule: LrSchedule,
+    /// Curriculum: the physics, initial-condition and physics-rollout losses join once this
+    /// fraction of the budget (time limit or epochs) has passed; before, only the data and
+    /// rollout losses train. Weights are selected only from epochs with every loss active.
+    #[serde(default)]
+    pub physics_after: f64,
+}
+
+fn one() -> usize {
+    1
 }
 
 impl TrainConfig {
@@ -137,6 +167,9 @@ impl TrainConfig {
             backend: Backend::Ndarray,
             time_limit_s: None,
             vehicle: VehicleParams::default(),
+            grad_refresh: 1,
+            lr_schedule: LrSchedule::Plateau,
+            physics_after: 0.0,
         }
     }
 
@@ -146,6 +179,11 @@ impl TrainConfig {
         self.losses = losses;
         self.weights = weights;
         self
+    }
+
+    /// Whether `kind` is one of the losses the curriculum holds back (see `physics_after`).
+    pub fn is_physics(kind: LossKind) -> bool {
+        matches!(kind, LossKind::Physics | LossKind::InitialCondition | LossKind::PhysicsRollout)
     }
 
     /// Whether `kind` is active.
@@ -178,6 +216,12 @@ impl TrainConfig {
         let clip_ok = self.clip_norm.is_finite() && self.clip_norm > 0.0;
         if !clip_ok || self.dev_smoothing <= 0.0 || self.dev_smoothing > 1.0 || self.dev_smoothing.is_nan() {
             return Err("clip_norm must be positive and dev_smoothing in (0, 1]".into());
+        }
+        if self.grad_refresh == 0 {
+            return Err("grad_refresh must be positive".into());
+        }
+        if !(0.0..1.0).contains(&self.physics_after) {
+            return Err(format!("physics_after {}: need a fraction in [0, 1)", self.physics_after));
         }
         if self.time_limit_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
             return Err("time_limit_s must be positive".into());

@@ -29,59 +29,77 @@ fn norm(g: &[f32]) -> f64 {
 /// # Panics
 /// If `grads` is empty, lengths differ, or `weights.len() != grads.len()`.
 pub fn combine(scheme: GradCombine, grads: &[Vec<f32>], weights: &[f64]) -> Vec<f32> {
-    assert!(!grads.is_empty() && weights.len() == grads.len(), "one weight per gradient");
-    let p = grads[0].len();
-    assert!(grads.iter().all(|g| g.len() == p), "gradients of different lengths");
-    let mut out = vec![0.0f64; p];
-    match scheme {
-        GradCombine::Sum => {
-            for (g, &w) in grads.iter().zip(weights) {
-                for (o, &v) in out.iter_mut().zip(g) {
-                    *o += w * f64::from(v);
-                }
+    let a = coefficients(scheme, grads, weights);
+    let mut out = vec![0.0f64; grads[0].len()];
+    for (g, &c) in grads.iter().zip(&a) {
+        if c != 0.0 {
+            for (o, &v) in out.iter_mut().zip(g) {
+                *o += c * f64::from(v);
             }
-        }
-        GradCombine::Normalize => {
-            let n0 = norm(&grads[0]);
-            for (g, &w) in grads.iter().zip(weights) {
-                let n = norm(g);
-                if n == 0.0 {
-                    continue;
-                }
-                let s = w * n0 / n;
-                for (o, &v) in out.iter_mut().zip(g) {
-                    *o += s * f64::from(v);
-                }
-            }
-            let n = out.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if n > 0.0 {
-                out.iter_mut().for_each(|v| *v *= n0 / n);
-            }
-        }
-        GradCombine::Config => {
-            // Each norm once: recomputing it per matrix element cost O(p^2) per step.
-            let (live, norms): (Vec<&Vec<f32>>, Vec<f64>) =
-                grads.iter().map(|g| (g, norm(g))).filter(|&(_, n)| n > 0.0).unzip();
-            if live.is_empty() {
-                return vec![0.0; p];
-            }
-            let m = live.len();
-            let units = DMatrix::from_fn(p, m, |r, c| f64::from(live[c][r]) / norms[c]);
-            let gram = units.transpose() * &units;
-            let coeff = gram.pseudo_inverse(1e-12).expect("pseudo-inverse of a small Gram matrix")
-                * DVector::from_element(m, 1.0);
-            let d = &units * coeff;
-            let dn = d.norm();
-            if dn == 0.0 {
-                return vec![0.0; p];
-            }
-            let unit = d / dn;
-            let length: f64 =
-                live.iter().map(|g| g.iter().zip(unit.iter()).map(|(&a, b)| f64::from(a) * b).sum::<f64>()).sum();
-            out.iter_mut().zip(unit.iter()).for_each(|(o, u)| *o = length * u);
         }
     }
     out.into_iter().map(|v| v as f32).collect()
+}
+
+/// The coefficients `a_n` with `combine(scheme, grads, weights) = sum_n a_n g_n`: every scheme
+/// is a linear combination of the per-loss gradients, so the trainer can keep `a` from a step
+/// that measured each gradient and reuse it for steps that take one backward pass of
+/// `sum_n a_n L_n` (the lagged combination of `TrainConfig::grad_refresh`).
+///
+/// # Panics
+/// As [`combine`].
+pub fn coefficients(scheme: GradCombine, grads: &[Vec<f32>], weights: &[f64]) -> Vec<f64> {
+    assert!(!grads.is_empty() && weights.len() == grads.len(), "one weight per gradient");
+    let p = grads[0].len();
+    assert!(grads.iter().all(|g| g.len() == p), "gradients of different lengths");
+    let norms: Vec<f64> = grads.iter().map(|g| norm(g)).collect();
+    match scheme {
+        GradCombine::Sum => weights.to_vec(),
+        GradCombine::Normalize => {
+            let n0 = norms[0];
+            let mut a: Vec<f64> =
+                weights.iter().zip(&norms).map(|(&w, &n)| if n == 0.0 { 0.0 } else { w * n0 / n }).collect();
+            // The rescale of the sum to |g_0|.
+            let mut sum = vec![0.0f64; p];
+            for (g, &c) in grads.iter().zip(&a) {
+                for (o, &v) in sum.iter_mut().zip(g) {
+                    *o += c * f64::from(v);
+                }
+            }
+            let n = sum.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if n > 0.0 {
+                a.iter_mut().for_each(|c| *c *= n0 / n);
+            }
+            a
+        }
+        GradCombine::Config => {
+            let live: Vec<usize> = (0..grads.len()).filter(|&i| norms[i] > 0.0).collect();
+            let mut a = vec![0.0; grads.len()];
+            if live.is_empty() {
+                return a;
+            }
+            let m = live.len();
+            let units = DMatrix::from_fn(p, m, |r, c| f64::from(grads[live[c]][r]) / norms[live[c]]);
+            let gram = units.transpose() * &units;
+            let coeff = gram.pseudo_inverse(1e-12).expect("pseudo-inverse of a small Gram matrix")
+                * DVector::from_element(m, 1.0);
+            let d = &units * &coeff;
+            let dn = d.norm();
+            if dn == 0.0 {
+                return a;
+            }
+            // The conflict-free direction, scaled by the sum of the gradients' projections on it.
+            let length: f64 = live
+                .iter()
+                .map(|&i| grads[i].iter().zip(d.iter()).map(|(&g, v)| f64::from(g) * v).sum::<f64>())
+                .sum::<f64>()
+                / dn;
+            for (c, &i) in live.iter().enumerate() {
+                a[i] = length / dn * coeff[c] / norms[i];
+            }
+            a
+        }
+    }
 }
 
 /// Scales `g` so its global L2 norm is at most `max_norm`; returns the norm before clipping.

@@ -187,21 +187,25 @@ pub fn loss(kind: LossKind, net: &PincNet, params: &VehicleParams, batch: &Batch
     }
 }
 
-/// All active losses in one graph (the plain-sum scheme needs only their weighted total, so
-/// the rollout is shared between the two rollout losses): `(weighted total, per-loss values)`.
+/// The active losses in one graph, weighted by `weights` (parallel to `cfg.losses`; a zero
+/// weight leaves that loss out, uncomputed). The rollout is shared between the two rollout
+/// losses. Returns `(weighted total, per-loss values)`, `None` for the losses left out.
+///
+/// # Panics
+/// If `weights` is not parallel to `cfg.losses` or every weight is zero.
 pub fn joint_losses(
     cfg: &TrainConfig,
     net: &PincNet,
     params: &VehicleParams,
     batch: &Batch,
-) -> (Tensor<1>, Vec<Tensor<1>>) {
+    weights: &[f64],
+) -> (Tensor<1>, Vec<Option<Tensor<1>>>) {
+    assert_eq!(weights.len(), cfg.losses.len(), "one weight per active loss");
     let mut values: Vec<Option<Tensor<1>>> = vec![None; cfg.losses.len()];
-    let pos = |k: LossKind| cfg.losses.iter().position(|&l| l == k);
-    if let (Some(r), true) =
-        (&batch.rollout, pos(LossKind::Rollout).is_some() || pos(LossKind::PhysicsRollout).is_some())
-    {
+    let pos = |k: LossKind| cfg.losses.iter().position(|&l| l == k).filter(|&i| weights[i] != 0.0);
+    let (pr, pp) = (pos(LossKind::Rollout), pos(LossKind::PhysicsRollout));
+    if let (Some(r), true) = (&batch.rollout, pr.is_some() || pp.is_some()) {
         let t_end = batch.t_end.clone().narrow(0, 0, 1).into_scalar::<f32>();
-        let (pr, pp) = (pos(LossKind::Rollout), pos(LossKind::PhysicsRollout));
         let (d, p) = rollout_losses(net, params, r, t_end, pr.is_some(), pp.is_some());
         if let Some(i) = pr {
             values[i] = d;
@@ -211,11 +215,15 @@ pub fn joint_losses(
         }
     }
     for (i, &k) in cfg.losses.iter().enumerate() {
-        if values[i].is_none() {
+        if values[i].is_none() && weights[i] != 0.0 {
             values[i] = Some(loss(k, net, params, batch));
         }
     }
-    let values: Vec<Tensor<1>> = values.into_iter().map(|v| v.expect("every loss computed")).collect();
-    let total = values.iter().zip(&cfg.weights).map(|(v, &w)| v.clone() * w).reduce(|a, b| a + b).expect("data loss");
+    let total = values
+        .iter()
+        .zip(weights)
+        .filter_map(|(v, &w)| v.as_ref().map(|v| v.clone() * w))
+        .reduce(|a, b| a + b)
+        .expect("at least one weighted loss");
     (total, values)
 }

@@ -9,8 +9,8 @@ mod net;
 mod physics;
 mod trainer;
 
-pub use config::{Backend, LossKind, TrainConfig};
-pub use grad_combine::{GradCombine, clip_global_norm, combine};
+pub use config::{Backend, LossKind, LrSchedule, TrainConfig};
+pub use grad_combine::{GradCombine, clip_global_norm, coefficients, combine};
 pub use losses::{Batch, RolloutBatch, joint_losses, loss};
 pub use net::{LAYER_NORM_EPS, PincNet, Prediction};
 pub use physics::rhs;

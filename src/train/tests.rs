@@ -61,3 +61,41 @@ fn exported_weights_round_trip_through_the_frozen_format() {
     assert_eq!(PincNet::init(&arch, 7, &device).weights(), model.weights);
     assert_ne!(PincNet::init(&arch, 8, &device).weights(), model.weights);
 }
+
+#[test]
+fn a_lagged_step_with_fresh_coefficients_is_the_per_loss_combination() {
+    // One backward pass of sum_n a_n L_n equals the scheme's combination of the per-loss
+    // gradients when a_n come from those gradients: what a lagged step reuses is exact at the
+    // step that measured it, for every scheme.
+    use crate::dataset::{DatasetPreset, generate_set};
+    use rand::SeedableRng;
+    let device = Device::flex().autodiff();
+    let mut spec = DatasetPreset::paper().set("train").unwrap().clone();
+    spec.count = 3;
+    let set = generate_set(&spec, &VehicleParams::default(), 5, || {});
+    let mut cfg = TrainConfig::paper();
+    cfg.rollout_steps = 5;
+    cfg.rollout_stride = 7;
+    let net = PincNet::init(&cfg.architecture, 3, &device);
+    let params = VehicleParams::default();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    let batch = Batch::new(&set, &[0, 1, 2], &cfg, &mut rng, &device);
+    let grads: Vec<Vec<f32>> =
+        cfg.losses.iter().map(|&k| trainer::flatten(&net, &loss(k, &net, &params, &batch).backward())).collect();
+    for scheme in [GradCombine::Sum, GradCombine::Normalize, GradCombine::Config] {
+        let want = combine(scheme, &grads, &cfg.weights);
+        let a = coefficients(scheme, &grads, &cfg.weights);
+        let (total, values) = joint_losses(&cfg, &net, &params, &batch, &a);
+        assert!(values.iter().all(Option::is_some), "{scheme:?}: a loss left out");
+        let got = trainer::flatten(&net, &total.backward());
+        let scale = want.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert!((g - w).abs() <= 1e-4 * scale, "{scheme:?} parameter {i}: {g} vs {w} (max |g| {scale})");
+        }
+    }
+    // A zero weight leaves the loss out of the graph.
+    let mut w = cfg.weights.clone();
+    w[1] = 0.0;
+    let (_, values) = joint_losses(&cfg, &net, &params, &batch, &w);
+    assert!(values[1].is_none() && values[0].is_some());
+}

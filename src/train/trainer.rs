@@ -3,8 +3,8 @@
 //! runtime, and a clean stop on interruption or a non-finite loss.
 
 use super::GradCombine;
-use super::config::{Backend, LossKind, TrainConfig};
-use super::grad_combine::{clip_global_norm, combine};
+use super::config::{Backend, LossKind, LrSchedule, TrainConfig};
+use super::grad_combine::{clip_global_norm, coefficients, combine};
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
@@ -48,7 +48,8 @@ pub struct EpochRecord {
     pub epoch: usize,
     /// Learning rate used in the epoch.
     pub lr: f64,
-    /// Mean of each active loss over the epoch's batches, in the configuration's order.
+    /// Mean of each loss over the epoch's batches, in the configuration's order (NaN for a
+    /// loss the curriculum still held back).
     pub train: Vec<(LossKind, f64)>,
     /// One-step MSE on the dev set after the epoch.
     pub dev_one_step: f64,
@@ -169,7 +170,7 @@ impl ModuleVisitor for SplitGrads<'_> {
     }
 }
 
-fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
+pub(super) fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
     let mut v = FlattenGrads { grads, out: Vec::with_capacity(net.num_params()) };
     net.visit(&mut v);
     v.out
@@ -247,12 +248,14 @@ pub fn train(
     let mut schedule = Schedule { plateau: Plateau { best: f64::INFINITY, bad: 0 }, smoothed: f64::NAN, lr: cfg.lr };
     let mut history = Vec::new();
     let mut stop = StopReason::Completed;
-    let mut timing = StepTiming::default();
+    let mut steps = Steps::default();
     let mut order: Vec<usize> = (0..train_set.count).collect();
     for epoch in 1..=cfg.epochs {
         order.shuffle(&mut rng);
+        let active = run.active(epoch);
         let losses;
-        (net, losses) = run.epoch(epoch, net, &mut optim, &order, schedule.lr, &mut rng, interrupt, &mut timing);
+        (net, losses) =
+            run.epoch(epoch, net, &mut optim, &order, &mut schedule, &mut rng, interrupt, &mut steps, &active);
         let losses = match losses {
             Ok(losses) => losses,
             Err(reason) => {
@@ -260,7 +263,9 @@ pub fn train(
                 break;
             }
         };
-        let record = run.close_epoch(epoch, &net, losses, &mut schedule, &mut best);
+        // Under the curriculum, only weights trained with every loss count.
+        let complete = active.iter().all(|&on| on);
+        let record = run.close_epoch(epoch, &net, losses, &mut schedule, &mut best, complete);
         on_epoch(&record);
         history.push(record);
         if cfg.time_limit_s.is_some_and(|t| run.start.elapsed().as_secs_f64() >= t) && epoch < cfg.epochs {
@@ -274,7 +279,7 @@ pub fn train(
         history,
         stop,
         seconds: run.start.elapsed().as_secs_f64(),
-        step_ms: 1e3 * timing.seconds / timing.steps.max(1) as f64,
+        step_ms: 1e3 * steps.seconds / steps.taken.max(1) as f64,
     })
 }
 
@@ -341,11 +346,17 @@ struct Schedule {
     lr: f64,
 }
 
-/// Optimisation steps taken and the wall time they took.
+/// Optimisation steps taken, the wall time they took, and the lagged combination.
 #[derive(Default)]
-struct StepTiming {
-    steps: usize,
+struct Steps {
+    taken: usize,
     seconds: f64,
+    /// Combination coefficients of the last step that measured every loss's gradient (zero
+    /// for a loss left out), and how many steps ago that was.
+    coefficients: Option<Vec<f64>>,
+    /// The active losses when the coefficients were measured.
+    measured_on: Option<Vec<bool>>,
+    since_refresh: usize,
 }
 
 impl<'a> Run<'a> {
@@ -385,9 +396,23 @@ impl<'a> Run<'a> {
         (model, metrics)
     }
 
+    /// How far the run is through its budget, in [0, 1]: the larger of the epochs' share and
+    /// the wall clock's share of the time limit. `within` is the fraction of `epoch` done.
+    fn progress(&self, epoch: usize, within: f64) -> f64 {
+        let by_epochs = (epoch as f64 - 1.0 + within) / self.cfg.epochs as f64;
+        let by_time = self.cfg.time_limit_s.map_or(0.0, |t| self.start.elapsed().as_secs_f64() / t);
+        by_epochs.max(by_time).clamp(0.0, 1.0)
+    }
+
+    /// Which losses train in `epoch` (the curriculum holds the physics back at first).
+    fn active(&self, epoch: usize) -> Vec<bool> {
+        let physics_on = self.progress(epoch, 0.0) >= self.cfg.physics_after;
+        self.cfg.losses.iter().map(|&k| physics_on || !TrainConfig::is_physics(k)).collect()
+    }
+
     /// One pass over the training set in `order`: per batch, the losses and their
-    /// gradients, combined and clipped, and one AdamW step. Returns the mean of each loss,
-    /// or why the run stops.
+    /// gradients, combined and clipped, and one AdamW step. Returns the mean of each loss
+    /// (NaN for one held back), or why the run stops.
     #[allow(clippy::too_many_arguments)] // the run's mutable state, each named
     fn epoch(
         &self,
@@ -395,22 +420,28 @@ impl<'a> Run<'a> {
         mut net: PincNet,
         optim: &mut ModuleOptimizer,
         order: &[usize],
-        lr: f64,
+        schedule: &mut Schedule,
         rng: &mut ChaCha8Rng,
         interrupt: &AtomicBool,
-        timing: &mut StepTiming,
+        steps: &mut Steps,
+        active: &[bool],
     ) -> (PincNet, Result<Vec<f64>, StopReason>) {
         let cfg = self.cfg;
         let mut sums = vec![0.0; cfg.losses.len()];
-        let mut batches = 0usize;
-        for chunk in order.chunks(cfg.batch) {
+        let mut counts = vec![0usize; cfg.losses.len()];
+        let batches = order.len().div_ceil(cfg.batch);
+        for (b, chunk) in order.chunks(cfg.batch).enumerate() {
             if interrupt.load(Ordering::Relaxed) {
                 return (net, Err(StopReason::Interrupted { epoch }));
             }
+            if cfg.lr_schedule == LrSchedule::Cosine {
+                let p = self.progress(epoch, b as f64 / batches as f64);
+                schedule.lr = cfg.lr_min + 0.5 * (cfg.lr - cfg.lr_min) * (1.0 + (std::f64::consts::PI * p).cos());
+            }
             let t0 = Instant::now();
             let batch = Batch::new(self.train_set, chunk, cfg, rng, &self.device);
-            let (values, mut g) = self.gradients(&net, &batch);
-            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            let (values, mut g) = self.gradients(&net, &batch, &active, steps);
+            if let Some(i) = values.iter().position(|v| v.is_some_and(|v| !v.is_finite())) {
                 return (net, Err(StopReason::NonFiniteLoss { epoch, loss: cfg.losses[i] }));
             }
             if g.iter().any(|v| !v.is_finite()) {
@@ -419,34 +450,66 @@ impl<'a> Run<'a> {
             clip_global_norm(&mut g, cfg.clip_norm);
             let mut split = SplitGrads { flat: &g, offset: 0, device: self.plain.clone(), out: GradientsParams::new() };
             net.visit(&mut split);
-            net = optim.step(lr, net, split.out);
-            timing.seconds += t0.elapsed().as_secs_f64();
-            timing.steps += 1;
-            for (s, v) in sums.iter_mut().zip(&values) {
-                *s += v;
+            net = optim.step(schedule.lr, net, split.out);
+            steps.seconds += t0.elapsed().as_secs_f64();
+            steps.taken += 1;
+            for ((s, c), v) in sums.iter_mut().zip(&mut counts).zip(&values) {
+                if let Some(v) = v {
+                    *s += v;
+                    *c += 1;
+                }
             }
-            batches += 1;
         }
-        (net, Ok(sums.into_iter().map(|s| s / batches.max(1) as f64).collect()))
+        let means = sums.into_iter().zip(counts).map(|(s, c)| if c == 0 { f64::NAN } else { s / c as f64 });
+        (net, Ok(means.collect()))
     }
 
-    /// The value of every active loss on `batch` and the combined flat gradient: one
-    /// backward pass of their sum, or one per loss combined by the configured scheme.
-    fn gradients(&self, net: &PincNet, batch: &Batch) -> (Vec<f64>, Vec<f32>) {
+    /// The value of every active loss on `batch` (`None` where not computed) and the combined
+    /// flat gradient: one backward pass of the weighted sum (the plain-sum scheme, or a lagged
+    /// step reusing the last measured combination), or one pass per loss combined by the
+    /// configured scheme (every `grad_refresh`-th step, and whenever the active set changes).
+    fn gradients(
+        &self,
+        net: &PincNet,
+        batch: &Batch,
+        active: &[bool],
+        steps: &mut Steps,
+    ) -> (Vec<Option<f64>>, Vec<f32>) {
         let cfg = self.cfg;
-        if cfg.grad == GradCombine::Sum {
-            let (total, values) = joint_losses(cfg, net, &self.params, batch);
+        let joint = |weights: &[f64]| {
+            let (total, values) = joint_losses(cfg, net, &self.params, batch, weights);
             let g = flatten(net, &total.backward());
-            return (values.into_iter().map(|v| f64::from(v.into_scalar::<f32>())).collect(), g);
+            (values.into_iter().map(|v| v.map(|v| f64::from(v.into_scalar::<f32>()))).collect(), g)
+        };
+        if cfg.grad == GradCombine::Sum {
+            let w: Vec<f64> = cfg.weights.iter().zip(active).map(|(&w, &on)| if on { w } else { 0.0 }).collect();
+            return joint(&w);
         }
-        let mut values = Vec::new();
-        let mut grads = Vec::new();
-        for &k in &cfg.losses {
+        let stale = steps.measured_on.as_deref() != Some(active) || steps.since_refresh + 1 >= cfg.grad_refresh;
+        if !stale {
+            steps.since_refresh += 1;
+            return joint(steps.coefficients.as_ref().expect("measured before"));
+        }
+        let mut values = vec![None; cfg.losses.len()];
+        let (mut grads, mut weights, mut which) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, &k) in cfg.losses.iter().enumerate() {
+            if !active[i] {
+                continue;
+            }
             let l = loss(k, net, &self.params, batch);
             grads.push(flatten(net, &l.backward()));
-            values.push(f64::from(l.into_scalar::<f32>()));
+            values[i] = Some(f64::from(l.into_scalar::<f32>()));
+            weights.push(cfg.weights[i]);
+            which.push(i);
         }
-        (values, combine(cfg.grad, &grads, &cfg.weights))
+        let mut a = vec![0.0; cfg.losses.len()];
+        for (&i, c) in which.iter().zip(coefficients(cfg.grad, &grads, &weights)) {
+            a[i] = c;
+        }
+        steps.coefficients = Some(a);
+        steps.measured_on = Some(active.to_vec());
+        steps.since_refresh = 0;
+        (values, combine(cfg.grad, &grads, &weights))
     }
 
     /// After an epoch: dev metrics, the learning-rate schedule, best-on-dev selection, and
@@ -458,6 +521,7 @@ impl<'a> Run<'a> {
         losses: Vec<f64>,
         schedule: &mut Schedule,
         best: &mut Best,
+        complete: bool,
     ) -> EpochRecord {
         let cfg = self.cfg;
         let (frozen, (one, roll, v)) = self.measure(net, epoch);
@@ -467,8 +531,10 @@ impl<'a> Run<'a> {
             cfg.dev_smoothing * roll + (1.0 - cfg.dev_smoothing) * schedule.smoothed
         };
         let used_lr = schedule.lr;
-        schedule.lr = schedule.plateau.update(cfg, schedule.smoothed, schedule.lr);
-        let is_best = v > best.vpt || (v == best.vpt && roll < best.rollout10);
+        if cfg.lr_schedule == LrSchedule::Plateau {
+            schedule.lr = schedule.plateau.update(cfg, schedule.smoothed, schedule.lr);
+        }
+        let is_best = complete && (v > best.vpt || (v == best.vpt && roll < best.rollout10));
         if is_best {
             *best = Best::of(frozen, epoch, (one, roll, v));
         }

@@ -75,7 +75,11 @@ fn paper_scaling_and_excitations_follow_the_protocol() {
 fn mpc_preset_stays_in_its_envelope() {
     let preset = DatasetPreset::mpc();
     let Excitation::Mixed { lo, hi } = preset.sets[0].excitation.clone() else { panic!("mpc uses mixed excitation") };
-    assert_eq!((lo, hi), ([-10.0, -5.0, -5.0, -1.0], [10.0, 5.0, 20.0, 1.0]));
+    // The BlueROV2's thrust: 9 kgf surge and sway, 7 kgf heave, 9 kgf on a 0.1888 m yaw arm.
+    assert_eq!((lo, hi), ([-88.3, -88.3, -68.7, -23.6], [88.3, 88.3, 68.7, 23.6]));
+    let kgf = 9.80665;
+    assert!((hi[0] - 9.0 * kgf).abs() < 0.05 && (hi[2] - 7.0 * kgf).abs() < 0.05);
+    assert!((hi[3] - hi[0] * 0.1888 / std::f64::consts::FRAC_1_SQRT_2).abs() < 0.05);
     let data = dataset::generate(&preset, 3, || {});
     let train = data.set("train").unwrap();
     assert_eq!((train.count, train.points), (2000, 66));
@@ -87,7 +91,7 @@ fn mpc_preset_stays_in_its_envelope() {
     // Excitation reaches the corners of the envelope (depth and heading manoeuvres).
     let max_z = train.inputs.iter().map(|u| u[2]).fold(f64::MIN, f64::max);
     let max_mz = train.inputs.iter().map(|u| u[3].abs()).fold(0.0, f64::max);
-    assert!(max_z > 19.0 && max_mz > 0.95);
+    assert!(max_z > 0.95 * hi[2] && max_mz > 0.95 * hi[3]);
     let v = dataset::reachable_velocities(&Default::default(), lo, hi);
     for i in 0..train.count {
         let s0 = to_simulator(&train.trajectory(i).0[0]);

@@ -5,7 +5,7 @@
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::model::PincModel;
 use pinc::runtime::Predictor;
-use pinc::train::{Backend, LossKind, StopReason, TrainConfig, train};
+use pinc::train::{Backend, LossKind, LrSchedule, StopReason, TrainConfig, train};
 use pinc::{Input, State};
 use std::sync::atomic::AtomicBool;
 
@@ -103,4 +103,32 @@ fn a_time_budget_ends_training_after_the_epoch_that_spends_it() {
     cfg.time_limit_s = Some(0.0);
     let e = train(&cfg, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).err().unwrap();
     assert!(e.to_string().contains("time_limit_s"), "{e}");
+}
+
+#[test]
+fn the_cosine_schedule_falls_to_the_floor_and_the_curriculum_holds_the_physics_back() {
+    let (train_set, dev) = (set("train", 8), set("dev", 6));
+    let mut cfg = tiny_config(6);
+    cfg.lr_schedule = LrSchedule::Cosine;
+    cfg.physics_after = 0.5;
+    cfg.grad_refresh = 3;
+    let out = train(&cfg, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).unwrap();
+    assert_eq!(out.history.len(), 6);
+    // Two batches per epoch; the record keeps the rate of the epoch's last step, at
+    // progress (epoch - 1 + 1/2) / 6.
+    for r in &out.history {
+        let p = (r.epoch as f64 - 0.5) / 6.0;
+        let want = cfg.lr_min + 0.5 * (cfg.lr - cfg.lr_min) * (1.0 + (std::f64::consts::PI * p).cos());
+        assert!((r.lr - want).abs() < 1e-12, "epoch {}: lr {} vs {want}", r.epoch, r.lr);
+    }
+    // Epochs 1-3 start before half the budget: data and rollout only.
+    for r in &out.history {
+        for &(k, v) in &r.train {
+            let held = TrainConfig::is_physics(k) && r.epoch <= 3;
+            assert_eq!(v.is_nan(), held, "epoch {} {}: {v}", r.epoch, k.name());
+        }
+    }
+    // Only weights trained with every loss may be kept.
+    assert!(out.best_epoch == 0 || out.best_epoch >= 4, "best epoch {}", out.best_epoch);
+    assert!(out.history.iter().take(3).all(|r| !r.best));
 }

@@ -16,6 +16,7 @@ use trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, w
 mod eval_cmd;
 mod identify_cmd;
 mod import_cmd;
+mod sweep_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
@@ -143,6 +144,9 @@ enum Command {
     /// The paper's metrics L1..L5 and VPT1..3 on freshly generated sets (or the metrics on a
     /// dataset folder's test split with --data), and a rollout plot.
     Eval(eval_cmd::EvalArgs),
+    /// Mean VPT against the sample period for one or more models on the same generated sets,
+    /// as a table (or --json) and a PNG.
+    VptSweep(sweep_cmd::SweepArgs),
     /// Datasets from recorded runs.
     Dataset {
         #[command(subcommand)]
@@ -213,6 +217,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
         Command::Eval(args) => eval_cmd::run_eval(args),
+        Command::VptSweep(args) => sweep_cmd::run_sweep(args),
         Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
         Command::Identify(args) => identify_cmd::run_identify(args),
     };

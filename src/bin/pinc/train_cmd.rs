@@ -8,7 +8,9 @@ use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::eval::{Metrics, evaluate};
 use pinc::model::Activation;
 use pinc::plot::{Panel, Series, figure};
-use pinc::train::{Backend, EpochRecord, GradCombine, LossKind, StopReason, TrainConfig, TrainOutcome, train};
+use pinc::train::{
+    Backend, EpochRecord, GradCombine, LossKind, LrSchedule, StopReason, TrainConfig, TrainOutcome, train,
+};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -67,6 +69,22 @@ pub struct TrainArgs {
     /// Epochs without improvement of the smoothed dev loss before the rate halves [default: 100].
     #[arg(long)]
     pub patience: Option<usize>,
+    /// Learning-rate schedule: reduce-on-plateau, or a cosine from --lr to 1e-4 over the
+    /// budget (--time-limit, or --epochs) [default: plateau].
+    #[arg(long, value_enum)]
+    pub lr_schedule: Option<ScheduleName>,
+    /// Measure each loss's gradient every N-th step and reuse the combination in between
+    /// (one backward pass per step instead of one per loss) [default: 1].
+    #[arg(long)]
+    pub grad_refresh: Option<usize>,
+    /// Weight of the physics, ic and physics-rollout losses (data and rollout keep 1)
+    /// [default: the paper's 0.5].
+    #[arg(long)]
+    pub physics_weight: Option<f64>,
+    /// Curriculum: the physics, ic and physics-rollout losses join after this fraction of the
+    /// budget [default: 0].
+    #[arg(long)]
+    pub physics_after: Option<f64>,
     /// Wall-clock budget in minutes: stop after the epoch that reaches it.
     #[arg(long)]
     pub time_limit: Option<f64>,
@@ -106,6 +124,13 @@ pub enum GradName {
     Sum,
     Normalize,
     Config,
+}
+
+/// Learning-rate schedules on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum ScheduleName {
+    Plateau,
+    Cosine,
 }
 
 /// burn backends on the command line.
@@ -157,6 +182,24 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     cfg.lr = a.lr.unwrap_or(cfg.lr);
     cfg.patience = a.patience.unwrap_or(cfg.patience);
     cfg.time_limit_s = a.time_limit.map(|m| m * 60.0);
+    if let Some(sched) = a.lr_schedule {
+        cfg.lr_schedule = match sched {
+            ScheduleName::Plateau => LrSchedule::Plateau,
+            ScheduleName::Cosine => LrSchedule::Cosine,
+        };
+    }
+    cfg.grad_refresh = a.grad_refresh.unwrap_or(cfg.grad_refresh);
+    if let Some(w) = a.physics_weight {
+        if !(w.is_finite() && w > 0.0) {
+            return Err(format!("--physics-weight {w}: need a positive number"));
+        }
+        for (k, weight) in cfg.losses.iter().zip(&mut cfg.weights) {
+            if TrainConfig::is_physics(*k) {
+                *weight = w;
+            }
+        }
+    }
+    cfg.physics_after = a.physics_after.unwrap_or(cfg.physics_after);
     cfg.input_noise = a.noise.unwrap_or(cfg.input_noise);
     cfg.backend = match a.backend {
         BackendName::Ndarray => Backend::Ndarray,
