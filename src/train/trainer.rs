@@ -352,10 +352,11 @@ struct Steps {
     taken: usize,
     seconds: f64,
     /// Combination coefficients of the last step that measured every loss's gradient (zero
-    /// for a loss left out), and how many steps ago that was.
+    /// for a loss left out).
     coefficients: Option<Vec<f64>>,
     /// The active losses when the coefficients were measured.
     measured_on: Option<Vec<bool>>,
+    /// Steps since that measurement.
     since_refresh: usize,
 }
 
@@ -440,7 +441,7 @@ impl<'a> Run<'a> {
             }
             let t0 = Instant::now();
             let batch = Batch::new(self.train_set, chunk, cfg, rng, &self.device);
-            let (values, mut g) = self.gradients(&net, &batch, &active, steps);
+            let (values, mut g) = self.gradients(&net, &batch, active, steps);
             if let Some(i) = values.iter().position(|v| v.is_some_and(|v| !v.is_finite())) {
                 return (net, Err(StopReason::NonFiniteLoss { epoch, loss: cfg.losses[i] }));
             }

@@ -298,3 +298,38 @@ fn vehicle_files_reach_simulate_and_gen_data_and_bad_ones_are_one_line_errors() 
         assert!(err.contains("bad.toml") && err.contains(expected), "{err}");
     }
 }
+
+#[test]
+fn vpt_sweep_measures_every_period_against_its_cap_and_refuses_bad_ranges() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("sweep.png");
+    let dnn = format!("{}/models/paper_dnn.pinc", env!("CARGO_MANIFEST_DIR"));
+    let pinc_model = format!("{}/models/paper_pinc.pinc", env!("CARGO_MANIFEST_DIR"));
+    let args = ["--t-min", "0.06", "--t-max", "0.1", "--t-step", "0.02", "--count", "40", "--seed", "9"];
+    let out = pinc(
+        &[&["vpt-sweep", "--model", &dnn, "--model", &pinc_model, "--json", "--out", png.to_str().unwrap()], &args[..]]
+            .concat(),
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let periods: Vec<f64> = serde_json::from_value(v["periods_s"].clone()).unwrap();
+    assert_eq!(periods, vec![0.06, 0.08, 0.1]);
+    let cap: Vec<f64> = serde_json::from_value(v["max_vpt_s"].clone()).unwrap();
+    let dnn_vpt: Vec<f64> = serde_json::from_value(v["vpt_s"]["paper_dnn"].clone()).unwrap();
+    let pinc_vpt: Vec<f64> = serde_json::from_value(v["vpt_s"]["paper_pinc"].clone()).unwrap();
+    for i in 0..3 {
+        assert!((cap[i] - 65.0 * periods[i]).abs() < 1e-9);
+        assert!(dnn_vpt[i] > 0.0 && dnn_vpt[i] <= cap[i] && pinc_vpt[i] > 0.0 && pinc_vpt[i] <= cap[i]);
+    }
+    // The data-only network only knows its training period: its VPT peaks there, and the
+    // PINC keeps more of it at the periods either side.
+    assert!(dnn_vpt[1] > 2.0 * dnn_vpt[0] && dnn_vpt[1] > 2.0 * dnn_vpt[2], "{dnn_vpt:?}");
+    assert!(pinc_vpt[0] > dnn_vpt[0] && pinc_vpt[2] > dnn_vpt[2], "{pinc_vpt:?} vs {dnn_vpt:?}");
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+    for bad in [["--t-min", "0.1", "--t-max", "0.05"], ["--t-step", "0", "--t-max", "0.1"]] {
+        let out = pinc(&[&["vpt-sweep", "--model", &dnn], &bad[..]].concat());
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("need 0 < t-min <= t-max"), "{err}");
+    }
+}
