@@ -1,7 +1,7 @@
 //! Identification of a vehicle that differs from the BlueROV2 by 20-40 % in every coefficient,
 //! from noise-free and from noisy trajectories.
 
-use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
+use pinc::dataset::{DatasetPreset, Excitation, TrajectorySet, generate_set, reachable_velocities};
 use pinc::identify::{ESTIMATED, identify};
 use pinc::vehicle::VehicleParams;
 use rand::SeedableRng;
@@ -23,10 +23,18 @@ fn value(p: &VehicleParams, key: &str) -> f64 {
     p.named().into_iter().find(|(k, _)| *k == key).unwrap().1
 }
 
-/// Mixed steps, ramps and multisines on every channel (the `mpc` preset's training inputs).
+/// Mixed steps, ramps and multisines on every channel (the `mpc` preset's kind of inputs),
+/// within a gentle envelope (`|X| <= 10`, `|Y| <= 5`, `-5 <= Z <= 20` N, `|Mz| <= 1` N m, a
+/// tenth of the thrust or less): what a team would dare on a first run, and slow enough that
+/// the linear damping terms still matter beside the quadratic ones.
 fn data(count: usize) -> TrajectorySet {
+    let (lo, hi) = ([-10.0, -5.0, -5.0, -1.0], [10.0, 5.0, 20.0, 1.0]);
     let preset = DatasetPreset::mpc_for(truth());
-    let spec = pinc::dataset::SetSpec { count, ..preset.set("train").unwrap().clone() };
+    let mut spec = pinc::dataset::SetSpec { count, ..preset.set("train").unwrap().clone() };
+    spec.excitation = Excitation::Mixed { lo, hi };
+    let v = reachable_velocities(&truth(), lo, hi);
+    spec.initial.lo[4..].copy_from_slice(&v.lo);
+    spec.initial.hi[4..].copy_from_slice(&v.hi);
     generate_set(&spec, &truth(), 7, || {})
 }
 
