@@ -43,19 +43,23 @@ fn shipped_paper_models_carry_their_provenance_and_envelope() {
 }
 
 #[test]
-fn shipped_pinc_beats_the_data_only_baseline_at_sample_periods_it_was_not_fitted_on() {
-    // The data-only network only ever sees t = T; the physics and initial-condition losses
-    // teach the PINC what its time input means, so it keeps predicting at 0.06 s and 0.10 s.
+fn shipped_pinc_matches_the_data_only_network_at_its_period_and_far_outdoes_it_elsewhere() {
+    // Seed 7, 200 trajectories per set (measured: PINC 3.84 / 3.39 / 3.47 s, data-only
+    // 3.57 / 0.78 / 1.17 s). On 1000-trajectory sets of seeds 20 and 21 the two are within
+    // 0.07 s at T = 0.08 s, either way (docs/RESULTS.md).
     let (pinc, dnn) = (shipped("paper_pinc.pinc"), shipped("paper_dnn.pinc"));
+    let dev = fresh("dev_eval", 7);
+    let (a, b) = (mean_vpt(&pinc, &dev), mean_vpt(&dnn, &dev));
+    assert!(a > 3.5 && b > 3.3, "dev VPT: PINC {a:.3} s, data-only {b:.3} s");
+    assert!(a > b - 0.1, "dev: PINC VPT {a:.3} s is more than 0.1 s below the data-only {b:.3} s");
+    // The data-only network only ever sees t = T; the physics and initial-condition losses,
+    // with collocation times inside the period, teach the PINC what its time input means.
     for set in ["interp", "extrap"] {
         let s = fresh(set, 7);
         let (a, b) = (mean_vpt(&pinc, &s), mean_vpt(&dnn, &s));
-        assert!(a > b + 0.2, "{set}: PINC VPT {a:.3} s is not above the baseline's {b:.3} s");
+        assert!(a > 3.0 && a > 2.5 * b, "{set}: PINC VPT {a:.3} s against the data-only {b:.3} s");
     }
-    // At the training period both predict for well over a second.
-    let dev = fresh("dev_eval", 7);
-    for (name, m) in [("pinc", &pinc), ("dnn", &dnn)] {
-        let v = mean_vpt(m, &dev);
-        assert!(v > 1.5, "{name}: dev VPT {v:.3} s");
-    }
+    // The recipe that made it (docs/RESULTS.md): the curriculum and the cosine schedule.
+    let cfg = config(&pinc);
+    assert_eq!((cfg["physics_after"].as_f64(), cfg["lr_schedule"].as_str()), (Some(0.5), Some("Cosine")));
 }
