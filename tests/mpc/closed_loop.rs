@@ -5,7 +5,7 @@
 #![cfg(feature = "mpc")]
 
 use crate::common;
-use pinc::closed_loop::{Scenario, run, summarise};
+use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
 use pinc::model::PincModel;
 use pinc::mpc::{Fallback, Mpc, MpcConfig, Reference};
 use pinc::runtime::{EnvelopeStatus, HorizonLinearisation, Predictor, RuntimeError};
@@ -64,25 +64,23 @@ fn a_controller_without_bounds_or_with_bad_weights_is_refused() {
     assert!(e.to_string().contains("weights"), "{e}");
 }
 
+/// The default scenario with the controller on the model at `path` (bounded by its
+/// envelope), and with the same controller on the analytic vehicle: the PINC run's samples,
+/// then both summaries.
+fn pinc_against_oracle(path: &str) -> (Vec<Sample>, Summary, Summary) {
+    let model = PincModel::load(path).unwrap();
+    let pinc = Predictor::reference(&model);
+    let cfg = MpcConfig { bounds: Some(pinc.input_bounds().unwrap()), ..common::untimed() };
+    let (scenario, vehicle) = (Scenario::default(), VehicleParams::default());
+    let samples = run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), &scenario, &vehicle, |_| true);
+    let oracle = run(&mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(), &scenario, &vehicle, |_| true);
+    let s = summarise(&samples, &scenario, 1.6);
+    (samples, s, summarise(&oracle, &scenario, 1.6))
+}
+
 #[test]
 fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
-    let model = PincModel::load("models/mpc_pinc.pinc").unwrap();
-    let pinc = Predictor::reference(&model);
-    let bounds = pinc.input_bounds().unwrap();
-    let cfg = MpcConfig { bounds: Some(bounds), ..common::untimed() };
-    let samples =
-        run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), &Scenario::default(), &VehicleParams::default(), |_| true);
-    let s = summarise(&samples, &Scenario::default(), 1.6);
-    let o = summarise(
-        &run(
-            &mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(),
-            &Scenario::default(),
-            &VehicleParams::default(),
-            |_| true,
-        ),
-        &Scenario::default(),
-        1.6,
-    );
+    let (samples, s, o) = pinc_against_oracle("models/mpc_pinc.pinc");
     assert_eq!((s.samples, s.fallbacks, s.bound_violations), (750, 0, 0), "{s:?}");
     assert!(samples.iter().all(|x| x.state.iter().all(|v| v.is_finite()) && x.state[2].abs() < 3.0));
     assert!(s.rms_depth_m <= 1.1 * o.rms_depth_m, "PINC {s:?}\noracle {o:?}");
@@ -281,28 +279,14 @@ fn the_full_thrust_model_tracks_like_the_oracle_and_its_velocities_stay_in_its_e
     // preset); the MPC's bounds are that range. Measured (README): RMS 0.107 m / 3.65 deg
     // against the oracle's 0.106 m / 3.68 deg, held heading error 1.04 deg, steady errors
     // 0.95 mm / 0.16 deg, depth overshoot 4.0 cm.
-    let model = PincModel::load("models/mpc_pinc_thrust.pinc").unwrap();
-    let pinc = Predictor::reference(&model);
-    let (lo, hi) = pinc.input_bounds().unwrap();
+    let path = "models/mpc_pinc_thrust.pinc";
+    let (lo, hi) = Predictor::<f64>::reference(&PincModel::load(path).unwrap()).input_bounds().unwrap();
     let (want_lo, want_hi) = (pinc::dataset::BLUEROV2_INPUT_LO, pinc::dataset::BLUEROV2_INPUT_HI);
     for c in 0..4 {
         // The envelope is the excitation's reach: within 1 % of the thrust limits.
         assert!((lo[c] - want_lo[c]).abs() < 0.01 * want_hi[c] && (hi[c] - want_hi[c]).abs() < 0.01 * want_hi[c]);
     }
-    let cfg = MpcConfig { bounds: Some((lo, hi)), ..common::untimed() };
-    let samples =
-        run(&mut Mpc::new(pinc, cfg.clone()).unwrap(), &Scenario::default(), &VehicleParams::default(), |_| true);
-    let s = summarise(&samples, &Scenario::default(), 1.6);
-    let o = summarise(
-        &run(
-            &mut Mpc::new(Rk4Vehicle::with_dt(model.dt), cfg).unwrap(),
-            &Scenario::default(),
-            &VehicleParams::default(),
-            |_| true,
-        ),
-        &Scenario::default(),
-        1.6,
-    );
+    let (samples, s, o) = pinc_against_oracle(path);
     assert_eq!((s.samples, s.fallbacks, s.bound_violations), (750, 0, 0), "{s:?}");
     assert!(s.rms_depth_m <= 1.05 * o.rms_depth_m && s.rms_heading_deg <= 1.05 * o.rms_heading_deg, "{s:?}\n{o:?}");
     // Against the narrow model's 0.185 m / 10.0 deg: the thrust it may now use.
