@@ -29,9 +29,13 @@ fn norm(g: &[f32]) -> f64 {
 /// # Panics
 /// If `grads` is empty, lengths differ, or `weights.len() != grads.len()`.
 pub fn combine(scheme: GradCombine, grads: &[Vec<f32>], weights: &[f64]) -> Vec<f32> {
-    let a = coefficients(scheme, grads, weights);
+    weighted_sum(grads, &coefficients(scheme, grads, weights))
+}
+
+/// `sum_n a_n g_n` (what [`combine`] returns, from coefficients already known).
+pub fn weighted_sum(grads: &[Vec<f32>], a: &[f64]) -> Vec<f32> {
     let mut out = vec![0.0f64; grads[0].len()];
-    for (g, &c) in grads.iter().zip(&a) {
+    for (g, &c) in grads.iter().zip(a) {
         if c != 0.0 {
             for (o, &v) in out.iter_mut().zip(g) {
                 *o += c * f64::from(v);

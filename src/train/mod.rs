@@ -10,7 +10,7 @@ mod physics;
 mod trainer;
 
 pub use config::{Backend, LossKind, LrSchedule, TrainConfig};
-pub use grad_combine::{GradCombine, clip_global_norm, coefficients, combine};
+pub use grad_combine::{GradCombine, clip_global_norm, coefficients, combine, weighted_sum};
 pub use losses::{Batch, RolloutBatch, joint_losses, loss};
 pub use net::{LAYER_NORM_EPS, PincNet, Prediction};
 pub use physics::rhs;

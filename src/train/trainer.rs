@@ -4,7 +4,7 @@
 
 use super::GradCombine;
 use super::config::{Backend, LossKind, LrSchedule, TrainConfig};
-use super::grad_combine::{clip_global_norm, coefficients, combine};
+use super::grad_combine::{clip_global_norm, coefficients, weighted_sum};
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
@@ -503,14 +503,17 @@ impl<'a> Run<'a> {
             weights.push(cfg.weights[i]);
             which.push(i);
         }
+        // The coefficients once: the step's direction and what the lagged steps reuse.
+        let measured = coefficients(cfg.grad, &grads, &weights);
+        let g = weighted_sum(&grads, &measured);
         let mut a = vec![0.0; cfg.losses.len()];
-        for (&i, c) in which.iter().zip(coefficients(cfg.grad, &grads, &weights)) {
+        for (&i, c) in which.iter().zip(measured) {
             a[i] = c;
         }
         steps.coefficients = Some(a);
         steps.measured_on = Some(active.to_vec());
         steps.since_refresh = 0;
-        (values, combine(cfg.grad, &grads, &weights))
+        (values, g)
     }
 
     /// After an epoch: dev metrics, the learning-rate schedule, best-on-dev selection, and
