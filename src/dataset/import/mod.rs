@@ -4,10 +4,12 @@
 
 mod csv_log;
 mod mcap_log;
+mod streams;
 mod windows;
 
 pub use csv_log::read_csv;
 pub use mcap_log::{McapTopics, read_mcap};
+pub use streams::{Series, StreamSet};
 pub use windows::{SkipCounts, cut_windows};
 
 use super::{Dataset, DatasetPreset, Excitation, InitialRanges, SetSpec, TrajectorySet};
