@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # "Your own vehicle", end to end, on models/example_vehicle.toml standing in for a vehicle in
-# the water (README section "Your own vehicle"; tests/cli/own_vehicle.rs runs the same path
+# the water (docs/GUIDE_OWN_VEHICLE.md; tests/cli/own_vehicle.rs runs the same path
 # with a short training budget):
 #   closed-loop runs and excitation runs -> pinc dataset import -> pinc identify
 #   -> pinc train --data --vehicle identified.toml -> pinc eval --data -> mpc_track --model
@@ -33,7 +33,7 @@ printf 'm = 14.25\nizz = 0.3185\n' > "$OUT/base.toml"
 $PINC identify --data "$OUT/data" --vehicle "$OUT/base.toml" --out "$OUT/identified.toml" --json \
   > "$OUT/identified.json"
 # 5. A position-free PINC whose physics loss uses the identified vehicle.
-#    The settings of models/mpc_pinc.pinc (README, "Closed-loop MPC").
+#    The settings of models/mpc_pinc.pinc (docs/GUIDE_CONTROLLER.md).
 $PINC train --data "$OUT/data" --vehicle "$OUT/identified.toml" --position-free --backend flex \
   --rollout-stride 4 --patience 60 --time-limit "$MINUTES" --epochs 100000 --out "$OUT/own.pinc" --json \
   > "$OUT/train.json"

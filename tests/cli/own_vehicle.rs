@@ -1,5 +1,5 @@
 //! The whole "your own vehicle" path on a vehicle that is not the BlueROV2, through the
-//! command line (a short training budget; README gives the numbers of the real one):
+//! command line (a short training budget; docs/GUIDE_OWN_VEHICLE.md gives the numbers of the real one):
 //! closed-loop oracle runs and an excitation run -> `pinc dataset import` -> `pinc identify`
 //! -> `pinc train --data` -> `pinc eval --data` -> `mpc_track --model` against the vehicle.
 #![cfg(all(feature = "train", feature = "mpc"))]

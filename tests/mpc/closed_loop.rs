@@ -88,7 +88,7 @@ fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     assert!(s.max_overshoot_depth_m < 0.05 && s.max_overshoot_heading_deg < 5.0, "{s:?}");
     // Every depth step settles (within 5 %) before the next one.
     assert!(s.settling_depth_s.iter().all(|t| *t < 5.0), "{s:?}");
-    // The figures a pilot sees (README), with margins: today 3.0 deg held-heading error, 2.0 mm
+    // The figures a pilot sees (docs/GUIDE_CONTROLLER.md), with margins: today 3.0 deg held-heading error, 2.0 mm
     // and 0.34 deg steady errors, Mz total variation 38.6 N m against the oracle's 6.2.
     assert!(s.held_heading_error_max_deg < 4.0, "{s:?}");
     assert!(s.steady_depth_error_m < 3e-3 && s.steady_heading_error_deg < 0.5, "{s:?}");
@@ -276,7 +276,7 @@ fn perturbed_runs_are_judged_and_a_diverging_plant_is_a_counted_failure_not_a_cr
 #[test]
 fn the_full_thrust_model_tracks_like_the_oracle_and_its_velocities_stay_in_its_envelope() {
     // models/mpc_pinc_thrust.pinc: trained on the BlueROV2's whole thrust range (the mpc
-    // preset); the MPC's bounds are that range. Measured (README): RMS 0.1055 m / 3.71 deg
+    // preset); the MPC's bounds are that range. Measured (docs/GUIDE_CONTROLLER.md): RMS 0.1055 m / 3.71 deg
     // against the oracle's 0.1063 m / 3.68 deg, held heading error 0.57 deg, steady errors
     // 0.43 mm / 0.059 deg, depth overshoot 1.6 cm, Mz total variation 28.1 (oracle 28.1).
     let path = "models/mpc_pinc_thrust.pinc";
