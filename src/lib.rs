@@ -22,6 +22,8 @@ pub mod types;
 pub mod vehicle;
 
 #[cfg(feature = "tools")]
+pub mod broken_pipe;
+#[cfg(feature = "tools")]
 pub mod dataset;
 #[cfg(feature = "tools")]
 pub mod eval;

@@ -333,3 +333,29 @@ fn vpt_sweep_measures_every_period_against_its_cap_and_refuses_bad_ranges() {
         assert!(err.contains("need 0 < t-min <= t-max"), "{err}");
     }
 }
+
+/// Runs pinc with its stdout on a pipe whose reader has already gone (`pinc ... | head` once
+/// head has exited): every write fails with EPIPE.
+fn pinc_into_closed_pipe(args: &[&str]) -> Output {
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    Command::new(env!("CARGO_BIN_EXE_pinc")).args(args).stdout(writer).output().expect("run pinc")
+}
+
+#[test]
+fn writing_into_a_closed_pipe_exits_quietly_with_status_0() {
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc");
+    // `inspect` prints with println! (a panic on EPIPE without the hook), `simulate` writes
+    // through an io::Write and returns the error.
+    let dir = tempfile::tempdir().unwrap();
+    let inputs = write(dir.path(), "in.csv", &format!("X,Y,Z,Mz\n{}", "1,0,0,0\n".repeat(2000)));
+    for args in [vec!["inspect", model], vec!["simulate", "--x0", "0,0,0,0,0,0,0,0", "--inputs", &inputs]] {
+        let out = pinc_into_closed_pipe(&args);
+        assert!(out.status.success(), "{args:?}: {:?}", out.status);
+        assert_eq!(String::from_utf8_lossy(&out.stderr), "", "{args:?} must print nothing on a closed pipe");
+    }
+    // An ordinary error still reports and fails.
+    let out = pinc_into_closed_pipe(&["inspect", "no/such/model.pinc"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: "));
+}
