@@ -94,8 +94,10 @@ enum ScenarioName {
 }
 
 fn main() -> ExitCode {
+    pinc::broken_pipe::exit_quietly_on_broken_pipe();
     match try_main(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if pinc::broken_pipe::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::from(1)
@@ -434,6 +436,7 @@ fn print_summary(s: &Summary) {
         s.steady_heading_error_deg
     );
     println!("envelope exits          {} cycles", s.envelope_exits);
+    println!("heading off unit circle {} cycles", s.heading_off_circle);
 }
 
 fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) -> Result<(), String> {

@@ -134,6 +134,22 @@ int pinc_linearise_horizon(const struct PincPredictor *p,
 // `w` must be null or a live workspace.
 int pinc_envelope_exits(const struct PincWorkspace *w);
 
+// Predictions of the last call on `w` whose `(cos psi, sin psi)` was off unit length by
+// more than 1 % before the runtime rescaled it (0 for a null workspace): a warning of its
+// own, apart from envelope exits.
+//
+// # Safety
+// `w` must be null or a live workspace.
+int pinc_heading_off_circle(const struct PincWorkspace *w);
+
+// Whether `p` rescales each predicted `(cos psi, sin psi)` to unit length (`on` non-zero,
+// the default) or returns the bare network's output (`on` zero: what PyTorch computes, to
+// reproduce the paper). Set it before `p` is shared between threads.
+//
+// # Safety
+// `p` must be null or a live predictor not in use by another thread.
+int pinc_predictor_set_yaw_renormalisation(struct PincPredictor *p, int on);
+
 // The message of this thread's last failure (empty if none); valid until the next failing
 // call on this thread.
 const char *pinc_last_error(void);

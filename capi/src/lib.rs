@@ -50,6 +50,9 @@ pub struct PincWorkspace {
     /// Envelope exits of the last call (steps with a state or input outside the training
     /// envelope).
     exits: usize,
+    /// Predictions of the last call whose heading vector was off the unit circle by more
+    /// than 1 % before rescaling.
+    heading_off_circle: usize,
 }
 
 /// Length of the message buffer; longer messages are cut at a character boundary.
@@ -245,7 +248,7 @@ pub unsafe extern "C" fn pinc_workspace_new(p: *const PincPredictor, out: *mut *
         }
         // SAFETY: a live predictor (caller).
         let predictor = unsafe { &(*p).predictor };
-        let w = Box::new(PincWorkspace { ws: predictor.workspace(), exits: 0 });
+        let w = Box::new(PincWorkspace { ws: predictor.workspace(), exits: 0, heading_off_circle: 0 });
         // SAFETY: non-null (checked).
         unsafe { *out = Box::into_raw(w) };
         Ok(())
@@ -306,6 +309,7 @@ pub unsafe extern "C" fn pinc_step(
         let next = &mut as_states_mut(out)[0];
         let result = predictor.step_dt(&mut w.ws, &as_states(x)[0], &as_inputs(u)[0], dt, next);
         w.exits = w.ws.envelope_status().exits;
+        w.heading_off_circle = w.ws.envelope_status().heading_off_circle;
         result.map_err(|e| runtime_error(NAME, e))
     })
 }
@@ -364,6 +368,7 @@ pub unsafe extern "C" fn pinc_rollout(
         let h = unsafe { horizon(NAME, p, w, x0, u, n, traj) }?;
         let result = h.predictor.rollout(&mut h.w.ws, &h.x0, h.inputs, h.traj);
         h.w.exits = h.w.ws.envelope_status().exits;
+        h.w.heading_off_circle = h.w.ws.envelope_status().heading_off_circle;
         result.map_err(|e| runtime_error(NAME, e))
     })
 }
@@ -401,6 +406,7 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
         };
         traj[0] = x0;
         w.exits = 0;
+        w.heading_off_circle = 0;
         // Step by step, so that the Jacobians go straight into the caller's row-major
         // buffers: the same arithmetic as `Predictor::linearise_horizon`.
         let (mut ak, mut bk) = (StateMatrix::zeros(), InputMatrix::zeros());
@@ -408,6 +414,7 @@ pub unsafe extern "C" fn pinc_linearise_horizon(
             let x = traj[k];
             let result = predictor.linearise(&mut w.ws, &x, &inputs[k], &mut traj[k + 1], &mut ak, &mut bk);
             w.exits += w.ws.envelope_status().exits;
+            w.heading_off_circle += w.ws.envelope_status().heading_off_circle;
             result.map_err(|e| runtime_error(NAME, shift_step(e, k)))?;
             for i in 0..NX {
                 for j in 0..NX {
@@ -441,6 +448,34 @@ fn shift_step(e: RuntimeError, k: usize) -> RuntimeError {
 pub unsafe extern "C" fn pinc_envelope_exits(w: *const PincWorkspace) -> c_int {
     // SAFETY: null or live (caller).
     unsafe { w.as_ref() }.map_or(0, |w| i32::try_from(w.exits).unwrap_or(i32::MAX))
+}
+
+/// Predictions of the last call on `w` whose `(cos psi, sin psi)` was off unit length by
+/// more than 1 % before the runtime rescaled it (0 for a null workspace): a warning of its
+/// own, apart from envelope exits.
+///
+/// # Safety
+/// `w` must be null or a live workspace.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinc_heading_off_circle(w: *const PincWorkspace) -> c_int {
+    // SAFETY: null or live (caller).
+    unsafe { w.as_ref() }.map_or(0, |w| i32::try_from(w.heading_off_circle).unwrap_or(i32::MAX))
+}
+
+/// Whether `p` rescales each predicted `(cos psi, sin psi)` to unit length (`on` non-zero,
+/// the default) or returns the bare network's output (`on` zero: what PyTorch computes, to
+/// reproduce the paper). Set it before `p` is shared between threads.
+///
+/// # Safety
+/// `p` must be null or a live predictor not in use by another thread.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinc_predictor_set_yaw_renormalisation(p: *mut PincPredictor, on: c_int) -> c_int {
+    // SAFETY: null or live and not shared at this moment (caller).
+    let Some(p) = (unsafe { p.as_mut() }) else {
+        return fail(PINC_ERR_NULL, format_args!("pinc_predictor_set_yaw_renormalisation: p is null"));
+    };
+    p.predictor = p.predictor.clone().with_yaw_renormalisation(on != 0);
+    PINC_OK
 }
 
 /// The message of this thread's last failure (empty if none); valid until the next failing

@@ -225,3 +225,43 @@ fn no_entry_point_allocates_after_the_workspace_exists() {
     });
     assert_eq!(count, 0, "the C entry points allocated {count} times");
 }
+
+#[test]
+fn heading_rescaling_is_on_by_default_can_be_turned_off_and_drift_is_counted() {
+    let path = CString::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../models/mpc_pinc_thrust.pinc")).unwrap();
+    let model = PincModel::load(path.to_str().unwrap()).unwrap();
+    // A hard turn while surging and diving: the raw heading vector drifts off the circle.
+    let x0 = [0.0, 0.0, 1.0, 1.0, 0.0, 0.3, 0.0, 0.1, 0.5];
+    let inputs: Vec<pinc::Input> =
+        (0..40).map(|k| pinc::Input::new(60.0, 0.0, 30.0, if k < 20 { 20.0 } else { -20.0 })).collect();
+    let flat: Vec<f64> = inputs.iter().flat_map(|u| u.iter().copied()).collect();
+    for on in [1, 0] {
+        let rust = pinc::runtime::Predictor::new(&model).with_yaw_renormalisation(on == 1);
+        let mut ws = rust.workspace();
+        let mut want = vec![pinc::State::zeros(); 41];
+        rust.rollout(&mut ws, &pinc::State::from(x0), &inputs, &mut want).unwrap();
+        let (mut p, mut w) = (null_mut(), null_mut());
+        let mut got = vec![0.0; 41 * 9];
+        // SAFETY: valid pointers and lengths.
+        unsafe {
+            assert_eq!(pinc_predictor_load(path.as_ptr(), &mut p), PINC_OK);
+            if on == 0 {
+                assert_eq!(pinc_predictor_set_yaw_renormalisation(p, 0), PINC_OK);
+            }
+            assert_eq!(pinc_workspace_new(p, &mut w), PINC_OK);
+            assert_eq!(pinc_rollout(p, w, x0.as_ptr(), flat.as_ptr(), 40, got.as_mut_ptr()), PINC_OK);
+            let count = ws.envelope_status().heading_off_circle;
+            assert!(on == 1 || count > 0, "the bare network drifts in this case");
+            assert_eq!(pinc_heading_off_circle(w), i32::try_from(count).unwrap());
+            pinc_workspace_free(w);
+            pinc_predictor_free(p);
+        }
+        let want: Vec<f64> = want.iter().flat_map(|x| x.iter().copied()).collect();
+        assert_eq!(got, want, "renormalisation {on}");
+        let last = &got[40 * 9..];
+        assert_eq!((last[3].hypot(last[4]) - 1.0).abs() < 1e-12, on == 1);
+    }
+    // SAFETY: a null predictor is an error code, not a crash.
+    assert_eq!(unsafe { pinc_predictor_set_yaw_renormalisation(null_mut(), 1) }, PINC_ERR_NULL);
+    assert_eq!(last_error(), "pinc_predictor_set_yaw_renormalisation: p is null");
+}

@@ -78,10 +78,13 @@ struct Predictor {
 
 #[pymethods]
 impl Predictor {
+    /// `renormalise_yaw=False` returns the bare network's `(cos psi, sin psi)` (what PyTorch
+    /// computes); by default each prediction's heading vector is rescaled to unit length.
     #[new]
-    fn new(path: std::path::PathBuf) -> PyResult<Self> {
+    #[pyo3(signature = (path, renormalise_yaw = true))]
+    fn new(path: std::path::PathBuf, renormalise_yaw: bool) -> PyResult<Self> {
         let model = PincModel::load(&path).map_err(|e| PincError::new_err(format!("{}: {e}", path.display())))?;
-        let inner = RustPredictor::new(&model);
+        let inner = RustPredictor::new(&model).with_yaw_renormalisation(renormalise_yaw);
         let ws = Mutex::new(inner.workspace());
         Ok(Self { inner, ws })
     }
@@ -90,6 +93,18 @@ impl Predictor {
     #[getter]
     fn dt(&self) -> f64 {
         self.inner.dt()
+    }
+
+    /// What the last `step`, `rollout` or `linearise` saw: `{"envelope_exits": steps with a state or input outside the
+    /// training envelope, "heading_off_circle": predictions whose heading vector was off unit
+    /// length by more than 1 % before rescaling}`.
+    #[getter]
+    fn last_warnings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let status = self.ws.lock().expect("workspace lock").envelope_status();
+        let d = PyDict::new(py);
+        d.set_item("envelope_exits", status.exits)?;
+        d.set_item("heading_off_circle", status.heading_off_circle)?;
+        Ok(d)
     }
 
     /// The training envelope: `{component: (min, max)}` for the 9 state and 4 input

@@ -136,3 +136,22 @@ def test_bad_files_raise_pinc_error(tmp_path):
 def test_meaningless_vehicle_overrides_are_refused():
     with pytest.raises(ValueError, match="x_ud = 20: the effective mass"):
         pinc.simulate(np.zeros(8), np.zeros((2, 4)), vehicle={"x_ud": 20.0})
+
+
+def test_heading_vector_rescaled_by_default_bare_on_request_like_the_cli(tmp_path):
+    # The full-thrust model under a hard turn: its raw (cos psi, sin psi) drifts off the circle.
+    thrust = ROOT / "models" / "mpc_pinc_thrust.pinc"
+    s0 = [0, 0, 1, 0, 0.3, 0, 0.1, 0.5]
+    U = np.array([[60.0, 0.0, 30.0, 20.0 if k < 20 else -20.0] for k in range(40)])
+    on = pinc.Predictor(str(thrust))
+    X = on.rollout(to_network(s0), U)
+    np.testing.assert_allclose(np.hypot(X[:, 3], X[:, 4]), 1.0, rtol=0, atol=1e-12)
+    bare = pinc.Predictor(str(thrust), renormalise_yaw=False)
+    Xb = bare.rollout(to_network(s0), U)
+    assert bare.last_warnings["heading_off_circle"] > 0
+    assert abs(np.hypot(Xb[-1, 3], Xb[-1, 4]) - 1.0) > 0.01
+    csv = tmp_path / "u.csv"
+    np.savetxt(csv, U, delimiter=",", header="X,Y,Z,Mz", comments="")
+    for pred, flags in [(X, []), (Xb, ["--no-renormalise-yaw"])]:
+        want = cli("predict", "--model", thrust, "--x0", ",".join(map(str, s0)), "--inputs", csv, *flags)
+        np.testing.assert_array_equal(pred[:, [0, 1, 2, 5, 6, 7, 8]], want[:, [1, 2, 3, 5, 6, 7, 8]])

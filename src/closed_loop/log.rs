@@ -122,6 +122,8 @@ pub struct McapLog<W: Write + Seek = BufWriter<File>> {
     /// Whether the previous sample's rollout was inside the envelope (exits are logged when
     /// they start and when they end, not on every sample in between).
     was_inside: bool,
+    /// The same for the predicted heading vector staying on the unit circle.
+    was_on_circle: bool,
 }
 
 /// Foxglove's `time` type.
@@ -175,7 +177,8 @@ impl<W: Write + Seek> McapLog<W> {
             channels[i] = writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
         }
         writer.write_metadata(&Metadata { name: "run".into(), metadata: run_metadata(info)? })?;
-        let mut log = Self { writer, channels, sequence: 0, log_messages: 0, dt: info.dt, was_inside: true };
+        let mut log =
+            Self { writer, channels, sequence: 0, log_messages: 0, dt: info.dt, was_inside: true, was_on_circle: true };
         // NED seen from a z-up world: a half turn about x.
         log.write(
             TF,
@@ -302,6 +305,7 @@ impl<W: Write + Seek> McapLog<W> {
                 "rollout_linearise_us": c.linearise_us, "update_us": c.update_us,
                 "solve_us": c.solve_us, "cycle_us": c.cycle_us, "deadline_missed": c.deadline_missed,
                 "fallback": c.fallback.map(|f| f.to_string()), "envelope_exits": c.envelope.exits,
+                "heading_off_circle": c.envelope.heading_off_circle,
             }),
         )
     }
@@ -341,6 +345,23 @@ impl<W: Write + Seek> McapLog<W> {
             _ => {}
         }
         self.was_inside = c.envelope.inside();
+        match (self.was_on_circle, c.envelope.heading_worst) {
+            (true, Some(h)) => {
+                let message = format!(
+                    "predicted heading vector off the unit circle by {:+.2} % at step {} of the horizon ({} of {} \
+                     steps beyond {} %)",
+                    h.deviation * 100.0,
+                    h.step,
+                    c.envelope.heading_off_circle,
+                    s.prediction.len().saturating_sub(1),
+                    crate::runtime::HEADING_TOLERANCE * 100.0
+                );
+                self.log(t, Level::Warning, &message)?;
+            }
+            (false, None) => self.log(t, Level::Info, "predicted heading vector back on the unit circle")?,
+            _ => {}
+        }
+        self.was_on_circle = c.envelope.heading_on_circle();
         Ok(())
     }
 
@@ -463,6 +484,7 @@ fn schema_of(name: &str) -> Value {
             "objective": {"type": ["number", "null"]}, "rollout_linearise_us": num(), "update_us": num(),
             "solve_us": num(), "cycle_us": num(), "deadline_missed": {"type": "boolean"},
             "fallback": {"type": ["string", "null"]}, "envelope_exits": {"type": "integer"},
+            "heading_off_circle": {"type": "integer"},
         })),
         "foxglove.Log" => object(json!({
             "timestamp": time,

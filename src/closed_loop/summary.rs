@@ -64,6 +64,9 @@ pub struct Summary {
     pub steady_heading_error_deg: f64,
     /// Cycles whose nominal rollout left the model's training envelope.
     pub envelope_exits: usize,
+    /// Cycles whose nominal rollout predicted a heading vector off unit length by more than
+    /// [`crate::runtime::HEADING_TOLERANCE`] (before the runtime rescaled it).
+    pub heading_off_circle: usize,
 }
 
 /// The maximal stretches `(start s, end s, value)` over which `value` stays constant; the end is
@@ -182,6 +185,7 @@ pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summa
         steady_depth_error_m: mean(&mut held_depth),
         steady_heading_error_deg: mean(&mut held_heading.iter().copied()),
         envelope_exits: samples.iter().filter(|s| !s.cycle.envelope.inside()).count(),
+        heading_off_circle: samples.iter().filter(|s| !s.cycle.envelope.heading_on_circle()).count(),
     }
 }
 

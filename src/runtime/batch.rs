@@ -152,7 +152,10 @@ impl<T: Real> Predictor<T> {
                 let o: [[f64; LANES]; NX] =
                     std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * LANES + b].to_f64()));
                 let x: &mut [[f64; LANES]; NX] = (&mut ws.states[..]).try_into().expect("NX components");
-                self.output.apply_lanes(x, &o);
+                let heading = self.output.apply_lanes(x, &o);
+                for b in (0..block.lanes).filter(|&b| !dead[b]) {
+                    ws.envelope.record_heading(k, heading[b]);
+                }
                 store_step(x, &block, k, &mut dead, &mut divergence, out);
             }
         }

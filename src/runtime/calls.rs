@@ -141,7 +141,8 @@ impl<T: Real> Predictor<T> {
             let x = out[k];
             self.check_args(ws, k, &x, u)?;
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false);
-            let next = self.output.apply(&x, &o);
+            let (next, heading) = self.output.apply(&x, &o);
+            ws.envelope.record_heading(k, heading);
             if next.iter().any(|v| !v.is_finite()) {
                 return Err(RuntimeError::NonFiniteOutput { step: k });
             }
@@ -168,7 +169,8 @@ impl<T: Real> Predictor<T> {
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true);
             self.net.reverse::<F>(&mut ws.net);
             self.output.jacobians(&self.net, &ws.net, &x, &o, &mut a[k], &mut b[k]);
-            let x_next = self.output.apply(&x, &o);
+            let (x_next, heading) = self.output.apply(&x, &o);
+            ws.envelope.record_heading(k, heading);
             // Three plain loops: one chained iterator over the three did not inline (5 % of a
             // linearisation).
             let finite = |v: &[f64]| v.iter().all(|v| v.is_finite());

@@ -36,7 +36,24 @@ impl EnvelopeExit {
     }
 }
 
-/// Envelope exits counted during the last runtime call.
+/// How far a predicted `(cos psi, sin psi)` may be off unit length, before the runtime
+/// rescales it, without a warning: 1 %. A network trained on unit vectors that predicts one
+/// further off has left what it learned (the drift grows along a horizon when nothing
+/// rescales it: up to 10 % at the end of one for a model of the whole thrust range).
+pub const HEADING_TOLERANCE: f64 = 0.01;
+
+/// The predicted heading vector furthest off the unit circle during a call.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeadingDrift {
+    /// Step of the call whose prediction it was (0 for the first).
+    pub step: usize,
+    /// `|(cos psi, sin psi)| - 1` of the raw prediction (before any rescaling).
+    pub deviation: f64,
+}
+
+/// Envelope exits counted during the last runtime call, and predicted heading vectors that
+/// left the unit circle (a warning of its own kind: the heading is not a training-range
+/// quantity, `cos psi` and `sin psi` are not checked against the envelope).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EnvelopeStatus {
     /// Steps at which a seen state or input component was outside the envelope.
@@ -45,12 +62,40 @@ pub struct EnvelopeStatus {
     pub first: Option<EnvelopeExit>,
     /// Per component (the 9 states, then the 4 inputs): its farthest exit.
     worst: [Option<EnvelopeExit>; NX + NU],
+    /// Predictions whose heading vector was off unit length by more than
+    /// [`HEADING_TOLERANCE`].
+    pub heading_off_circle: usize,
+    /// The farthest of them.
+    pub heading_worst: Option<HeadingDrift>,
 }
 
 impl EnvelopeStatus {
     /// True if every value was inside the envelope (or the model has none).
     pub fn inside(&self) -> bool {
         self.exits == 0
+    }
+
+    /// True if no predicted heading vector left the unit circle by more than
+    /// [`HEADING_TOLERANCE`].
+    pub fn heading_on_circle(&self) -> bool {
+        self.heading_off_circle == 0
+    }
+
+    /// True if nothing at all was recorded.
+    pub(crate) fn is_clear(&self) -> bool {
+        self.inside() && self.heading_on_circle()
+    }
+
+    /// Records the raw predicted heading vector's distance from unit length at `step`.
+    #[inline(always)]
+    pub(crate) fn record_heading(&mut self, step: usize, deviation: f64) {
+        // NaN compares false: a prediction that is not finite is an error of its own.
+        if deviation.abs() > HEADING_TOLERANCE {
+            self.heading_off_circle += 1;
+            if self.heading_worst.is_none_or(|w| deviation.abs() > w.deviation.abs()) {
+                self.heading_worst = Some(HeadingDrift { step, deviation });
+            }
+        }
     }
 
     /// Every component that left the envelope, each at its farthest exit, the farthest
@@ -78,13 +123,15 @@ pub(crate) struct EnvelopeCheck {
 }
 
 impl EnvelopeCheck {
-    /// The check of `envelope` on the components in `seen`. `cos psi` and `sin psi` lie in
-    /// [-1, 1] by construction: a recorded range that ends just short of that (the training
-    /// headings never hit 0 or 180 deg exactly) is widened to it.
+    /// The check of `envelope` on the components in `seen`, less `cos psi` and `sin psi`:
+    /// they lie on the unit circle by construction, so the range a training set happened to
+    /// cover says nothing, and a prediction off the circle is reported apart
+    /// ([`EnvelopeStatus::heading_off_circle`]). The envelope returned by
+    /// [`Self::envelope`] keeps `[-1, 1]` for them.
     pub(crate) fn new(mut envelope: Option<Envelope>, seen: &[usize]) -> Self {
         let mut mask = [false; NX];
         for &i in seen {
-            mask[i] = true;
+            mask[i] = !matches!(i, 3 | 4);
         }
         if let Some(e) = &mut envelope {
             for i in [3, 4] {

@@ -32,7 +32,7 @@ mod output_map;
 mod predictor;
 
 pub use batch::{BatchWorkspace, LANES};
-pub use envelope::{EnvelopeExit, EnvelopeStatus, Quantity};
+pub use envelope::{EnvelopeExit, EnvelopeStatus, HEADING_TOLERANCE, HeadingDrift, Quantity};
 pub use error::RuntimeError;
 pub(crate) use error::{check_input, check_state};
 pub use horizon::HorizonLinearisation;

@@ -19,18 +19,20 @@ pub(crate) struct OutputMap {
 
 impl OutputMap {
     /// `x_next` from `x` and the raw output: residual, rotation of the planar increments
-    /// by the predicted yaw, optional renormalisation.
+    /// by the predicted yaw, optional renormalisation; and how far the raw predicted
+    /// `(cos psi, sin psi)` was off unit length (`|v| - 1`, before the renormalisation).
     #[inline(always)]
-    pub(crate) fn apply(&self, x: &State, o: &NetOut) -> State {
+    pub(crate) fn apply(&self, x: &State, o: &NetOut) -> (State, f64) {
         let mut lanes: [[f64; 1]; NX] = std::array::from_fn(|c| [x[c]]);
-        self.apply_lanes(&mut lanes, &std::array::from_fn(|c| [o[c]]));
-        State::from_fn(|c, _| lanes[c][0])
+        let [deviation] = self.apply_lanes(&mut lanes, &std::array::from_fn(|c| [o[c]]));
+        (State::from_fn(|c, _| lanes[c][0]), deviation)
     }
 
     /// [`OutputMap::apply`] for `L` lanes at once, component-major, in place: the batch
-    /// rollout's arithmetic is the single step's, lane by lane, and vectorises.
+    /// rollout's arithmetic is the single step's, lane by lane, and vectorises. Returns each
+    /// lane's heading-vector deviation from unit length.
     #[inline(always)]
-    pub(crate) fn apply_lanes<const L: usize>(&self, x: &mut [[f64; L]; NX], o: &[[f64; L]; NX]) {
+    pub(crate) fn apply_lanes<const L: usize>(&self, x: &mut [[f64; L]; NX], o: &[[f64; L]; NX]) -> [f64; L] {
         for b in 0..L {
             let before: [f64; NX] = std::array::from_fn(|c| x[c][b]);
             let base = |c: usize| if self.residual { before[c] } else { 0.0 };
@@ -43,13 +45,14 @@ impl OutputMap {
                 x[k][b] = base(k) + o[k][b];
             }
         }
+        let norm: [f64; L] = std::array::from_fn(|b| (x[3][b] * x[3][b] + x[4][b] * x[4][b]).sqrt());
         if self.renormalise_yaw {
             for b in 0..L {
-                let n = x[3][b].hypot(x[4][b]);
-                x[3][b] /= n;
-                x[4][b] /= n;
+                x[3][b] /= norm[b];
+                x[4][b] /= norm[b];
             }
         }
+        norm.map(|n| n - 1.0)
     }
 
     /// Jacobians of [`OutputMap::apply`] given the network's `d out / d input` rows in

@@ -88,14 +88,18 @@ impl<T: Real> Predictor<T> {
         Self {
             envelope: EnvelopeCheck::new(model.envelope.clone(), &net.seen),
             net,
-            output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: false },
+            output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: true },
             dt: model.dt,
             cpu: Avx2Fma::detect(),
         }
     }
 
-    /// Renormalise `(cos psi, sin psi)` to unit length after every step. Default: off (the
-    /// trained network's semantics, and what PyTorch computes).
+    /// Rescale the predicted `(cos psi, sin psi)` to unit length after every step (with its
+    /// exact Jacobian). Default: on, so a rollout's heading vector stays a heading; `false`
+    /// gives the bare network, what PyTorch computes (to reproduce the paper's numbers).
+    /// Either way a raw prediction off the circle by more than
+    /// [`HEADING_TOLERANCE`](super::HEADING_TOLERANCE) is counted in
+    /// [`EnvelopeStatus::heading_off_circle`].
     #[must_use]
     pub fn with_yaw_renormalisation(mut self, on: bool) -> Self {
         self.output.renormalise_yaw = on;
@@ -183,7 +187,7 @@ impl<T: Real> Workspace<T> {
             return Err(RuntimeError::WorkspaceMismatch { what: "workspace" });
         }
         // Only when something was recorded: the record is larger than a step's arithmetic.
-        if !self.envelope.inside() {
+        if !self.envelope.is_clear() {
             self.envelope = EnvelopeStatus::default();
         }
         Ok(())

@@ -120,8 +120,9 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
 /// One step of `m` computed the plain way, in f64, straight from the definition in docs/MODEL.md
 /// (input scaling, Linear, `softplus(beta h) / beta` with torch's threshold or
 /// `tanh(beta h)`, LayerNorm with gain and bias, output layer and scaling, residual, planar
-/// increments rotated by the predicted yaw): the reference the runtime's folded, packed
-/// kernels are checked against.
+/// increments rotated by the predicted yaw, then `(cos psi, sin psi)` rescaled to unit length
+/// as the runtime does by default): the reference the runtime's folded, packed kernels are
+/// checked against.
 pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64; 9] {
     let arch = &m.architecture;
     let mut a: Vec<f64> = arch.state_inputs.iter().map(|&i| x[i as usize]).chain(u.iter().copied()).collect();
@@ -170,6 +171,9 @@ pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64
     for k in 2..9 {
         next[k] += o[k];
     }
+    let norm = (next[3] * next[3] + next[4] * next[4]).sqrt();
+    next[3] /= norm;
+    next[4] /= norm;
     next
 }
 

@@ -88,9 +88,10 @@ fn the_pinc_loop_stays_bounded_and_tracks_within_ten_percent_of_the_oracle() {
     assert!(s.max_overshoot_depth_m < 0.05 && s.max_overshoot_heading_deg < 5.0, "{s:?}");
     // Every depth step settles (within 5 %) before the next one.
     assert!(s.settling_depth_s.iter().all(|t| *t < 5.0), "{s:?}");
-    // The figures a pilot sees (docs/GUIDE_CONTROLLER.md), with margins: today 3.0 deg held-heading error, 2.0 mm
-    // and 0.34 deg steady errors, Mz total variation 38.6 N m against the oracle's 6.2.
-    assert!(s.held_heading_error_max_deg < 4.0, "{s:?}");
+    // The narrow model (no longer the default), with margins: 4.0 deg held-heading error with
+    // the heading vector rescaled (3.0 deg without), 2.0 mm and 0.34 deg steady errors, Mz
+    // total variation 33.6 N m (38.6 without) against the oracle's 6.2.
+    assert!(s.held_heading_error_max_deg < 5.0, "{s:?}");
     assert!(s.steady_depth_error_m < 3e-3 && s.steady_heading_error_deg < 0.5, "{s:?}");
     assert!(s.input_total_variation["Mz"] < 8.0 * o.input_total_variation["Mz"], "PINC {s:?}\noracle {o:?}");
     // The oracle: offset-free.
@@ -295,15 +296,10 @@ fn the_full_thrust_model_tracks_like_the_oracle_and_its_velocities_stay_in_its_e
     assert!(s.steady_depth_error_m < 1e-3 && s.steady_heading_error_deg < 0.15, "{s:?}");
     assert!(s.max_overshoot_depth_m < 0.03 && s.max_overshoot_heading_deg < 2.0, "{s:?}");
     assert!(s.input_total_variation["Mz"] < 1.3 * o.input_total_variation["Mz"], "{s:?}\n{o:?}");
-    // Its predicted velocities never leave the training envelope; what the envelope check
-    // flags is the predicted heading vector's norm drifting past 1 (by up to 10 % at the end
-    // of a horizon).
-    let mut worst = 0.0f64;
-    for x in &samples {
-        for e in x.cycle.envelope.worst_exits() {
-            assert!(matches!(e.quantity, pinc::runtime::Quantity::State(3 | 4)), "t = {}: {e:?}", x.t);
-            worst = worst.max(e.value.abs());
-        }
-    }
-    assert!(worst < 1.15, "cos / sin psi up to {worst}");
+    // Its predicted velocities never leave the training envelope, and with the heading
+    // vector rescaled every step (the runtime's default) no raw prediction drifts past 1 %:
+    // without the rescaling it drifted by up to 10 % at the end of a horizon and 281 cycles
+    // were flagged.
+    assert_eq!((s.envelope_exits, s.heading_off_circle), (0, 0), "{s:?}");
+    assert!(samples.iter().all(|x| x.cycle.envelope.inside() && x.cycle.envelope.heading_on_circle()));
 }

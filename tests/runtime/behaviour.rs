@@ -316,3 +316,57 @@ fn a_workspace_or_output_made_for_another_predictor_or_horizon_is_an_error_not_a
     large.linearise_horizon(&mut ws, &x0, &inputs[..20], &mut lin).unwrap();
     assert_eq!(lin.trajectory()[0], x0);
 }
+
+/// The full-thrust controller model under a hard turn while surging and diving: its raw
+/// `(cos psi, sin psi)` drifts off the unit circle along the horizon.
+fn turning_horizon() -> (pinc::model::PincModel, State, Vec<Input>) {
+    let model = pinc::model::PincModel::load(concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc_thrust.pinc"))
+        .expect("shipped model");
+    let x0 = State::from([0.0, 0.0, 1.0, 1.0, 0.0, 0.3, 0.0, 0.1, 0.5]);
+    let inputs = (0..40).map(|k| Input::new(60.0, 0.0, 30.0, if k < 20 { 20.0 } else { -20.0 })).collect();
+    (model, x0, inputs)
+}
+
+#[test]
+fn heading_vectors_stay_on_the_unit_circle_and_drift_is_its_own_warning() {
+    let (model, x0, inputs) = turning_horizon();
+    let n = inputs.len();
+    let mut raw = vec![State::zeros(); n + 1];
+    let bare = Predictor::new(&model).with_yaw_renormalisation(false);
+    let mut ws = bare.workspace();
+    bare.rollout(&mut ws, &x0, &inputs, &mut raw).unwrap();
+    // Without rescaling each stored state is the raw prediction: count its drift by hand.
+    let by_hand = raw[1..].iter().filter(|x| (x[3].hypot(x[4]) - 1.0).abs() > pinc::runtime::HEADING_TOLERANCE).count();
+    assert!(by_hand > 0, "the case must drift for the test to mean anything");
+    let status = ws.envelope_status();
+    assert_eq!(status.heading_off_circle, by_hand);
+    let worst = status.heading_worst.unwrap();
+    let v = raw[worst.step + 1];
+    assert!((worst.deviation - (v[3].hypot(v[4]) - 1.0)).abs() < 1e-15, "{worst:?}");
+
+    // Rescaled (the default): every state on the circle; the raw drift is still reported.
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let mut out = vec![State::zeros(); n + 1];
+    p.rollout(&mut ws, &x0, &inputs, &mut out).unwrap();
+    for (k, x) in out.iter().enumerate() {
+        assert!((x[3].hypot(x[4]) - 1.0).abs() < 1e-12, "step {k}: |(cos, sin)| = {}", x[3].hypot(x[4]));
+    }
+    let status = ws.envelope_status();
+    assert!(!status.heading_on_circle() && status.heading_off_circle <= n);
+    // Heading is not an envelope quantity: no exit names cos psi or sin psi.
+    assert!(status.worst_exits().iter().all(|e| !matches!(e.quantity, Quantity::State(3 | 4))));
+
+    // The batch counts the same predictions.
+    let mut batch_out = vec![State::zeros(); 2 * (n + 1)];
+    let mut bws = BatchWorkspace::new(&p);
+    let both: Vec<Input> = inputs.iter().chain(&inputs).copied().collect();
+    p.rollout_batch(&mut bws, &[x0, x0], &both, &mut batch_out).unwrap();
+    assert_eq!(bws.envelope_status().heading_off_circle, 2 * status.heading_off_circle);
+
+    // A caller's state off the circle is not an envelope exit either.
+    let mut off = x0;
+    off[3] = 1.05;
+    p.step(&mut ws, &off, &inputs[0], &mut out[0]).unwrap();
+    assert!(ws.envelope_status().worst_exits().iter().all(|e| !matches!(e.quantity, Quantity::State(3 | 4))));
+}

@@ -98,9 +98,10 @@ enum Command {
         /// Time step (s); default: the model's sample period.
         #[arg(long)]
         dt: Option<f64>,
-        /// Renormalise (cos psi, sin psi) after every step.
+        /// Leave the predicted (cos psi, sin psi) as the network gives it (what PyTorch
+        /// computes) instead of rescaling it to unit length after every step.
         #[arg(long)]
-        renormalise_yaw: bool,
+        no_renormalise_yaw: bool,
     },
     /// Print a model's header: architecture, envelope, provenance.
     Inspect {
@@ -190,6 +191,7 @@ impl PresetName {
 }
 
 fn main() -> ExitCode {
+    pinc::broken_pipe::exit_quietly_on_broken_pipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate { x0, inputs, dt, vehicle, record } => {
@@ -199,8 +201,8 @@ fn main() -> ExitCode {
         Command::GenData { preset, out, seed, vehicle } => {
             load_vehicle(vehicle.as_deref()).and_then(|v| run_gen_data(preset.preset_for(v), &out, seed))
         }
-        Command::Predict { model, x0, inputs, dt, renormalise_yaw } => {
-            run_predict(&model, &x0, &inputs, dt, renormalise_yaw)
+        Command::Predict { model, x0, inputs, dt, no_renormalise_yaw } => {
+            run_predict(&model, &x0, &inputs, dt, !no_renormalise_yaw)
         }
         Command::Inspect { model, json } => run_inspect(&model, json),
         Command::ImportTorch { weights, out, dt, activation } => run_import_torch(&weights, &out, dt, activation),
@@ -223,6 +225,8 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of our output went away (`pinc ... | head`): it has what it wanted.
+        Err(message) if pinc::broken_pipe::is_broken_pipe(&message) => ExitCode::SUCCESS,
         Err(message) => {
             eprintln!("error: {message}");
             ExitCode::from(1)
@@ -311,6 +315,18 @@ fn run_predict(model: &Path, x0: &str, inputs: &Path, dt: Option<f64>, renormali
             status.exits,
             inputs_seq.len(),
             each.join("; ")
+        );
+    }
+    if let Some(w) = status.heading_worst {
+        eprintln!(
+            "warning: at {} of {} steps the predicted (cos psi, sin psi) was off unit length by more than {} % \
+             (farthest {:+.2} % at step {}){}",
+            status.heading_off_circle,
+            inputs_seq.len(),
+            pinc::runtime::HEADING_TOLERANCE * 100.0,
+            w.deviation * 100.0,
+            w.step,
+            if renormalise { "; rescaled" } else { "" }
         );
     }
     let sim: Vec<SimState> = traj.iter().map(to_simulator).collect();
