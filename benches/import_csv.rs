@@ -53,8 +53,18 @@ fn bluerov_heavy_format() -> String {
     for k in 0..ROWS {
         let a = 0.01 * k as f64;
         let (qz, qw) = ((a / 2.0).sin(), (a / 2.0).cos());
-        write!(s, "{},{},{},0,0,{qz},{qw},{},{},{},0,0,{}", 3.0 * a.sin(), 3.0 * a.cos(), -0.1 * a, 0.3, 0.01 * a.sin(), -0.1, -0.2)
-            .unwrap();
+        write!(
+            s,
+            "{},{},{},0,0,{qz},{qw},{},{},{},0,0,{}",
+            3.0 * a.sin(),
+            3.0 * a.cos(),
+            -0.1 * a,
+            0.3,
+            0.01 * a.sin(),
+            -0.1,
+            -0.2
+        )
+        .unwrap();
         for c in 0..8 {
             write!(s, ",{}", 1500 + (k * (c + 3)) % 400).unwrap();
         }

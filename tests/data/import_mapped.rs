@@ -167,7 +167,8 @@ thruster_columns = ["pwm_8", "pwm_1", "pwm_3"]
 channels = [8, 1, 3]
 "#;
     let m = mapping(dir.path(), text);
-    let thrusters = |cmd: &[f64]| Input::from([cmd[0], cmd[2], cmd[7], cmd.len() as f64 + if cmd[1].is_nan() { 0.5 } else { 0.0 }]);
+    let thrusters =
+        |cmd: &[f64]| Input::from([cmd[0], cmd[2], cmd[7], cmd.len() as f64 + if cmd[1].is_nan() { 0.5 } else { 0.0 }]);
     let s = read_mapped_csv(&csv, &m, Some(&thrusters)).unwrap();
     let input = s.input.unwrap();
     assert_eq!(input.len(), 5);
@@ -267,7 +268,11 @@ unit = "deg"
 #[test]
 fn a_mapping_with_an_unknown_key_or_two_choices_is_refused_naming_it() {
     let dir = tempfile::tempdir().unwrap();
-    let path = write(dir.path(), "m.toml", "[time]\nrate_hz = 10.0\n\n[position]\ncolumns = [\"a\", \"b\", \"c\"]\nframe = \"ned\"\nfame = 1\n");
+    let path = write(
+        dir.path(),
+        "m.toml",
+        "[time]\nrate_hz = 10.0\n\n[position]\ncolumns = [\"a\", \"b\", \"c\"]\nframe = \"ned\"\nfame = 1\n",
+    );
     let err = load_mapping(&path).unwrap_err().to_string();
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("m.toml") && err.contains("line 7") && err.contains("fame"), "{err}");
@@ -276,7 +281,8 @@ fn a_mapping_with_an_unknown_key_or_two_choices_is_refused_naming_it() {
     let err = load_mapping(&path).unwrap_err().to_string();
     assert!(err.contains("two.toml") && err.contains("[time]") && err.contains("not both"), "{err}");
 
-    let path = write(dir.path(), "frame.toml", "[time]\nrate_hz = 10.0\n[heading]\nyaw_column = \"y\"\nframe = \"enu_flu\"\n");
+    let path =
+        write(dir.path(), "frame.toml", "[time]\nrate_hz = 10.0\n[heading]\nyaw_column = \"y\"\nframe = \"enu_flu\"\n");
     let err = load_mapping(&path).unwrap_err().to_string();
     assert!(err.contains("[heading] frame"), "{err}");
 }
@@ -287,12 +293,18 @@ fn todays_header_without_a_mapping_reads_every_field_exactly_as_written() {
     let rows: Vec<[f64; 13]> = (0..20)
         .map(|k| {
             let k = k as f64;
-            std::array::from_fn(|j| if j == 0 { k * 0.08 } else { (1.0 + j as f64) * (0.37 * k + 0.1 * j as f64).sin() / 3.0 })
+            std::array::from_fn(|j| {
+                if j == 0 { k * 0.08 } else { (1.0 + j as f64) * (0.37 * k + 0.1 * j as f64).sin() / 3.0 }
+            })
         })
         .collect();
     let mut text = String::from("t, x, y, z, psi, u, v, w, r, X, Y, Z, Mz\n");
     for (k, r) in rows.iter().enumerate() {
-        let fields: Vec<String> = r.iter().enumerate().map(|(j, v)| if k == 7 && j == 5 { String::new() } else { format!("{v:e}") }).collect();
+        let fields: Vec<String> = r
+            .iter()
+            .enumerate()
+            .map(|(j, v)| if k == 7 && j == 5 { String::new() } else { format!("{v:e}") })
+            .collect();
         writeln!(text, "{}", fields.join(" , ")).unwrap();
     }
     let rec = read_csv(&write(dir.path(), "today.csv", &text)).unwrap();

@@ -18,11 +18,8 @@ pub const CSV_COLUMNS: [&str; 13] = ["t", "x", "y", "z", "psi", "u", "v", "w", "
 pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::Headers)
-        .buffer_capacity(1 << 16)
-        .from_reader(file);
+    let mut reader =
+        csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::Headers).buffer_capacity(1 << 16).from_reader(file);
     let header = reader.headers().map_err(|e| malformed(format!("line 1: {e}")))?.clone();
     if header.iter().ne(CSV_COLUMNS) {
         return Err(malformed(format!(

@@ -373,7 +373,12 @@ impl Columns {
         Ok(self.index.len() - 1)
     }
 
-    fn slots<const N: usize>(&mut self, header: &[String], columns: &[String; N], role: &str) -> Result<[usize; N], String> {
+    fn slots<const N: usize>(
+        &mut self,
+        header: &[String],
+        columns: &[String; N],
+        role: &str,
+    ) -> Result<[usize; N], String> {
         let mut out = [0; N];
         for (o, c) in out.iter_mut().zip(columns) {
             *o = self.slot(header, c, role)?;
@@ -433,6 +438,10 @@ enum InputPlan {
     Thrusters { slots: Vec<usize>, channels: Vec<usize>, n_channels: usize },
 }
 
+/// The vehicle's thrusters: commands by channel (index `c - 1` for channel `c`) to the body
+/// wrench `[X, Y, Z, Mz]`, as `Thrusters::input_from_commands` computes it.
+pub type CommandsToInput<'a> = &'a dyn Fn(&[f64]) -> Input;
+
 /// Reads one CSV file through `mapping`, converting every quantity to pinc's frames and units.
 /// Only the columns the mapping names are parsed; an empty field or `nan` is a missing value
 /// (NaN, skipped by the windowing). Thruster command columns go through `commands_to_input`
@@ -448,7 +457,7 @@ enum InputPlan {
 pub fn read_mapped_csv(
     path: &Path,
     mapping: &CsvMapping,
-    commands_to_input: Option<&dyn Fn(&[f64]) -> Input>,
+    commands_to_input: Option<CommandsToInput<'_>>,
 ) -> Result<StreamSet, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     mapping.check().map_err(|m| malformed(format!("mapping: {m}")))?;
@@ -460,12 +469,8 @@ pub fn read_mapped_csv(
         .trim(csv::Trim::Headers)
         .buffer_capacity(1 << 16)
         .from_reader(file);
-    let header: Vec<String> = reader
-        .headers()
-        .map_err(|e| malformed(format!("line 1: {e}")))?
-        .iter()
-        .map(str::to_string)
-        .collect();
+    let header: Vec<String> =
+        reader.headers().map_err(|e| malformed(format!("line 1: {e}")))?.iter().map(str::to_string).collect();
     let width = header.len();
 
     // Resolve every named column to a slot before reading any row.
@@ -495,7 +500,10 @@ pub fn read_mapped_csv(
             notes.push(match p.frame {
                 WorldFrame::Ned => format!("position: {} in NED", p.columns.join(",")),
                 WorldFrame::Enu => {
-                    format!("position: {} in ENU (z up), converted to NED: (x, y, z) -> (y, x, -z)", p.columns.join(","))
+                    format!(
+                        "position: {} in ENU (z up), converted to NED: (x, y, z) -> (y, x, -z)",
+                        p.columns.join(",")
+                    )
                 }
             });
             Some((slots, p.frame == WorldFrame::Enu, p.columns.join(",")))
@@ -510,9 +518,17 @@ pub fn read_mapped_csv(
                 notes.push(format!(
                     "heading: yaw column {c} in {}{}; roll and pitch not in the file, taken as 0",
                     if unit == AngleUnit::Deg { "deg" } else { "rad" },
-                    if enu { ", counter-clockwise from east, converted: psi = pi/2 - yaw" } else { ", clockwise from north" }
+                    if enu {
+                        ", counter-clockwise from east, converted: psi = pi/2 - yaw"
+                    } else {
+                        ", clockwise from north"
+                    }
                 ));
-                Heading::Yaw { slot: cols.slot(&header, c, "[heading] yaw_column").map_err(&malformed)?, scale: unit.radians(), enu }
+                Heading::Yaw {
+                    slot: cols.slot(&header, c, "[heading] yaw_column").map_err(&malformed)?,
+                    scale: unit.radians(),
+                    enu,
+                }
             }
             (None, Some(q)) => {
                 let order = h.order.unwrap_or(QuaternionOrder::Xyzw);
@@ -561,7 +577,11 @@ pub fn read_mapped_csv(
                 "yaw rate: {} in {}/s{}",
                 y.column,
                 if unit == AngleUnit::Deg { "deg" } else { "rad" },
-                if flu { " about the up axis (FLU), sign flipped to the down axis" } else { " about the down axis (FRD)" }
+                if flu {
+                    " about the up axis (FLU), sign flipped to the down axis"
+                } else {
+                    " about the down axis (FRD)"
+                }
             ));
             Some((slot, unit.radians() * if flu { -1.0 } else { 1.0 }, y.column.clone()))
         }
@@ -576,7 +596,13 @@ pub fn read_mapped_csv(
                     w.join(","),
                     if flu { " in FLU, converted to FRD: (X, Y, Z, Mz) -> (X, -Y, -Z, -Mz)" } else { " in FRD" }
                 ));
-                (InputPlan::Wrench { slots: cols.slots(&header, w, "[input] wrench_columns").map_err(&malformed)?, flu }, w.join(","))
+                (
+                    InputPlan::Wrench {
+                        slots: cols.slots(&header, w, "[input] wrench_columns").map_err(&malformed)?,
+                        flu,
+                    },
+                    w.join(","),
+                )
             }
             (None, Some(t)) => {
                 if commands_to_input.is_none() {
@@ -586,8 +612,11 @@ pub fn read_mapped_csv(
                     ));
                 }
                 let channels = mapping.channels().expect("thruster input");
-                let slots =
-                    t.iter().map(|c| cols.slot(&header, c, "[input] thruster_columns")).collect::<Result<Vec<_>, _>>().map_err(&malformed)?;
+                let slots = t
+                    .iter()
+                    .map(|c| cols.slot(&header, c, "[input] thruster_columns"))
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(&malformed)?;
                 notes.push(format!(
                     "input: thruster commands {} on channels {:?}, converted to a body wrench by the vehicle's thrusters",
                     t.join(","),
@@ -615,10 +644,13 @@ pub fn read_mapped_csv(
 
     let mut record = csv::ByteRecord::new();
     let mut vals = vec![0.0; cols.index.len()];
-    let mut commands = vec![f64::NAN; input.as_ref().map_or(0, |i| match &i.0 {
-        InputPlan::Thrusters { n_channels, .. } => *n_channels,
-        InputPlan::Wrench { .. } => 0,
-    })];
+    let mut commands = vec![
+        f64::NAN;
+        input.as_ref().map_or(0, |i| match &i.0 {
+            InputPlan::Thrusters { n_channels, .. } => *n_channels,
+            InputPlan::Wrench { .. } => 0,
+        })
+    ];
     let mut row = 0usize;
     loop {
         match reader.read_byte_record(&mut record) {

@@ -10,7 +10,7 @@ mod windows;
 
 pub use csv_log::read_csv;
 pub use csv_mapping::{
-    AngleUnit, BodyAxes, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping,
+    AngleUnit, BodyAxes, CommandsToInput, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping,
     QUATERNION_NORM_TOLERANCE, QuaternionOrder, TimeMapping, TimeUnit, VelocityAxes, VelocityMapping, WorldFrame,
     YawRateMapping, load_mapping, read_mapped_csv,
 };
