@@ -793,4 +793,14 @@ mod tests {
         assert!(roll.abs() < 1e-12);
         assert!((pitch - b).abs() < 1e-12, "{pitch}");
     }
+
+    #[test]
+    fn starboard_down_in_flu_is_a_positive_roll_in_frd() {
+        // About FLU's x (forward) by +a the left side rises: starboard down, positive in FRD too.
+        let a: f64 = 0.15;
+        let r = rotation((a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0);
+        let [roll, pitch, _] = euler_zyx(&(ENU_TO_NED * r * FRD_TO_FLU));
+        assert!(pitch.abs() < 1e-12);
+        assert!((roll - a).abs() < 1e-12, "{roll}");
+    }
 }
