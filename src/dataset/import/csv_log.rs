@@ -1,6 +1,7 @@
 //! Recorded runs as CSV: header `t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz` (s, m, rad, m/s, rad/s, N,
 //! N m), one row per sample, the inputs of a row held until the next row.
 
+use super::csv_mapping::parse_field;
 use super::{ImportError, Recording};
 use crate::types::{Input, SimState};
 use std::path::Path;
@@ -17,7 +18,8 @@ pub const CSV_COLUMNS: [&str; 13] = ["t", "x", "y", "z", "psi", "u", "v", "w", "
 pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let mut reader = csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::All).from_reader(file);
+    let mut reader =
+        csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::Headers).buffer_capacity(1 << 16).from_reader(file);
     let header = reader.headers().map_err(|e| malformed(format!("line 1: {e}")))?.clone();
     if header.iter().ne(CSV_COLUMNS) {
         return Err(malformed(format!(
@@ -27,9 +29,9 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
         )));
     }
     let mut rec = Recording { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new() };
-    let mut record = csv::StringRecord::new();
+    let mut record = csv::ByteRecord::new();
     loop {
-        match reader.read_record(&mut record) {
+        match reader.read_byte_record(&mut record) {
             Ok(false) => break,
             Ok(true) => {}
             Err(e) => {
@@ -46,13 +48,10 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
         let line = record.position().map_or(0, |p| p.line());
         let mut v = [0.0; 13];
         for (j, field) in record.iter().enumerate() {
-            v[j] = if field.is_empty() || field.eq_ignore_ascii_case("nan") {
-                f64::NAN
-            } else {
-                field.parse().map_err(|_| {
-                    malformed(format!("line {line}: column {}: {field:?} is not a number", CSV_COLUMNS[j]))
-                })?
-            };
+            v[j] = parse_field(field).ok_or_else(|| {
+                let field = String::from_utf8_lossy(field.trim_ascii());
+                malformed(format!("line {line}: column {}: {field:?} is not a number", CSV_COLUMNS[j]))
+            })?;
         }
         rec.t.push(v[0]);
         rec.states.push(SimState::from_column_slice(&v[1..9]));

@@ -3,11 +3,17 @@
 //! into train / dev / test by run, stored exactly like a generated dataset.
 
 mod csv_log;
+mod csv_mapping;
 mod mcap_log;
 mod streams;
 mod windows;
 
 pub use csv_log::read_csv;
+pub use csv_mapping::{
+    AngleUnit, BodyAxes, CommandsToInput, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping,
+    QUATERNION_NORM_TOLERANCE, QuaternionOrder, TimeMapping, TimeUnit, VelocityAxes, VelocityMapping, WorldFrame,
+    YawRateMapping, load_mapping, read_mapped_csv,
+};
 pub use mcap_log::{McapTopics, read_mcap};
 pub use streams::{Series, StreamSet};
 pub use windows::{SkipCounts, cut_windows};
