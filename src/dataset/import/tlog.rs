@@ -86,9 +86,9 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
     let mut pilot = Series::new("MANUAL_CONTROL.x,y,z,r");
     let (mut frames, mut damaged, mut other, mut skipped_bytes, mut out_of_order) = (0usize, 0usize, 0usize, 0usize, 0usize);
     let mut autopilot: Option<u8> = None;
-    // Latest boot time (s) and the receive time (s) it came with: MANUAL_CONTROL has no time
+    // Latest boot time (s) and the receive time (µs) it came with: MANUAL_CONTROL has no time
     // of its own and is placed by the receive time elapsed since.
-    let mut latest: Option<(f64, f64)> = None;
+    let mut latest: Option<(f64, u64)> = None;
     let mut torn = None;
     let mut reboot = None;
     let mut p = 0;
@@ -114,7 +114,7 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
             Some(Ok(len)) => len,
         };
         let frame = &buf[q..q + len];
-        let received = u64::from_be_bytes(buf[p..q].try_into().expect("8 bytes")) as f64 * 1e-6;
+        let received = u64::from_be_bytes(buf[p..q].try_into().expect("8 bytes"));
         let (sys, msg) = match decode(frame) {
             Ok(m) => m,
             Err(true) => {
@@ -191,7 +191,8 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
             }
             MavMessage::MANUAL_CONTROL(m) => {
                 if let Some((l, r)) = latest {
-                    let t = l + (received - r).max(0.0);
+                    // In integer µs: the stamps since 1970 have too many digits for an f64 in s.
+                    let t = l + received.saturating_sub(r) as f64 * 1e-6;
                     if pilot.t.last().is_none_or(|&last| t >= last) {
                         pilot.push(t, [m.x, m.y, m.z, m.r].map(f64::from));
                     }
