@@ -37,13 +37,6 @@ fn angle_diff(a: f64, b: f64) -> f64 {
     (a - b + PI).rem_euclid(2.0 * PI) - PI
 }
 
-/// The sample of `s` nearest to `t`.
-fn nearest<const N: usize>(s: &Series<N>, t: f64) -> (f64, [f64; N]) {
-    let i = s.t.partition_point(|&x| x < t).min(s.len() - 1);
-    let j = if i > 0 && (s.t[i - 1] - t).abs() < (s.t[i] - t).abs() { i - 1 } else { i };
-    (s.t[j], s.v[j])
-}
-
 #[test]
 fn pymavlink_tlog_reads_back_every_written_value() {
     let expected: Value = serde_json::from_str(&std::fs::read_to_string(fixture("pymavlink.json")).unwrap()).unwrap();
@@ -168,6 +161,7 @@ fn real_ardusub_bin_streams_and_rates() {
     // The thrusters are idle in this log: 1500 on channels 1-3, channel 8 off.
     assert!(input.v.iter().all(|u| u[0] >= 1100.0 && u[0] <= 1900.0 && u[3] == 0.0));
     assert!(has_note(&set, "time base: the autopilot's boot clock"));
+    assert!(has_note(&set, "no ORGN record"));
 }
 
 #[test]
@@ -237,7 +231,7 @@ fn simulator_tlog_frames_and_signs_match_the_true_state() {
     let set = read_tlog(&path, &ArdupilotOptions::default()).unwrap();
     // The file was cut mid-frame: read up to there, and said.
     assert!(has_note(&set, "ends inside a frame"), "{:?}", set.notes);
-    let (att, pos, vel) = (set.attitude.as_ref().unwrap(), set.position.as_ref().unwrap(), set.velocity_ned.as_ref().unwrap());
+    let (att, pos) = (set.attitude.as_ref().unwrap(), set.position.as_ref().unwrap());
     // The EKF's position starts about 20 s after the attitude (when it fuses the GPS).
     assert!(pos.t[0] - att.t[0] > 15.0, "position from {} s, attitude from {} s", pos.t[0], att.t[0]);
     assert!(has_note(&set, "the EKF's position starts"), "{:?}", set.notes);
@@ -325,12 +319,11 @@ fn simulator_bin_agrees_with_its_tlog_and_tolerates_a_torn_record() {
     assert!(has_note(&bin, "the file ends inside a"), "{:?}", bin.notes);
     // The same run's telemetry holds the simulator's true state, on the same boot clock.
     let (hor, ver) = sim_truth(&std::fs::read(fixture("sitl_excite_1_head.tlog")).unwrap());
-    // The EKF logs zeros until it has an origin: compare from then on.
-    let mut set = bin.clone();
-    let pos = set.position.as_mut().unwrap();
-    let from = pos.v.iter().position(|p| p.iter().any(|x| *x != 0.0)).unwrap();
-    pos.t.drain(..from);
-    pos.v.drain(..from);
+    // The EKF logs zeros until it has an origin (ORGN at 19.28 s): the position starts there.
+    let set = bin;
+    let pos = set.position.as_ref().unwrap();
+    assert!((pos.t[0] - 19.28).abs() < 0.11 && pos.v[0].iter().any(|x| *x != 0.0), "position from {} s: {:?}", pos.t[0], pos.v[0]);
+    assert!(has_note(&set, "origin was set (ORGN)"));
     // Down, its rate and the yaw only: in these first 29 s the EKF's horizontal estimate is
     // still converging after the GPS was first fused (0.5 m/s off the truth; it agrees to
     // 0.05 m/s after 55 s, where the tlog test compares it).

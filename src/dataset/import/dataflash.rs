@@ -96,6 +96,7 @@ enum Kind {
     Baro,
     Rcou,
     Rcin,
+    Orgn,
 }
 
 impl Kind {
@@ -106,6 +107,7 @@ impl Kind {
             "BARO" => Self::Baro,
             "RCOU" => Self::Rcou,
             "RCIN" => Self::Rcin,
+            "ORGN" => Self::Orgn,
             _ => return None,
         })
     }
@@ -116,7 +118,7 @@ impl Kind {
             Self::Att => &["TimeUS", "Roll", "Pitch", "Yaw"],
             Self::Xkf1 => &["TimeUS", "C", "VN", "VE", "VD", "PN", "PE", "PD"],
             Self::Baro => &["TimeUS", "I", "Alt"],
-            Self::Rcou | Self::Rcin => &["TimeUS"],
+            Self::Rcou | Self::Rcin | Self::Orgn => &["TimeUS"],
         }
     }
 }
@@ -203,6 +205,8 @@ pub(crate) struct BinSamples {
     baro: Vec<[f64; 3]>,
     rcou: Vec<Vec<f64>>,
     rcin: Vec<Vec<f64>>,
+    /// Time of the first `ORGN` record: the EKF's origin was set.
+    origin: Option<f64>,
     tally: Tally,
     names_seen: usize,
 }
@@ -264,6 +268,9 @@ pub(crate) fn decode_bin(buf: &[u8]) -> Result<BinSamples, String> {
                 Kind::Baro => s.baro.push([g(0), g(1), g(2)]),
                 Kind::Rcou => s.rcou.push(fields.iter().map(|f| f.get(rec)).collect()),
                 Kind::Rcin => s.rcin.push(fields.iter().map(|f| f.get(rec)).collect()),
+                Kind::Orgn => {
+                    s.origin.get_or_insert(g(0));
+                }
             }
         }
         p += len;
@@ -300,10 +307,16 @@ fn assemble(s: BinSamples, opts: &ArdupilotOptions) -> Result<Decoded, String> {
         att.push(a[0] * us, [a[1].to_radians(), a[2].to_radians(), wrap_pi(a[3].to_radians())]);
     }
     d.attitude = Some(att);
-    if !s.xkf1.is_empty() {
+    // Before the EKF has an origin its position is zeros, not a position.
+    let from = s.origin.unwrap_or(f64::NEG_INFINITY);
+    match s.origin {
+        Some(t) => d.notes.push(format!("XKF1: the EKF's origin was set (ORGN) at boot time {:.3} s: position and velocity from then on", t * us)),
+        None => d.notes.push("XKF1: no ORGN record (no EKF origin): PN, PE are relative to where the EKF started, zero without a horizontal position source".into()),
+    }
+    if s.xkf1.iter().any(|x| x[0] >= from) {
         let mut pos = Series::new("XKF1[C=0].PN,PE,PD");
         let mut vel = Series::new("XKF1[C=0].VN,VE,VD");
-        for x in &s.xkf1 {
+        for x in s.xkf1.iter().filter(|x| x[0] >= from) {
             pos.push(x[0] * us, [x[4], x[5], x[6]]);
             vel.push(x[0] * us, [x[1], x[2], x[3]]);
         }
