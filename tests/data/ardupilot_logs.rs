@@ -104,7 +104,8 @@ fn pymavlink_tlog_manual_control_through_ardusub_map() {
         assert!((input.t[i] - t).abs() < 1e-9, "{} vs {t}", input.t[i]);
         // ArduSub: axis = gain * stick / 1000 (z: gain * (z - 500) / 500); thruster 1 is
         // -forward + lateral + yaw, 2 is -forward - lateral - yaw, 5 and 6 are -throttle.
-        let (x, y, z, r) = (g("x") * gain / 1000.0, g("y") * gain / 1000.0, (g("z") - 500.0) * gain / 500.0, g("r") * gain / 1000.0);
+        let (x, y, z, r) =
+            (g("x") * gain / 1000.0, g("y") * gain / 1000.0, (g("z") - 500.0) * gain / 500.0, g("r") * gain / 1000.0);
         let pwm = |s: f64| 1500.0 + 400.0 * s.clamp(-1.0, 1.0);
         let want = [pwm(-x + y + r), pwm(-x - y - r), pwm(-z), pwm(-z)];
         for c in 0..4 {
@@ -232,7 +233,8 @@ fn simulator_tlog_frames_and_signs_match_the_true_state() {
     // The file was cut mid-frame: read up to there, and said.
     assert!(has_note(&set, "ends inside a frame"), "{:?}", set.notes);
     let (att, pos) = (set.attitude.as_ref().unwrap(), set.position.as_ref().unwrap());
-    // The EKF's position starts about 20 s after the attitude (when it fuses the GPS).
+    // The EKF's position starts long after the attitude (about 20 s after arming, when it
+    // fuses the simulated GPS; 52 s after boot here).
     assert!(pos.t[0] - att.t[0] > 15.0, "position from {} s, attitude from {} s", pos.t[0], att.t[0]);
     assert!(has_note(&set, "the EKF's position starts"), "{:?}", set.notes);
     assert!((rate(att) - 25.0).abs() < 2.0 && (rate(pos) - 10.0).abs() < 1.0);
@@ -247,8 +249,15 @@ fn simulator_tlog_frames_and_signs_match_the_true_state() {
 /// how many true positions it compared. Signs: each EKF stream follows its true counterpart
 /// (a flipped axis would correlate at -1); sizes: the typical error is small. The EKF lags
 /// the true state at the steps, so medians, not maxima.
-fn compare_to_truth(set: &StreamSet, hor: &[Horizontal], ver: &[Vertical], axes: &[usize], all_axes_move: bool) -> usize {
-    let (att, pos, vel) = (set.attitude.as_ref().unwrap(), set.position.as_ref().unwrap(), set.velocity_ned.as_ref().unwrap());
+fn compare_to_truth(
+    set: &StreamSet,
+    hor: &[Horizontal],
+    ver: &[Vertical],
+    axes: &[usize],
+    all_axes_move: bool,
+) -> usize {
+    let (att, pos, vel) =
+        (set.attitude.as_ref().unwrap(), set.position.as_ref().unwrap(), set.velocity_ned.as_ref().unwrap());
     let inside = |t: f64| t > pos.t[0] && t < pos.t[pos.len() - 1];
     // Pairs (EKF, truth) per axis: north, east, down, vn, ve, vd; and the yaw errors.
     let mut pairs: [Vec<(f64, f64)>; 6] = Default::default();
@@ -322,7 +331,12 @@ fn simulator_bin_agrees_with_its_tlog_and_tolerates_a_torn_record() {
     // The EKF logs zeros until it has an origin (ORGN at 19.28 s): the position starts there.
     let set = bin;
     let pos = set.position.as_ref().unwrap();
-    assert!((pos.t[0] - 19.28).abs() < 0.11 && pos.v[0].iter().any(|x| *x != 0.0), "position from {} s: {:?}", pos.t[0], pos.v[0]);
+    assert!(
+        (pos.t[0] - 19.28).abs() < 0.11 && pos.v[0].iter().any(|x| *x != 0.0),
+        "position from {} s: {:?}",
+        pos.t[0],
+        pos.v[0]
+    );
     assert!(has_note(&set, "origin was set (ORGN)"));
     // Down, its rate and the yaw only: in these first 29 s the EKF's horizontal estimate is
     // still converging after the GPS was first fused (0.5 m/s off the truth; it agrees to
@@ -400,7 +414,9 @@ fn bin_pilot_axes_from_rcin() {
             continue;
         }
         let pwm = a.v[j - 1];
-        if pwm.iter().chain(&av.v[j - 1][..2]).any(|p| (p - 1500.0).abs() >= 399.0) || (av.v[j - 1][0] - 1500.0).abs() > 20.0 {
+        if pwm.iter().chain(&av.v[j - 1][..2]).any(|p| (p - 1500.0).abs() >= 399.0)
+            || (av.v[j - 1][0] - 1500.0).abs() > 20.0
+        {
             continue;
         }
         compared += 1;
@@ -409,4 +425,18 @@ fn bin_pilot_axes_from_rcin() {
         }
     }
     assert!(compared > 50, "{compared} records compared");
+}
+
+#[test]
+fn tlog_reboot_ends_the_series() {
+    // The pymavlink log twice in one file: the second copy's boot times start again at 5 s.
+    let dir = tempfile::tempdir().unwrap();
+    let once = std::fs::read(fixture("pymavlink.tlog")).unwrap();
+    let twice = dir.path().join("twice.tlog");
+    std::fs::write(&twice, [once.clone(), once].concat()).unwrap();
+    let single = read_tlog(&fixture("pymavlink.tlog"), &ArdupilotOptions::default()).unwrap();
+    let set = read_tlog(&twice, &ArdupilotOptions::default()).unwrap();
+    assert!(has_note(&set, "rebooted"), "{:?}", set.notes);
+    assert_eq!(set.attitude, single.attitude);
+    assert_eq!(set.position, single.position);
 }

@@ -66,7 +66,13 @@ pub struct ArdupilotOptions {
 
 impl Default for ArdupilotOptions {
     fn default() -> Self {
-        Self { inputs: InputSource::None, thrusters: None, baro_instance: None, water_density: 1000.0, surface_pressure: None }
+        Self {
+            inputs: InputSource::None,
+            thrusters: None,
+            baro_instance: None,
+            water_density: 1000.0,
+            surface_pressure: None,
+        }
     }
 }
 
@@ -138,7 +144,12 @@ pub(crate) fn rate_note<const N: usize>(s: &Series<N>) -> String {
 }
 
 /// Assembles the stream set, converting the inputs as `opts` says.
-pub(crate) fn build(path: &Path, mut d: Decoded, opts: &ArdupilotOptions, manual_control_raw: bool) -> Result<StreamSet, ImportError> {
+pub(crate) fn build(
+    path: &Path,
+    mut d: Decoded,
+    opts: &ArdupilotOptions,
+    manual_control_raw: bool,
+) -> Result<StreamSet, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let mut set = StreamSet { notes: std::mem::take(&mut d.notes), ..StreamSet::default() };
     let nonempty = |s: Option<Series<3>>| s.filter(|s| !s.is_empty());
@@ -179,9 +190,7 @@ pub(crate) fn build(path: &Path, mut d: Decoded, opts: &ArdupilotOptions, manual
             set.notes.push(rate_note(&depth));
             set.depth = Some(depth);
         }
-        (Some(depth), Some(_)) => {
-            set.notes.push(format!("{}: not used, the EKF's position gives z", depth.source))
-        }
+        (Some(depth), Some(_)) => set.notes.push(format!("{}: not used, the EKF's position gives z", depth.source)),
         (None, None) => {
             return Err(malformed("no position (EKF) and no depth (pressure sensor) in the log".into()));
         }
@@ -189,7 +198,9 @@ pub(crate) fn build(path: &Path, mut d: Decoded, opts: &ArdupilotOptions, manual
     }
     let convert = |what: &str| {
         opts.thrusters.as_ref().ok_or_else(|| {
-            ImportError::Unusable(format!("inputs from {what} need the vehicle's thrusters (ArdupilotOptions::thrusters)"))
+            ImportError::Unusable(format!(
+                "inputs from {what} need the vehicle's thrusters (ArdupilotOptions::thrusters)"
+            ))
         })
     };
     match &opts.inputs {
@@ -212,7 +223,10 @@ pub(crate) fn build(path: &Path, mut d: Decoded, opts: &ArdupilotOptions, manual
             let Some(pilot) = d.pilot.filter(|p| !p.is_empty()) else {
                 return Err(malformed("inputs from pilot commands: no MANUAL_CONTROL / RCIN message".into()));
             };
-            let mut s = Series::new(format!("{} through ArduSub's MANUAL map (gain {gain}) and the vehicle's thrusters", pilot.source));
+            let mut s = Series::new(format!(
+                "{} through ArduSub's MANUAL map (gain {gain}) and the vehicle's thrusters",
+                pilot.source
+            ));
             for (t, a) in pilot.t.iter().zip(&pilot.v) {
                 let axes = if manual_control_raw { manual_control_axes(a[0], a[1], a[2], a[3], *gain) } else { *a };
                 let u = conv(&pilot_to_pwm(axes, mix));
@@ -234,7 +248,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn manual_control_map_matches_arudsub_rc_override() {
+    fn manual_control_map_matches_ardusub_rc_override() {
         // Full forward stick, gain 1: forward axis 1; z at mid (500) is no throttle.
         assert_eq!(manual_control_axes(1000.0, 0.0, 500.0, 0.0, 1.0), [1.0, 0.0, 0.0, 0.0]);
         // z = 0 is full down: throttle axis -1 at gain 1, -0.5 at gain 0.5.

@@ -293,7 +293,9 @@ fn assemble(s: BinSamples, opts: &ArdupilotOptions) -> Result<Decoded, String> {
         d.notes.push(format!("dataflash: {} bytes outside any known record skipped", s.tally.skipped_bytes));
     }
     if let Some((at, name, have)) = &s.tally.torn {
-        d.notes.push(format!("dataflash: the file ends inside a {name} record at byte {at} ({have} bytes of it): dropped"));
+        d.notes.push(format!(
+            "dataflash: the file ends inside a {name} record at byte {at} ({have} bytes of it): dropped"
+        ));
     }
     if s.att.is_empty() {
         return Err(if s.tally.torn.is_some() {

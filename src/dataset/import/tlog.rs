@@ -12,7 +12,7 @@ use super::ImportError;
 use super::ardupilot::{ArdupilotOptions, Decoded, build};
 use super::streams::{Series, StreamSet};
 use mavlink::dialects::ardupilotmega::MavMessage;
-use mavlink::{Message, MavlinkVersion};
+use mavlink::{MavlinkVersion, Message};
 use std::path::Path;
 
 const V1: u8 = 0xFE;
@@ -84,7 +84,8 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
     let mut press = [Series::<1>::new("SCALED_PRESSURE.press_abs"), Series::<1>::new("SCALED_PRESSURE2.press_abs")];
     let (mut out_t, mut out_pwm) = (Vec::new(), Vec::new());
     let mut pilot = Series::new("MANUAL_CONTROL.x,y,z,r");
-    let (mut frames, mut damaged, mut other, mut skipped_bytes, mut out_of_order) = (0usize, 0usize, 0usize, 0usize, 0usize);
+    let (mut frames, mut damaged, mut other, mut skipped_bytes, mut out_of_order) =
+        (0usize, 0usize, 0usize, 0usize, 0usize);
     let mut autopilot: Option<u8> = None;
     // Latest boot time (s) and the receive time (µs) it came with: MANUAL_CONTROL has no time
     // of its own and is placed by the receive time elapsed since.
@@ -175,8 +176,12 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
                 pos.push(t, [m.x as f64, m.y as f64, m.z as f64]);
                 vel.push(t, [m.vx as f64, m.vy as f64, m.vz as f64]);
             }
-            MavMessage::SCALED_PRESSURE(m) => push(&mut press[0], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order),
-            MavMessage::SCALED_PRESSURE2(m) => push(&mut press[1], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order),
+            MavMessage::SCALED_PRESSURE(m) => {
+                push(&mut press[0], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
+            }
+            MavMessage::SCALED_PRESSURE2(m) => {
+                push(&mut press[1], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
+            }
             MavMessage::SERVO_OUTPUT_RAW(m) => {
                 let t = t.unwrap_or_default();
                 if m.port != 0 || out_t.last().is_some_and(|&l| t < l) {
@@ -184,9 +189,18 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
                 }
                 out_t.push(t);
                 out_pwm.push(
-                    [m.servo1_raw, m.servo2_raw, m.servo3_raw, m.servo4_raw, m.servo5_raw, m.servo6_raw, m.servo7_raw, m.servo8_raw]
-                        .map(f64::from)
-                        .to_vec(),
+                    [
+                        m.servo1_raw,
+                        m.servo2_raw,
+                        m.servo3_raw,
+                        m.servo4_raw,
+                        m.servo5_raw,
+                        m.servo6_raw,
+                        m.servo7_raw,
+                        m.servo8_raw,
+                    ]
+                    .map(f64::from)
+                    .to_vec(),
                 );
             }
             MavMessage::MANUAL_CONTROL(m) => {
