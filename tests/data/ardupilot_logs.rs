@@ -168,6 +168,8 @@ fn real_ardusub_bin_streams_and_rates() {
 #[test]
 fn real_ardusub_tlog_streams_and_rates() {
     let set = read_tlog(&fixture("small.tlog"), &channels_1238()).unwrap();
+    // pymavlink also finds 4 bad frames (BAD_DATA) in this file.
+    assert!(has_note(&set, "4 damaged frames"), "{:?}", set.notes);
     let att = set.attitude.as_ref().unwrap();
     // First ATTITUDE: time_boot_ms 689235, yaw -2.348.
     assert!((att.t[0] - 689.235).abs() < 1e-9 && (att.v[0][2] + 2.3479996).abs() < 1e-6);

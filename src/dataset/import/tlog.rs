@@ -43,8 +43,8 @@ fn frame_len(buf: &[u8], q: usize) -> Option<Result<usize, ()>> {
     Some(if q + total <= buf.len() { Ok(total) } else { Err(()) })
 }
 
-/// Checks the frame's CRC and decodes it; `Err(true)` for a frame the dialect does not know,
-/// `Err(false)` for a damaged one.
+/// Checks the frame's CRC (for every message the dialect knows) and decodes it if it is one
+/// of the messages read; `Err(true)` for a frame not read, `Err(false)` for a damaged one.
 fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
     let (version, id, payload_at, sys) = if frame[0] == V1 {
         (MavlinkVersion::V1, frame[5] as u32, 6, frame[3])
@@ -53,12 +53,16 @@ fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
         (MavlinkVersion::V2, id, 10, frame[5])
     };
     let len = frame[1] as usize;
-    if !WANTED.contains(&id) {
-        return Err(true);
+    let wanted = WANTED.contains(&id);
+    // A message the dialect does not know cannot be checked: it is stepped over as it is.
+    if wanted || MavMessage::default_message_from_id(id).is_some() {
+        let crc = u16::from_le_bytes([frame[payload_at + len], frame[payload_at + len + 1]]);
+        if mavlink::calculate_crc(&frame[1..payload_at + len], MavMessage::extra_crc(id)) != crc {
+            return Err(false);
+        }
     }
-    let crc = u16::from_le_bytes([frame[payload_at + len], frame[payload_at + len + 1]]);
-    if mavlink::calculate_crc(&frame[1..payload_at + len], MavMessage::extra_crc(id)) != crc {
-        return Err(false);
+    if !wanted {
+        return Err(true);
     }
     MavMessage::parse(version, id, &frame[payload_at..payload_at + len]).map(|m| (sys, m)).map_err(|_| false)
 }
@@ -222,7 +226,7 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
         )));
     }
     d.notes.push(format!(
-        "tlog: {frames} frames read, {other} of messages not used; time base: the autopilot's boot clock (time_boot_ms, time_usec), not the receive time stamps; frames: ATTITUDE and LOCAL_POSITION_NED are NED / forward-right-down already"
+        "tlog: {frames} frames read, {other} frames of other messages stepped over; time base: the autopilot's boot clock (time_boot_ms, time_usec), not the receive time stamps; frames: ATTITUDE and LOCAL_POSITION_NED are NED / forward-right-down already"
     ));
     if damaged > 0 || skipped_bytes > 0 {
         d.notes.push(format!("tlog: {damaged} damaged frames (bad CRC) skipped, {skipped_bytes} bytes skipped in all"));
