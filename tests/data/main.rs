@@ -3,6 +3,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod ardupilot_logs;
 mod dataset;
 mod eval_rollouts;
 mod identify;

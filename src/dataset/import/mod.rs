@@ -2,20 +2,28 @@
 //! `mpc_track` writes, resampled to the model's sample period, cut into windows and split
 //! into train / dev / test by run, stored exactly like a generated dataset.
 
+mod ardupilot;
 mod csv_log;
 mod csv_mapping;
+mod dataflash;
 mod mcap_log;
 mod streams;
+mod tlog;
 mod windows;
 
+pub use ardupilot::{
+    ArdupilotOptions, BLUEROV2_VECTORED_MIX, InputSource, ThrusterConversion, manual_control_axes, pilot_to_pwm,
+};
 pub use csv_log::read_csv;
 pub use csv_mapping::{
     AngleUnit, BodyAxes, CommandsToInput, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping,
     QUATERNION_NORM_TOLERANCE, QuaternionOrder, TimeMapping, TimeUnit, VelocityAxes, VelocityMapping, WorldFrame,
     YawRateMapping, load_mapping, read_mapped_csv,
 };
+pub use dataflash::read_bin;
 pub use mcap_log::{McapTopics, read_mcap};
 pub use streams::{Series, StreamSet};
+pub use tlog::read_tlog;
 pub use windows::{SkipCounts, cut_windows};
 
 use super::{Dataset, DatasetPreset, Excitation, InitialRanges, SetSpec, TrajectorySet};

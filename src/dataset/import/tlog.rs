@@ -1,0 +1,278 @@
+//! QGroundControl / MAVProxy telemetry logs (`.tlog`): each MAVLink v1 or v2 frame follows an
+//! 8-byte big-endian time stamp (µs since 1970, the ground station's receive time). Frames are
+//! checked (CRC) and decoded by the `mavlink` crate (ArduPilot's dialect); a damaged frame
+//! is skipped and counted, a file cut inside a frame is noted.
+//!
+//! Every series is on the autopilot's boot clock (`time_boot_ms`, `time_usec`), not the
+//! receive time: the ground station's clock adds link latency and runs at a different rate
+//! from a simulator's. A boot time going back by more than a second is a reboot: the series
+//! end there (noted).
+
+use super::ImportError;
+use super::ardupilot::{ArdupilotOptions, Decoded, build};
+use super::streams::{Series, StreamSet};
+use mavlink::dialects::ardupilotmega::MavMessage;
+use mavlink::{MavlinkVersion, Message};
+use std::path::Path;
+
+const V1: u8 = 0xFE;
+const V2: u8 = 0xFD;
+const STAMP: usize = 8;
+/// A boot time this far behind the latest one is a reboot, not reordering (s).
+const REBOOT_STEP: f64 = 1.0;
+/// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
+const G: f64 = 9.80665;
+
+/// Ids of the messages read (MAVLink common set).
+const WANTED: [u32; 7] = [30, 32, 29, 137, 36, 69, 33];
+
+/// Where the frame at `buf[q..]` ends, or `None` if `buf[q]` is no start byte; `Some(Err(..))`
+/// when the file ends inside it.
+fn frame_len(buf: &[u8], q: usize) -> Option<Result<usize, ()>> {
+    let magic = *buf.get(q)?;
+    let (head, sig) = match magic {
+        V1 => (6, 0),
+        V2 => {
+            let Some(&flags) = buf.get(q + 2) else { return Some(Err(())) };
+            (10, if flags & 1 != 0 { 13 } else { 0 })
+        }
+        _ => return None,
+    };
+    let Some(&len) = buf.get(q + 1) else { return Some(Err(())) };
+    let total = head + len as usize + 2 + sig;
+    Some(if q + total <= buf.len() { Ok(total) } else { Err(()) })
+}
+
+/// Checks the frame's CRC (for every message the dialect knows) and decodes it if it is one
+/// of the messages read; `Err(true)` for a frame not read, `Err(false)` for a damaged one.
+fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
+    let (version, id, payload_at, sys) = if frame[0] == V1 {
+        (MavlinkVersion::V1, frame[5] as u32, 6, frame[3])
+    } else {
+        let id = frame[7] as u32 | (frame[8] as u32) << 8 | (frame[9] as u32) << 16;
+        (MavlinkVersion::V2, id, 10, frame[5])
+    };
+    let len = frame[1] as usize;
+    let wanted = WANTED.contains(&id);
+    // A message the dialect does not know cannot be checked: it is stepped over as it is.
+    if wanted || MavMessage::default_message_from_id(id).is_some() {
+        let crc = u16::from_le_bytes([frame[payload_at + len], frame[payload_at + len + 1]]);
+        if mavlink::calculate_crc(&frame[1..payload_at + len], MavMessage::extra_crc(id)) != crc {
+            return Err(false);
+        }
+    }
+    if !wanted {
+        return Err(true);
+    }
+    MavMessage::parse(version, id, &frame[payload_at..payload_at + len]).map(|m| (sys, m)).map_err(|_| false)
+}
+
+/// Reads a telemetry log into the streams (see the module documentation and
+/// docs/LOGS_ARDUPILOT.md): `ATTITUDE` (attitude, yaw rate), `LOCAL_POSITION_NED` (the EKF's
+/// NED position and velocity), `SCALED_PRESSURE2` or else `SCALED_PRESSURE` (depth, only
+/// where there is no position), `SERVO_OUTPUT_RAW` (thruster outputs), `MANUAL_CONTROL`
+/// (pilot commands), from the system that sends `ATTITUDE`.
+///
+/// # Errors
+/// The file cannot be read, holds no valid MAVLink frame, or lacks a message the streams need
+/// (`ImportError::Malformed`, naming the file and the message); inputs asked for without a
+/// thruster conversion (`ImportError::Unusable`).
+pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, ImportError> {
+    let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
+    let buf = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let mut d = Decoded::default();
+    let mut att = Series::new("ATTITUDE.roll,pitch,yaw");
+    let mut rate = Series::new("ATTITUDE.yawspeed");
+    let mut pos = Series::new("LOCAL_POSITION_NED.x,y,z");
+    let mut vel = Series::new("LOCAL_POSITION_NED.vx,vy,vz");
+    let mut press = [Series::<1>::new("SCALED_PRESSURE.press_abs"), Series::<1>::new("SCALED_PRESSURE2.press_abs")];
+    let (mut out_t, mut out_pwm) = (Vec::new(), Vec::new());
+    let mut pilot = Series::new("MANUAL_CONTROL.x,y,z,r");
+    let (mut frames, mut damaged, mut other, mut skipped_bytes, mut out_of_order) =
+        (0usize, 0usize, 0usize, 0usize, 0usize);
+    let mut autopilot: Option<u8> = None;
+    // Latest boot time (s) and the receive time (µs) it came with: MANUAL_CONTROL has no time
+    // of its own and is placed by the receive time elapsed since.
+    let mut latest: Option<(f64, u64)> = None;
+    let mut torn = None;
+    let mut reboot = None;
+    let mut p = 0;
+    let push = |s: &mut Series<1>, t: f64, v: f64, n: &mut usize| {
+        if s.t.last().is_some_and(|&l| t < l) {
+            *n += 1;
+        } else {
+            s.push(t, [v]);
+        }
+    };
+    while p + STAMP < buf.len() {
+        let q = p + STAMP;
+        let len = match frame_len(&buf, q) {
+            None => {
+                skipped_bytes += 1;
+                p += 1;
+                continue;
+            }
+            Some(Err(())) => {
+                torn = Some(p);
+                break;
+            }
+            Some(Ok(len)) => len,
+        };
+        let frame = &buf[q..q + len];
+        let received = u64::from_be_bytes(buf[p..q].try_into().expect("8 bytes"));
+        let (sys, msg) = match decode(frame) {
+            Ok(m) => m,
+            Err(true) => {
+                other += 1;
+                p = q + len;
+                continue;
+            }
+            Err(false) => {
+                // A damaged frame: its length byte may be wrong too, so look for the next one.
+                damaged += 1;
+                skipped_bytes += 1;
+                p += 1;
+                continue;
+            }
+        };
+        frames += 1;
+        p = q + len;
+        let boot_ms = |ms: u32| ms as f64 * 1e-3;
+        let t = match &msg {
+            MavMessage::MANUAL_CONTROL(_) => None,
+            _ if autopilot.is_some_and(|a| a != sys) => continue,
+            MavMessage::ATTITUDE(m) => Some(boot_ms(m.time_boot_ms)),
+            MavMessage::LOCAL_POSITION_NED(m) => Some(boot_ms(m.time_boot_ms)),
+            MavMessage::GLOBAL_POSITION_INT(m) => Some(boot_ms(m.time_boot_ms)),
+            MavMessage::SCALED_PRESSURE(m) => Some(boot_ms(m.time_boot_ms)),
+            MavMessage::SCALED_PRESSURE2(m) => Some(boot_ms(m.time_boot_ms)),
+            MavMessage::SERVO_OUTPUT_RAW(m) => Some(m.time_usec as f64 * 1e-6),
+            _ => None,
+        };
+        if let Some(t) = t {
+            if let Some((l, _)) = latest
+                && t < l - REBOOT_STEP
+            {
+                reboot = Some((q, l, t));
+                break;
+            }
+            if latest.is_none_or(|(l, _)| t >= l) {
+                latest = Some((t, received));
+            }
+        }
+        match msg {
+            MavMessage::ATTITUDE(m) => {
+                autopilot.get_or_insert(sys);
+                let t = t.unwrap_or_default();
+                if att.t.last().is_some_and(|&l| t < l) {
+                    out_of_order += 1;
+                    continue;
+                }
+                att.push(t, [m.roll as f64, m.pitch as f64, m.yaw as f64]);
+                rate.push(t, [m.yawspeed as f64]);
+            }
+            MavMessage::LOCAL_POSITION_NED(m) => {
+                let t = t.unwrap_or_default();
+                if pos.t.last().is_some_and(|&l| t < l) {
+                    out_of_order += 1;
+                    continue;
+                }
+                pos.push(t, [m.x as f64, m.y as f64, m.z as f64]);
+                vel.push(t, [m.vx as f64, m.vy as f64, m.vz as f64]);
+            }
+            MavMessage::SCALED_PRESSURE(m) => {
+                push(&mut press[0], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
+            }
+            MavMessage::SCALED_PRESSURE2(m) => {
+                push(&mut press[1], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
+            }
+            MavMessage::SERVO_OUTPUT_RAW(m) => {
+                let t = t.unwrap_or_default();
+                if m.port != 0 || out_t.last().is_some_and(|&l| t < l) {
+                    continue;
+                }
+                out_t.push(t);
+                out_pwm.push(
+                    [
+                        m.servo1_raw,
+                        m.servo2_raw,
+                        m.servo3_raw,
+                        m.servo4_raw,
+                        m.servo5_raw,
+                        m.servo6_raw,
+                        m.servo7_raw,
+                        m.servo8_raw,
+                    ]
+                    .map(f64::from)
+                    .to_vec(),
+                );
+            }
+            MavMessage::MANUAL_CONTROL(m) => {
+                if let Some((l, r)) = latest {
+                    // In integer µs: the stamps since 1970 have too many digits for an f64 in s.
+                    let t = l + received.saturating_sub(r) as f64 * 1e-6;
+                    if pilot.t.last().is_none_or(|&last| t >= last) {
+                        pilot.push(t, [m.x, m.y, m.z, m.r].map(f64::from));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    if frames == 0 {
+        return Err(malformed(format!(
+            "not a MAVLink telemetry log: no valid frame after an 8-byte time stamp in its {} bytes",
+            buf.len()
+        )));
+    }
+    d.notes.push(format!(
+        "tlog: {frames} frames read, {other} frames of other messages stepped over; time base: the autopilot's boot clock (time_boot_ms, time_usec), not the receive time stamps; frames: ATTITUDE and LOCAL_POSITION_NED are NED / forward-right-down already"
+    ));
+    if damaged > 0 || skipped_bytes > 0 {
+        d.notes.push(format!("tlog: {damaged} damaged frames (bad CRC) skipped, {skipped_bytes} bytes skipped in all"));
+    }
+    if out_of_order > 0 {
+        d.notes.push(format!("tlog: {out_of_order} samples older than their series' last one dropped"));
+    }
+    if let Some(at) = torn {
+        d.notes.push(format!("tlog: the file ends inside a frame at byte {at}: dropped"));
+    }
+    if let Some((at, l, t)) = reboot {
+        d.notes.push(format!(
+            "tlog: the autopilot rebooted at byte {at} (boot time {l:.3} s -> {t:.3} s): the series end there"
+        ));
+    }
+    if att.is_empty() {
+        let what = if torn.is_some() { "truncated before any ATTITUDE message" } else { "no ATTITUDE message" };
+        return Err(malformed(what.into()));
+    }
+    d.attitude = Some(att);
+    d.yaw_rate = Some(rate);
+    d.position = Some(pos);
+    d.velocity_ned = Some(vel);
+    let [p1, p2] = press;
+    if let Some(pr) = [p2, p1].into_iter().find(|s| !s.is_empty()) {
+        let surface = opts.surface_pressure.unwrap_or(pr.v[0][0]);
+        let rho = opts.water_density;
+        let mut depth = Series::new(format!(
+            "{} (depth = (p - {surface:.0} Pa) / ({rho} kg/m^3 * {G} m/s^2), surface pressure {})",
+            pr.source,
+            if opts.surface_pressure.is_some() { "given" } else { "the first sample" }
+        ));
+        for (t, v) in pr.t.iter().zip(&pr.v) {
+            depth.push(*t, [(v[0] - surface) / (rho * G)]);
+        }
+        d.depth = Some(depth);
+    }
+    if !out_t.is_empty() {
+        d.outputs = Some(("SERVO_OUTPUT_RAW.servo1_raw..servo8_raw (PWM us)".into(), out_t, out_pwm));
+    }
+    if !pilot.is_empty() {
+        d.notes.push(
+            "MANUAL_CONTROL: no time of its own; placed at the latest autopilot boot time plus the receive time elapsed since"
+                .into(),
+        );
+        d.pilot = Some(pilot);
+    }
+    build(path, d, opts, true)
+}
