@@ -31,7 +31,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[command(about = "Closed-loop depth and heading tracking with the LTV-MPC")]
 struct Args {
     /// The frozen model inside the MPC (its training envelope bounds the inputs).
-    #[arg(long, default_value = "models/mpc_pinc.pinc")]
+    #[arg(long, default_value = "models/mpc_pinc_thrust.pinc")]
     model: PathBuf,
     /// Run the identical controller on the analytic vehicle model instead (bounds still from --model).
     #[arg(long)]

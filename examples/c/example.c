@@ -3,7 +3,7 @@
  * them with the Rust API bit for bit.
  *
  *   cc -O2 example.c -I../../include -L../../target/release -l:libpinc_c.a -lm -lpthread -ldl -lgcc_s
- *   ./a.out ../../models/mpc_pinc.pinc
+ *   ./a.out ../../models/mpc_pinc_thrust.pinc
  */
 #include <math.h>
 #include <stdio.h>

@@ -71,7 +71,7 @@ def build(p):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default=str(ROOT / "models" / "mpc_pinc.pinc"))
+    ap.add_argument("--model", default=str(ROOT / "models" / "mpc_pinc_thrust.pinc"))
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--plot", default=None, help="PNG path (needs matplotlib)")

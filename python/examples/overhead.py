@@ -24,7 +24,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
-    p = pinc.Predictor(str(ROOT / "models" / "mpc_pinc.pinc"))
+    p = pinc.Predictor(str(ROOT / "models" / "mpc_pinc_thrust.pinc"))
     x = np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.0, 0.05, 0.0])
     u = np.array([2.0, 0.1, 5.0, 0.05])
     U20 = np.tile(u, (20, 1))

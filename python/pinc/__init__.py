@@ -1,7 +1,7 @@
 """pinc: the PINC predictor of an underwater vehicle, from Python.
 
     import pinc
-    p = pinc.Predictor("models/mpc_pinc.pinc")
+    p = pinc.Predictor("models/mpc_pinc_thrust.pinc")
     X, A, B = p.linearise(x0, U)        # exact Jacobians of the horizon
 
 States are the network form [x, y, z, cos psi, sin psi, u, v, w, r], inputs [X, Y, Z, Mz];

@@ -1,7 +1,7 @@
 """The predictor as CasADi Functions with exact Jacobians.
 
     import casadi as ca, pinc, pinc.casadi
-    p = pinc.Predictor("models/mpc_pinc.pinc")
+    p = pinc.Predictor("models/mpc_pinc_thrust.pinc")
     f = pinc.casadi.step_function(p)            # f(x[9], u[4]) -> x_next[9]
     F = pinc.casadi.rollout_function(p, 20)     # F(x0[9], U[4 x 20]) -> X[9 x 21]
 
