@@ -25,7 +25,7 @@ pub enum VehicleFileError {
         message: String,
     },
     /// A key that is not a vehicle coefficient (a typo must not pass silently).
-    #[error("{path}: unknown key {key:?} (the keys are m, g, rho, volume, x_ud, y_vd, z_wd, n_rd, izz, x_u, y_v, z_w, n_r, x_uu, y_vv, z_ww, n_rr)", path = path.display())]
+    #[error("{path}: unknown key {key:?} (the keys are m, g, rho, volume, x_ud, y_vd, z_wd, n_rd, izz, x_u, y_v, z_w, n_r, x_uu, y_vv, z_ww, n_rr, and the tables thruster and curve)", path = path.display())]
     UnknownKey {
         /// The file.
         path: PathBuf,
@@ -41,6 +41,16 @@ pub enum VehicleFileError {
         key: String,
         /// The value as written.
         found: String,
+    },
+    /// A thruster or thruster curve that cannot be used (docs/THRUSTERS.md).
+    #[error("{path}: {}{message}", if thruster.is_empty() { String::new() } else { format!("thruster {thruster}: ") }, path = path.display())]
+    Thruster {
+        /// The file.
+        path: PathBuf,
+        /// The thruster's name (empty when the fault is not one thruster's).
+        thruster: String,
+        /// What is wrong.
+        message: String,
     },
     /// Numbers that make the model meaningless.
     #[error("{path}: {source}", path = path.display())]
@@ -64,6 +74,10 @@ impl VehicleParams {
             .map_err(|e: toml::de::Error| VehicleFileError::Syntax { path: path.clone(), message: e.to_string() })?;
         let mut params = VehicleParams::default();
         for (key, value) in &table {
+            // The thrusters and their curves: `Thrusters::from_toml` reads them.
+            if key == "thruster" || key == "curve" {
+                continue;
+            }
             let number = match value {
                 toml::Value::Float(f) => *f,
                 toml::Value::Integer(i) => *i as f64,
@@ -112,7 +126,7 @@ mod tests {
         assert_eq!(VehicleParams::load(&path).unwrap(), VehicleParams::default());
         let text = std::fs::read_to_string(path).unwrap();
         let table: toml::Table = text.parse().unwrap();
-        assert_eq!(table.len(), 17, "every key written out");
+        assert_eq!(table.len(), 19, "every key written out, and the thruster and curve tables");
     }
 
     #[test]

@@ -6,6 +6,8 @@ mod dynamics;
 mod file;
 mod integrator;
 mod params;
+#[cfg(feature = "tools")]
+mod thrusters;
 
 pub use dynamics::{
     RhsInputJacobian, RhsStateJacobian, body_accelerations, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator,
@@ -15,6 +17,8 @@ pub use dynamics::{
 pub use file::VehicleFileError;
 pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
 pub use params::{ParamsError, VehicleParams, terminal_speed};
+#[cfg(feature = "tools")]
+pub use thrusters::{Allocation, CommandUnit, Thruster, ThrusterCurve, Thrusters};
 
 #[cfg(test)]
 mod tests;
