@@ -139,9 +139,10 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
         logs.push(LogFile { path: path.clone(), sha256: sha256_hex(&bytes), streams });
     }
     if a.dt.is_none() {
-        let chosen = logs.iter().filter_map(|l| log_dt(&l.streams)).fold(None, |m: Option<f64>, d| {
-            Some(m.map_or(d, |m| m.max(d)))
-        });
+        let chosen = logs
+            .iter()
+            .filter_map(|l| log_dt(&l.streams))
+            .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |m| m.max(d))));
         options.dt = chosen.ok_or("no state stream with two samples to take --dt from; give --dt")?;
         options.check().map_err(|e| e.to_string())?;
     }

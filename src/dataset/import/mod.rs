@@ -10,9 +10,7 @@ mod windows;
 
 pub use csv_log::read_csv;
 pub use mcap_log::{McapTopics, read_mcap};
-pub use resample::{
-    StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of,
-};
+pub use resample::{StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use streams::{Series, StreamSet};
 pub use windows::{SkipCounts, cut_windows};
 

@@ -98,7 +98,8 @@ pub fn log_dt(set: &StreamSet) -> Option<f64> {
         set.velocity_body.as_ref().map(|s| median_step(&clean(s).t)),
         set.yaw_rate.as_ref().map(|s| median_step(&clean(s).t)),
     ];
-    let slowest = steps.into_iter().flatten().flatten().fold(None, |m: Option<f64>, p| Some(m.map_or(p, |m| m.max(p))))?;
+    let slowest =
+        steps.into_iter().flatten().flatten().fold(None, |m: Option<f64>, p| Some(m.map_or(p, |m| m.max(p))))?;
     Some(((slowest * 1000.0).round() / 1000.0).max(0.001))
 }
 
@@ -401,7 +402,9 @@ pub fn resample(
             att.v[i][2]
         } else if i == j {
             wrap_angle(att.v[i][2])
-        } else { wrap_angle(yaw_u[i] + wy * (yaw_u[j] - yaw_u[i])) };
+        } else {
+            wrap_angle(yaw_u[i] + wy * (yaw_u[j] - yaw_u[i]))
+        };
         let p = pos_i.as_mut().map_or([f64::NAN; 3], |i| i.at(g));
         let z = depth_i.as_mut().map_or(p[2], |i| i.at(g)[0]);
         let [u, v, w] = match (&mut body_i, &mut ned_i) {
