@@ -14,6 +14,7 @@
 use crate::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use crate::model::PincModel;
 use crate::runtime::{BatchWorkspace, Predictor, RuntimeError};
+use crate::traits::DiscreteModel;
 use crate::types::{Input, NX, State};
 use crate::vehicle::{self, VehicleParams};
 use serde::Serialize;
@@ -156,6 +157,15 @@ pub fn rollout_mse<T: crate::runtime::Real>(
     set: &TrajectorySet,
     steps: usize,
 ) -> Result<f64, RuntimeError> {
+    rollout_mse_by(|x0, inputs, n| rollouts(p, set.dt, x0, inputs, n), set, steps)
+}
+
+/// [`rollout_mse`] with the rollouts made by `roll(x0, inputs, steps)`.
+fn rollout_mse_by(
+    roll: impl Fn(&[State], &[Input], usize) -> Result<Vec<State>, RuntimeError>,
+    set: &TrajectorySet,
+    steps: usize,
+) -> Result<f64, RuntimeError> {
     let intervals = set.points - 1;
     let starts = intervals + 1 - steps.min(intervals);
     let mut x0 = Vec::with_capacity(set.count * starts);
@@ -167,7 +177,7 @@ pub fn rollout_mse<T: crate::runtime::Real>(
             inputs.extend_from_slice(&us[k..k + steps]);
         }
     }
-    let out = rollouts(p, set.dt, &x0, &inputs, steps)?;
+    let out = roll(&x0, &inputs, steps)?;
     let mut sum = 0.0;
     for i in 0..set.count {
         let (xs, _) = set.trajectory(i);
@@ -179,6 +189,64 @@ pub fn rollout_mse<T: crate::runtime::Real>(
         }
     }
     Ok(sum / (set.count * starts * steps * NX) as f64)
+}
+
+/// Rolls out a [`DiscreteModel`] from every `x0` under its `steps` inputs, at the model's own
+/// period; a trajectory whose prediction stops being finite is filled with infinities from
+/// that step on (as the network's rollouts).
+fn discrete_rollouts<M: DiscreteModel>(
+    m: &M,
+    x0: &[State],
+    inputs: &[Input],
+    steps: usize,
+) -> Result<Vec<State>, RuntimeError> {
+    let mut ws = m.workspace();
+    let mut out = vec![State::zeros(); x0.len() * (steps + 1)];
+    for (i, x) in x0.iter().enumerate() {
+        let traj = &mut out[i * (steps + 1)..(i + 1) * (steps + 1)];
+        crate::runtime::check_state(0, x)?;
+        traj[0] = *x;
+        for k in 0..steps {
+            let u = &inputs[i * steps + k];
+            crate::runtime::check_input(k, u)?;
+            let mut next = State::zeros();
+            match m.step(&mut ws, &traj[k], u, &mut next) {
+                Ok(()) => traj[k + 1] = next,
+                Err(RuntimeError::NonFiniteOutput { .. } | RuntimeError::NonFiniteState { .. }) => {
+                    traj[k + 1..].iter_mut().for_each(|s| s.fill(f64::INFINITY));
+                    break;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// [`SetMetrics`] of any [`DiscreteModel`] (the analytic vehicle, identified physics) on
+/// `set`, by the same definitions as [`evaluate_set`]; the model steps at its own period,
+/// which must be the set's. The physics residual is NaN (not applicable: it measures a
+/// network's time derivative against the vehicle).
+///
+/// # Errors
+/// A non-finite state or input in the set; [`RuntimeError::BadTimeStep`] when the model's
+/// period is not the set's.
+pub fn evaluate_set_discrete<M: DiscreteModel>(m: &M, set: &TrajectorySet) -> Result<SetMetrics, RuntimeError> {
+    if (m.dt() - set.dt).abs() > 1e-12 * set.dt.max(1.0) {
+        return Err(RuntimeError::BadTimeStep(m.dt()));
+    }
+    let roll = |x0: &[State], inputs: &[Input], n: usize| discrete_rollouts(m, x0, inputs, n);
+    let x0: Vec<State> = (0..set.count).map(|i| set.trajectory(i).0[0]).collect();
+    let mut v = vpt_of_rollouts(&roll(&x0, &set.inputs, set.points - 1)?, set);
+    v.sort_by(f64::total_cmp);
+    Ok(SetMetrics {
+        one_step_mse: rollout_mse_by(roll, set, 1)?,
+        rollout10_mse: rollout_mse_by(roll, set, 10.min(set.points - 1))?,
+        physics_mse: f64::NAN,
+        vpt_s: mean(&v),
+        vpt_median_s: v.get(v.len() / 2).copied().unwrap_or(0.0),
+        windows: set.count,
+    })
 }
 
 /// Physics-residual MSE at `t = T` from every true state of `set`.
@@ -276,7 +344,8 @@ pub struct SetMetrics {
     pub one_step_mse: f64,
     /// 10-step rollout MSE (shorter when the windows are).
     pub rollout10_mse: f64,
-    /// Physics-residual MSE at `t = T` against the given vehicle.
+    /// Physics-residual MSE at `t = T` against the given vehicle (NaN, JSON null, for a
+    /// model that is not a network).
     pub physics_mse: f64,
     /// Mean VPT (s); a window's VPT is at most its length.
     pub vpt_s: f64,

@@ -8,7 +8,17 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 fn options(window: usize, split: [f64; 3]) -> ImportOptions {
-    ImportOptions { format: "csv".into(), dt: 0.08, window, split, seed: 3, collocation_points: 1, topics: None }
+    ImportOptions {
+        format: "csv".into(),
+        dt: 0.08,
+        window,
+        split,
+        seed: 3,
+        collocation_points: 1,
+        topics: None,
+        gap_tolerance: None,
+        dt_from_log: false,
+    }
 }
 
 /// A run simulated at `period` with inputs that change every 0.08 s, starting at `x0`.
@@ -155,10 +165,11 @@ fn bad_input_is_an_error_naming_the_file_and_the_place() {
     assert!(err(&word).ends_with("line 3: column t: \"later\" is not a number"), "{}", err(&word));
     assert!(err(&write("empty.csv", "t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz\n")).ends_with("no rows after the header"));
     assert!(err(&dir.path().join("missing.csv")).contains("missing.csv: "));
-    // A log at 0.03 s is neither 0.08 s nor an integer fraction of it.
+    // A log at 0.03 s, neither 0.08 s nor an integer fraction of it, is resampled (it was
+    // refused before the shared resampling): 200 rows span 5.97 s, 75 periods of 0.08 s.
     let odd = read_csv(&write_csv(dir.path(), "odd.csv", &run("odd.csv", 0.03, 200, 0.0))).unwrap();
-    let e = import(&[odd], &hashes(1), &options(66, [0.7, 0.15, 0.15])).unwrap_err().to_string();
-    assert!(e.contains("odd.csv: the log's sample period is 0.03") && e.contains("integer fraction"), "{e}");
+    let data = import(&[odd], &hashes(1), &options(66, [1.0, 0.0, 0.0])).unwrap();
+    assert_eq!(data.source.as_ref().unwrap().files[0].rows, 75);
     // A window longer than every run.
     let short = read_csv(&good).unwrap();
     let e = import(&[short], &hashes(1), &options(200, [0.7, 0.15, 0.15])).unwrap_err().to_string();

@@ -9,3 +9,4 @@ mod eval_rollouts;
 mod identify;
 mod import;
 mod import_mapped;
+mod resample;

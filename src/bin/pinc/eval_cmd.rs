@@ -12,9 +12,9 @@ use std::time::Instant;
 /// Arguments of `pinc eval`.
 #[derive(clap::Args)]
 pub struct EvalArgs {
-    /// The .pinc model.
+    /// The .pinc model; with --data it may be given several times (one table row each).
     #[arg(long)]
-    pub model: PathBuf,
+    pub model: Vec<PathBuf>,
     /// Dataset preset whose evaluation sets are generated.
     #[arg(long, value_enum, default_value = "paper")]
     pub preset: PresetName,
@@ -34,11 +34,13 @@ pub struct EvalArgs {
     #[arg(long)]
     pub no_plot: bool,
     /// Vehicle file the evaluation sets are simulated with [default: the vehicle the model
-    /// records, which its physics loss used]; with --data, the vehicle of the physics residual.
+    /// records, which its physics loss used]; with --data, the vehicle of the models' physics
+    /// residual, and its analytic model is evaluated as one more row.
     #[arg(long)]
     pub vehicle: Option<PathBuf>,
     /// Evaluate on the test split of this dataset folder (`pinc dataset import`) instead of
-    /// generated sets: one-step and 10-step MSE, physics residual, VPT.
+    /// generated sets: one-step and 10-step MSE, physics residual, VPT, for each --model and
+    /// for the --vehicle file's analytic model.
     #[arg(long)]
     pub data: Option<PathBuf>,
 }
@@ -71,27 +73,32 @@ pub fn print_metrics(label: &str, m: &Metrics) {
 }
 
 pub fn run_eval(a: EvalArgs) -> Result<(), String> {
-    let model = load_model(&a.model)?;
+    if let Some(dir) = &a.data {
+        return eval_on_data(&a, dir);
+    }
+    let model_path = match a.model.as_slice() {
+        [one] => one.clone(),
+        [] => return Err("--model is required (without --data, the sets are generated for one model)".into()),
+        _ => return Err("several --model need --data (a dataset's test split to compare them on)".into()),
+    };
+    let model = load_model(&model_path)?;
     let vehicle = match &a.vehicle {
         Some(path) => load_vehicle(Some(path))?,
         None => model.vehicle,
     };
-    if let Some(dir) = &a.data {
-        return eval_on_data(&a, &model, dir, &vehicle);
-    }
     let start = Instant::now();
     let sets = eval_sets(&a.preset.preset_for(vehicle), a.seed, a.count, a.json);
     let metrics = evaluate(&model, &sets).map_err(|e| format!("evaluation failed: {e}"))?;
     let seconds = start.elapsed().as_secs_f64();
     let plot =
-        (!a.no_plot).then(|| a.plot.clone().unwrap_or_else(|| default_plot(&a.model, &format!("seed{}", a.seed))));
+        (!a.no_plot).then(|| a.plot.clone().unwrap_or_else(|| default_plot(&model_path, &format!("seed{}", a.seed))));
     if let Some(path) = &plot {
         plot_rollouts(path, &model, &sets.dev).map_err(|e| format!("plot {}: {e}", path.display()))?;
     }
     if a.json {
         let mut v = serde_json::to_value(metrics).map_err(|e| e.to_string())?;
         let obj = v.as_object_mut().expect("metrics serialise to an object");
-        obj.insert("model".into(), a.model.display().to_string().into());
+        obj.insert("model".into(), model_path.display().to_string().into());
         obj.insert("preset".into(), a.preset.preset().name.into());
         obj.insert("seed".into(), a.seed.into());
         obj.insert("trajectories_per_set".into(), sets.dev.count.into());
@@ -104,13 +111,13 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
     } else {
         println!(
             "{} on preset {}, seed {}, {} trajectories per set ({:.1} s)",
-            a.model.display(),
+            model_path.display(),
             a.preset.preset().name,
             a.seed,
             sets.dev.count,
             seconds
         );
-        print_metrics(&a.model.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(), &metrics);
+        print_metrics(&model_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(), &metrics);
         if let Some(p) = &plot {
             println!("plot: {}", p.display());
         }
@@ -118,53 +125,95 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
     Ok(())
 }
 
-/// The model's [`pinc::eval::SetMetrics`] on the test split of a dataset folder.
-fn eval_on_data(
-    a: &EvalArgs,
-    model: &pinc::model::PincModel,
-    dir: &Path,
-    vehicle: &pinc::vehicle::VehicleParams,
-) -> Result<(), String> {
-    let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
-    let test = data
-        .set("test")
-        .filter(|s| s.count > 0)
-        .ok_or_else(|| format!("{}: the dataset has no test windows", dir.display()))?;
-    if (test.dt - model.dt).abs() > 1e-12 {
-        eprintln!("warning: the data's sample period is {} s, the model's {} s", test.dt, model.dt);
+/// One row of `pinc eval --data`: a model or the analytic vehicle.
+struct Row {
+    kind: &'static str,
+    path: PathBuf,
+    metrics: pinc::eval::SetMetrics,
+}
+
+/// [`pinc::eval::SetMetrics`] of each model, and of the `--vehicle` file's analytic model, on
+/// the test split of a dataset folder.
+fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
+    if a.model.is_empty() && a.vehicle.is_none() {
+        return Err("--data needs a --model or a --vehicle to evaluate".into());
     }
-    let m = pinc::eval::evaluate_set(model, test, vehicle).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let plot = (!a.no_plot).then(|| a.plot.clone().unwrap_or_else(|| default_plot(&a.model, "data")));
-    if let Some(path) = &plot {
+    let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
+    let test = data.set("test").filter(|s| s.count > 0).ok_or_else(|| {
+        format!("{}: the dataset has no test windows (imported with a zero test fraction?)", dir.display())
+    })?;
+    let vehicle = a.vehicle.as_deref().map(|p| load_vehicle(Some(p))).transpose()?;
+    let mut rows = Vec::new();
+    let mut first_model = None;
+    for path in &a.model {
+        let model = load_model(path)?;
+        if (test.dt - model.dt).abs() > 1e-12 {
+            eprintln!("warning: the data's sample period is {} s, {}'s {} s", test.dt, path.display(), model.dt);
+        }
+        let physics = vehicle.unwrap_or(model.vehicle);
+        let m = pinc::eval::evaluate_set(&model, test, &physics)
+            .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
+        rows.push(Row { kind: "model", path: path.clone(), metrics: m });
+        first_model.get_or_insert((path.clone(), model));
+    }
+    if let (Some(params), Some(path)) = (vehicle, &a.vehicle) {
+        let analytic = pinc::vehicle::Rk4Vehicle { params, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
+        let m = pinc::eval::evaluate_set_discrete(&analytic, test)
+            .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
+        rows.push(Row { kind: "vehicle", path: path.clone(), metrics: m });
+    }
+    let plot = first_model
+        .as_ref()
+        .filter(|_| !a.no_plot)
+        .map(|(path, model)| (a.plot.clone().unwrap_or_else(|| default_plot(path, "data")), model));
+    if let Some((path, model)) = &plot {
         plot_rollouts(path, model, test).map_err(|e| format!("plot {}: {e}", path.display()))?;
     }
+    let plot = plot.map(|(p, _)| p);
     if a.json {
-        let mut v = serde_json::to_value(m).map_err(|e| e.to_string())?;
-        let obj = v.as_object_mut().expect("metrics serialise to an object");
-        obj.insert("model".into(), a.model.display().to_string().into());
-        obj.insert("data".into(), dir.display().to_string().into());
-        obj.insert("vpt_threshold_m".into(), VPT_THRESHOLD_M.into());
-        if let Some(p) = &plot {
-            obj.insert("plot".into(), p.display().to_string().into());
+        let mut out = Vec::new();
+        for r in &rows {
+            let mut v = serde_json::to_value(r.metrics).map_err(|e| e.to_string())?;
+            let obj = v.as_object_mut().expect("metrics serialise to an object");
+            obj.insert(r.kind.into(), r.path.display().to_string().into());
+            obj.insert("data".into(), dir.display().to_string().into());
+            obj.insert("vpt_threshold_m".into(), VPT_THRESHOLD_M.into());
+            if let (Some(p), "model") = (&plot, r.kind) {
+                obj.insert("plot".into(), p.display().to_string().into());
+            }
+            out.push(v);
         }
+        // One model alone prints its object, as before rows were added; otherwise an array.
+        let v = if out.len() == 1 && a.vehicle.is_none() { out.remove(0) } else { serde_json::Value::Array(out) };
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
-        println!(
-            "{} on the test split of {} ({} windows of {} points)",
-            a.model.display(),
-            dir.display(),
-            m.windows,
-            test.points
-        );
-        print_set_metrics(&m);
+        println!("test split of {} ({} windows of {} points at {} s)", dir.display(), test.count, test.points, test.dt);
+        print_set_rows(&rows);
         if let Some(p) = &plot {
             println!("plot: {}", p.display());
         }
     }
     Ok(())
+}
+
+/// Prints [`pinc::eval::SetMetrics`] rows as one table (the physics residual is n/a for the
+/// analytic vehicle).
+fn print_set_rows(rows: &[Row]) {
+    println!("{:<32} {:>12} {:>12} {:>12} {:>8} {:>10}", "", "one-step", "10-step", "physics", "VPT s", "median s");
+    for r in rows {
+        let m = &r.metrics;
+        let name = r.path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let label = if r.kind == "vehicle" { format!("{name} (analytic)") } else { name };
+        let physics = if m.physics_mse.is_nan() { "n/a".to_string() } else { format!("{:.3e}", m.physics_mse) };
+        println!(
+            "{:<32} {:>12.3e} {:>12.3e} {:>12} {:>8.2} {:>10.2}",
+            label, m.one_step_mse, m.rollout10_mse, physics, m.vpt_s, m.vpt_median_s
+        );
+    }
 }
 
 /// Prints [`pinc::eval::SetMetrics`] as one table row.
+#[cfg_attr(not(feature = "train"), allow(dead_code))]
 pub fn print_set_metrics(m: &pinc::eval::SetMetrics) {
     println!("{:>12} {:>12} {:>12} {:>8} {:>10}", "one-step", "10-step", "physics", "VPT s", "median s");
     println!(

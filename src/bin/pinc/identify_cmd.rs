@@ -28,8 +28,11 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
     let mut folders = Vec::new();
     for dir in &a.data {
         let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
-        if data.set("train").is_none() {
-            return Err(format!("{}: the dataset has no train split", dir.display()));
+        if data.set("train").is_none_or(|s| s.count == 0) {
+            return Err(format!(
+                "{}: the dataset has no train windows (imported with a zero train fraction?)",
+                dir.display()
+            ));
         }
         folders.push(data);
     }

@@ -1,7 +1,10 @@
 //! `pinc dataset import`: recorded runs (CSV or MCAP) to a dataset folder.
 
-use pinc::dataset::import::{ImportOptions, McapTopics, Recording, import, read_csv, read_mcap, sha256_hex};
-use std::path::PathBuf;
+use pinc::dataset::import::{
+    ImportError, ImportOptions, LogFile, McapTopics, StreamSet, import_logs, log_dt, read_csv, read_mcap, sha256_hex,
+    stream_set_of,
+};
+use std::path::{Path, PathBuf};
 
 /// Arguments of `pinc dataset import`.
 #[derive(clap::Args)]
@@ -12,9 +15,14 @@ pub struct ImportArgs {
     /// Output dataset folder (written whole or not at all).
     #[arg(long)]
     pub out: PathBuf,
-    /// Sample period of the dataset (s); logs at an integer fraction of it are decimated.
-    #[arg(long, default_value_t = pinc::DEFAULT_DT)]
-    pub dt: f64,
+    /// Sample period of the dataset (s); every stream is resampled to it [default: the
+    /// median period of the slowest state stream, to the ms, the longest over the files].
+    #[arg(long)]
+    pub dt: Option<f64>,
+    /// A step between two samples of a stream longer than this (s) is a gap, which ends a
+    /// window [default: per stream, 3 of its median periods and at least 2 dt].
+    #[arg(long)]
+    pub gap_tolerance: Option<f64>,
     /// Points per window (intervals + 1).
     #[arg(long, default_value_t = pinc::dataset::TRAJECTORY_POINTS)]
     pub window: usize,
@@ -56,57 +64,89 @@ pub enum LogFormat {
     Mcap,
 }
 
+/// What a reader needs besides the file: the options of every format.
+pub struct ReaderOptions {
+    /// MCAP topics and fields.
+    pub topics: McapTopics,
+}
+
+/// A log reader: one file to its streams.
+type Reader = fn(&Path, &ReaderOptions) -> Result<StreamSet, ImportError>;
+
+/// The reader of each format.
+fn reader(format: LogFormat) -> Reader {
+    match format {
+        LogFormat::Csv => |p, _| read_csv(p).map(|r| stream_set_of(&r)),
+        LogFormat::Mcap => |p, o| read_mcap(p, &o.topics).map(|r| stream_set_of(&r)),
+    }
+}
+
+/// The format of a file from its extension.
+fn format_of(path: &Path) -> Option<LogFormat> {
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("csv") => Some(LogFormat::Csv),
+        Some("mcap") => Some(LogFormat::Mcap),
+        _ => None,
+    }
+}
+
+fn format_name(f: LogFormat) -> &'static str {
+    match f {
+        LogFormat::Csv => "csv",
+        LogFormat::Mcap => "mcap",
+    }
+}
+
 pub fn run_import(a: ImportArgs) -> Result<(), String> {
-    let topics = McapTopics {
-        state_topic: a.state_topic.clone(),
-        state_field: a.state_field.clone(),
-        command_topic: a.command_topic.clone(),
-        command_field: a.command_field.clone(),
+    let reader_options = ReaderOptions {
+        topics: McapTopics {
+            state_topic: a.state_topic.clone(),
+            state_field: a.state_field.clone(),
+            command_topic: a.command_topic.clone(),
+            command_field: a.command_field.clone(),
+        },
     };
     let split: [f64; 3] =
         a.split.clone().try_into().map_err(|_| "--split: three fractions, e.g. 0.7,0.15,0.15".to_string())?;
     let formats: Vec<LogFormat> = a
         .files
         .iter()
-        .map(|path| match a.format {
-            Some(f) => Ok(f),
-            None => match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-                Some("csv") => Ok(LogFormat::Csv),
-                Some("mcap") => Ok(LogFormat::Mcap),
-                _ => Err(format!("{}: not .csv or .mcap; give --format", path.display())),
-            },
+        .map(|path| {
+            a.format.or_else(|| format_of(path)).ok_or_else(|| {
+                format!("{}: format not known from the extension (.csv, .mcap); give --format", path.display())
+            })
         })
         .collect::<Result<_, _>>()?;
-    let name = |f: &LogFormat| match f {
-        LogFormat::Csv => "csv",
-        LogFormat::Mcap => "mcap",
-    };
-    let mut names: Vec<&str> = formats.iter().map(name).collect();
+    let mut names: Vec<&str> = formats.iter().map(|&f| format_name(f)).collect();
     names.dedup();
     let uses_mcap = formats.iter().any(|f| matches!(f, LogFormat::Mcap));
-    let options = ImportOptions {
+    let mut options = ImportOptions {
         format: names.join("+"),
-        dt: a.dt,
+        dt: a.dt.unwrap_or(pinc::DEFAULT_DT),
         window: a.window,
         split,
         seed: a.seed,
         collocation_points: a.collocation,
-        topics: uses_mcap.then(|| topics.clone()),
+        topics: uses_mcap.then(|| reader_options.topics.clone()),
+        gap_tolerance: a.gap_tolerance,
+        dt_from_log: a.dt.is_none(),
     };
     options.check().map_err(|e| e.to_string())?;
-    let mut recordings: Vec<Recording> = Vec::with_capacity(a.files.len());
-    let mut hashes = Vec::with_capacity(a.files.len());
-    for (path, format) in a.files.iter().zip(&formats) {
+    let mut logs = Vec::with_capacity(a.files.len());
+    for (path, &format) in a.files.iter().zip(&formats) {
         let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        hashes.push(sha256_hex(&bytes));
-        let rec = match format {
-            LogFormat::Csv => read_csv(path),
-            LogFormat::Mcap => read_mcap(path, &topics),
-        }
-        .map_err(|e| e.to_string())?;
-        recordings.push(rec);
+        let streams = reader(format)(path, &reader_options).map_err(|e| e.to_string())?;
+        logs.push(LogFile { path: path.clone(), sha256: sha256_hex(&bytes), streams });
     }
-    let data = import(&recordings, &hashes, &options).map_err(|e| e.to_string())?;
+    if a.dt.is_none() {
+        let chosen = logs
+            .iter()
+            .filter_map(|l| log_dt(&l.streams))
+            .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |m| m.max(d))));
+        options.dt = chosen.ok_or("no state stream with two samples to take --dt from; give --dt")?;
+        options.check().map_err(|e| e.to_string())?;
+    }
+    let data = import_logs(&logs, &options).map_err(|e| e.to_string())?;
     pinc::dataset::save(&data, &a.out).map_err(|e| e.to_string())?;
     let source = data.source.as_ref().expect("import records its source");
     if a.json {
@@ -114,6 +154,8 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
             data.sets.iter().map(|s| (s.name.clone(), s.count.into())).collect();
         let v = serde_json::json!({
             "out": a.out.display().to_string(),
+            "dt": options.dt,
+            "dt_from_log": options.dt_from_log,
             "windows": sets,
             "split_by": source.split_by,
             "skipped": source.skipped,
@@ -124,18 +166,38 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
     }
     let counts: Vec<String> = data.sets.iter().map(|s| format!("{} {}", s.count, s.name)).collect();
     println!(
-        "{} files -> {}: {} windows of {} points at {} s ({}), split by {}",
+        "{} files -> {}: {} windows of {} points at {} s{} ({}), split by {}",
         a.files.len(),
         a.out.display(),
         data.sets.iter().map(|s| s.count).sum::<usize>(),
         a.window,
-        a.dt,
+        options.dt,
+        if options.dt_from_log { " (from the logs)" } else { "" },
         counts.join(", "),
         source.split_by
     );
     println!("  {}", source.skipped);
     for f in &source.files {
         println!("  {:<40} {:>7} rows {:>5} windows -> {}", f.path, f.rows, f.windows, f.split);
+        for s in &f.report.streams {
+            let rate = s.rate_hz.map_or("-".into(), |r| format!("{r:.2} Hz"));
+            let span = s.span_s.map_or("-".into(), |(a, b)| format!("{a:.3}..{b:.3} s"));
+            println!(
+                "    {:<14} {:<28} {:>7} samples {:>10} {:>22} {} gaps (> {:.3} s), longest step {:.3} s{}",
+                s.name,
+                s.source,
+                s.samples,
+                rate,
+                span,
+                s.gaps,
+                s.gap_tolerance_s,
+                s.longest_step_s,
+                if s.dropped > 0 { format!(", {} dropped (time stamp)", s.dropped) } else { String::new() }
+            );
+        }
+        for n in &f.report.notes {
+            println!("    note: {n}");
+        }
     }
     Ok(())
 }

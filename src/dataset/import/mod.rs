@@ -7,6 +7,7 @@ mod csv_log;
 mod csv_mapping;
 mod dataflash;
 mod mcap_log;
+mod resample;
 mod streams;
 mod tlog;
 mod windows;
@@ -22,6 +23,7 @@ pub use csv_mapping::{
 };
 pub use dataflash::read_bin;
 pub use mcap_log::{McapTopics, read_mcap};
+pub use resample::{StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use streams::{Series, StreamSet};
 pub use tlog::read_tlog;
 pub use windows::{SkipCounts, cut_windows};
@@ -31,6 +33,17 @@ use crate::types::{Input, NS, SimState};
 use crate::vehicle::VehicleParams;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+
+/// One log as read: its streams, its path and the SHA-256 of its bytes.
+#[derive(Debug, Clone)]
+pub struct LogFile {
+    /// The file.
+    pub path: PathBuf,
+    /// SHA-256 of its bytes (hex).
+    pub sha256: String,
+    /// What the reader found in it.
+    pub streams: StreamSet,
+}
 
 /// One recorded run: time stamps, simulator-form states and the inputs held from each row to
 /// the next, row by row as recorded (rows with NaN or gaps are kept; windowing skips them).
@@ -87,14 +100,22 @@ pub struct ImportOptions {
     pub collocation_points: usize,
     /// The topics and fields read from MCAP logs.
     pub topics: Option<McapTopics>,
+    /// Longest step between two samples of a stream that is not a gap (s); `None`: per
+    /// stream, three of its median periods and at least `2 dt`.
+    #[serde(default)]
+    pub gap_tolerance: Option<f64>,
+    /// True when `dt` was chosen from the logs ([`log_dt`]) rather than given.
+    #[serde(default)]
+    pub dt_from_log: bool,
 }
 
 impl ImportOptions {
     /// Checks the numbers before any file is read.
     ///
     /// # Errors
-    /// A non-positive period, a window under 2 points, fractions that are negative, do not
-    /// sum to 1 or leave train or test empty.
+    /// A non-positive period or gap tolerance, a window under 2 points, fractions that are
+    /// negative, do not sum to 1 or are all zero (a zero train or dev fraction is allowed:
+    /// a folder of held-out runs is `0,0,1`).
     pub fn check(&self) -> Result<(), ImportError> {
         let bad = |m: String| Err(ImportError::Unusable(m));
         if !(self.dt.is_finite() && self.dt > 0.0) {
@@ -107,8 +128,8 @@ impl ImportOptions {
         if self.split.iter().any(|f| !(f.is_finite() && *f >= 0.0)) || ((tr + dev + test) - 1.0).abs() > 1e-6 {
             return bad(format!("--split: three non-negative fractions summing to 1, got {tr},{dev},{test}"));
         }
-        if tr == 0.0 || test == 0.0 {
-            return bad("--split: the train and test fractions must be positive".into());
+        if let Some(g) = self.gap_tolerance.filter(|g| !(g.is_finite() && *g > 0.0)) {
+            return bad(format!("--gap-tolerance must be a positive number of seconds, got {g}"));
         }
         Ok(())
     }
@@ -121,13 +142,17 @@ pub struct SourceFile {
     pub path: String,
     /// SHA-256 of its bytes (hex, as `sha256sum` prints it).
     pub sha256: String,
-    /// Rows read.
+    /// Rows at the dataset's period after resampling (the log's rows when it was recorded at
+    /// that period).
     pub rows: usize,
     /// Windows cut from it.
     pub windows: usize,
     /// The split its windows went to (`train`, `dev`, `test`, or `time` when every run was
     /// split by time).
     pub split: String,
+    /// Each stream's rate, span and gaps, and the reader's notes.
+    #[serde(default)]
+    pub report: StreamReport,
 }
 
 /// Where an imported dataset came from: written into its manifest.
@@ -143,19 +168,42 @@ pub struct ImportSource {
     pub skipped: SkipCounts,
 }
 
-/// Builds the dataset from recorded runs: windows per run, split, collocation times.
+/// Builds the dataset from row-aligned recordings (CSV, MCAP): each goes through
+/// [`stream_set_of`] and [`import_logs`], so a log at any rate is resampled to `dt`.
 ///
 /// # Errors
-/// No run long enough for one window, a log period that is not `dt` or an integer fraction
-/// of it, or a split left empty.
+/// As [`import_logs`].
 pub fn import(recordings: &[Recording], hashes: &[String], options: &ImportOptions) -> Result<Dataset, ImportError> {
+    let logs: Vec<LogFile> = recordings
+        .iter()
+        .zip(hashes)
+        .map(|(rec, sha)| LogFile { path: rec.path.clone(), sha256: sha.clone(), streams: stream_set_of(rec) })
+        .collect();
+    import_logs(&logs, options)
+}
+
+/// Builds the dataset from logs: each resampled to `dt` ([`resample`]), cut into windows,
+/// split, with collocation times.
+///
+/// # Errors
+/// A log whose streams cannot make the state, no run long enough for one window, or a split
+/// with a positive fraction left empty.
+pub fn import_logs(logs: &[LogFile], options: &ImportOptions) -> Result<Dataset, ImportError> {
     options.check()?;
-    let mut per_run = Vec::with_capacity(recordings.len());
+    let mut per_run = Vec::with_capacity(logs.len());
+    let mut reports = Vec::with_capacity(logs.len());
+    let mut rows = Vec::with_capacity(logs.len());
     let mut skipped = SkipCounts::default();
-    for rec in recordings {
-        let (windows, skips) = cut_windows(rec, options.dt, options.window)?;
+    for log in logs {
+        let (rec, report) = resample(&log.streams, options.dt, options.gap_tolerance, &log.path)?;
+        let (windows, skips) = cut_windows(&rec, options.dt, options.window)?;
         skipped.add(&skips);
+        // Samples dropped for a time stamp that went backwards (the most of any stream: a
+        // row-aligned log drops a row from every stream).
+        skipped.non_monotonic += report.streams.iter().map(|s| s.dropped).max().unwrap_or(0);
         per_run.push(windows);
+        rows.push(rec.t.len());
+        reports.push(report);
     }
     let total: usize = per_run.iter().map(Vec::len).sum();
     if total == 0 {
@@ -173,7 +221,7 @@ pub fn import(recordings: &[Recording], hashes: &[String], options: &ImportOptio
             return Err(ImportError::Unusable(format!(
                 "the {name} split is empty: {total} windows of {} points from {} runs are too few for --split {:?}",
                 options.window,
-                recordings.len(),
+                logs.len(),
                 options.split
             )));
         }
@@ -211,16 +259,17 @@ pub fn import(recordings: &[Recording], hashes: &[String], options: &ImportOptio
         });
         sets.push(set);
     }
-    let files = recordings
+    let files = logs
         .iter()
-        .zip(hashes)
+        .zip(reports)
         .enumerate()
-        .map(|(r, (rec, sha))| SourceFile {
-            path: rec.path.display().to_string(),
-            sha256: sha.clone(),
-            rows: rec.t.len(),
+        .map(|(r, (log, report))| SourceFile {
+            path: log.path.display().to_string(),
+            sha256: log.sha256.clone(),
+            rows: rows[r],
             windows: per_run[r].len(),
             split: assignment.run_split[r].to_string(),
+            report,
         })
         .collect();
     let source = ImportSource {

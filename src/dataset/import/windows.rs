@@ -189,7 +189,7 @@ pub(super) fn split(per_run: &[Vec<Window>], fractions: [f64; 3], seed: u64) -> 
                         let deficit = |i: usize| fractions[i] * total as f64 - have[i] as f64;
                         deficit(a).total_cmp(&deficit(b))
                     })
-                    .expect("train is always wanted")
+                    .expect("the fractions sum to 1, so one is wanted")
             };
             have[s] += per_run[r].len();
             windows[s].extend(per_run[r].iter().cloned());
