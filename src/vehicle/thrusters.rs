@@ -140,8 +140,12 @@ pub struct Thruster {
 }
 
 impl Thruster {
-    /// Thrust along `direction` at `command`.
+    /// Thrust along `direction` at `command`. A PWM of 0 is no pulse at all (an output
+    /// that is off, as autopilots log disarmed channels): no thrust.
     pub fn thrust(&self, command: f64) -> f64 {
+        if self.curve.unit == CommandUnit::Pwm && command == 0.0 {
+            return 0.0;
+        }
         self.curve.thrust(self.oriented(command))
     }
 
@@ -678,6 +682,8 @@ source = "a test"
         assert!(t.input_from_commands(&[1500.0; 5]).iter().all(|v| v.is_nan()), "channel 6 missing");
         let mut c = [1500.0; 6];
         assert_eq!(t.input_from_commands(&c), Input::zeros());
+        c[2] = 0.0;
+        assert_eq!(t.input_from_commands(&c), Input::zeros(), "an output that is off pushes nothing");
         c[2] = f64::NAN;
         assert!(t.input_from_commands(&c).iter().all(|v| v.is_nan()));
     }

@@ -1,15 +1,16 @@
 //! `pinc dataset import`: recorded runs (CSV or MCAP) to a dataset folder.
 
 use pinc::dataset::import::{
-    ImportError, ImportOptions, LogFile, McapTopics, StreamSet, import_logs, log_dt, read_csv, read_mcap, sha256_hex,
-    stream_set_of,
+    ArdupilotOptions, CsvMapping, ImportError, ImportOptions, InputSource, LogFile, McapTopics, StreamSet, import_logs,
+    load_mapping, log_dt, read_bin, read_csv, read_mapped_csv, read_mcap, read_tlog, sha256_hex, stream_set_of,
 };
+use pinc::vehicle::Thrusters;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `pinc dataset import`.
 #[derive(clap::Args)]
 pub struct ImportArgs {
-    /// Format of the files [default: each file's extension, .csv or .mcap].
+    /// Format of the files [default: each file's extension: .csv, .mcap, .bin, .tlog].
     #[arg(long, value_enum)]
     pub format: Option<LogFormat>,
     /// Output dataset folder (written whole or not at all).
@@ -47,6 +48,25 @@ pub struct ImportArgs {
     /// MCAP: field of the command message holding X, Y, Z, Mz (dotted path).
     #[arg(long, default_value = "input")]
     pub command_field: String,
+    /// CSV: a mapping file (TOML, docs/LOGS_CSV.md) naming the columns, units and frames of a
+    /// CSV that is not in pinc's own layout.
+    #[arg(long, value_name = "FILE")]
+    pub mapping: Option<PathBuf>,
+    /// The vehicle file whose thrusters turn logged thruster commands (ArduPilot outputs, a
+    /// mapped CSV's PWM columns) into body forces.
+    #[arg(long, value_name = "V.toml")]
+    pub vehicle: Option<PathBuf>,
+    /// ArduPilot logs: the inputs from the thruster outputs the autopilot logged (`outputs`),
+    /// or from the pilot's commands through ArduSub's MANUAL-mode mixer (`pilot`).
+    #[arg(long, value_enum, default_value = "outputs")]
+    pub inputs: InputsFrom,
+    /// ArduPilot logs with `--inputs pilot`: ArduSub's joystick gain (JS_GAIN_DEFAULT; 0.5
+    /// unless changed on the vehicle).
+    #[arg(long, default_value_t = 0.5)]
+    pub js_gain: f64,
+    /// .tlog: water density (kg/m^3) that turns pressure into depth where no position exists.
+    #[arg(long, default_value_t = 1000.0)]
+    pub water_density: f64,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -58,16 +78,74 @@ pub struct ImportArgs {
 /// Log formats `pinc dataset import` reads.
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum LogFormat {
-    /// Header t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz.
+    /// Header t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz, or any CSV with --mapping.
     Csv,
-    /// JSON messages on a state and a command topic (the logs `mpc_track` writes).
+    /// JSON messages on a state and a command topic (the logs `mpc_track` and `pinc vehicle
+    /// record` write).
     Mcap,
+    /// ArduPilot's onboard dataflash log.
+    Bin,
+    /// QGroundControl's telemetry log (time-stamped MAVLink).
+    Tlog,
+}
+
+/// Where ArduPilot logs' inputs come from.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum InputsFrom {
+    /// The thruster outputs (RCOU, SERVO_OUTPUT_RAW) through the vehicle file's thrusters.
+    Outputs,
+    /// The pilot's commands (MANUAL_CONTROL, RCIN) through ArduSub's MANUAL-mode mixer (the
+    /// thrusters' `mix` factors) and then the thrusters.
+    Pilot,
 }
 
 /// What a reader needs besides the file: the options of every format.
 pub struct ReaderOptions {
     /// MCAP topics and fields.
     pub topics: McapTopics,
+    /// A CSV mapping.
+    pub mapping: Option<CsvMapping>,
+    /// The vehicle's thrusters.
+    pub thrusters: Option<Thrusters>,
+    /// Where ArduPilot logs' inputs come from, and the joystick gain.
+    pub inputs: (InputsFrom, f64),
+    /// Water density for pressure depth (kg/m^3).
+    pub water_density: f64,
+}
+
+impl ReaderOptions {
+    /// The ArduPilot readers' options: inputs through the thrusters.
+    fn ardupilot(&self, path: &Path) -> Result<ArdupilotOptions, ImportError> {
+        let Some(thrusters) = self.thrusters.clone() else {
+            return Err(ImportError::Unusable(format!(
+                "{}: the inputs of an ArduPilot log are thruster commands; give --vehicle with the vehicle's \
+                 [[thruster]] tables (models/bluerov2.toml for a BlueROV2)",
+                path.display()
+            )));
+        };
+        let inputs = match self.inputs {
+            (InputsFrom::Outputs, _) => InputSource::ThrusterOutputs,
+            (InputsFrom::Pilot, gain) => {
+                let mix = thrusters
+                    .list
+                    .iter()
+                    .map(|t| t.mix.map(|m| [m[4], m[5], m[3], m[2]]))
+                    .collect::<Option<Vec<_>>>()
+                    .ok_or_else(|| {
+                        ImportError::Unusable(
+                            "--inputs pilot needs every thruster's `mix` factors in the vehicle file".into(),
+                        )
+                    })?;
+                InputSource::ManualControl { gain, mix }
+            }
+        };
+        Ok(ArdupilotOptions {
+            inputs,
+            thrusters: Some(Box::new(move |c: &[f64]| thrusters.input_from_commands(c))),
+            water_density: self.water_density,
+            ..ArdupilotOptions::default()
+        })
+    }
 }
 
 /// A log reader: one file to its streams.
@@ -76,8 +154,16 @@ type Reader = fn(&Path, &ReaderOptions) -> Result<StreamSet, ImportError>;
 /// The reader of each format.
 fn reader(format: LogFormat) -> Reader {
     match format {
-        LogFormat::Csv => |p, _| read_csv(p).map(|r| stream_set_of(&r)),
+        LogFormat::Csv => |p, o| match &o.mapping {
+            None => read_csv(p).map(|r| stream_set_of(&r)),
+            Some(m) => match &o.thrusters {
+                Some(t) => read_mapped_csv(p, m, Some(&|c: &[f64]| t.input_from_commands(c))),
+                None => read_mapped_csv(p, m, None),
+            },
+        },
         LogFormat::Mcap => |p, o| read_mcap(p, &o.topics).map(|r| stream_set_of(&r)),
+        LogFormat::Bin => |p, o| read_bin(p, &o.ardupilot(p)?),
+        LogFormat::Tlog => |p, o| read_tlog(p, &o.ardupilot(p)?),
     }
 }
 
@@ -86,6 +172,8 @@ fn format_of(path: &Path) -> Option<LogFormat> {
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("csv") => Some(LogFormat::Csv),
         Some("mcap") => Some(LogFormat::Mcap),
+        Some("bin") => Some(LogFormat::Bin),
+        Some("tlog") => Some(LogFormat::Tlog),
         _ => None,
     }
 }
@@ -94,6 +182,8 @@ fn format_name(f: LogFormat) -> &'static str {
     match f {
         LogFormat::Csv => "csv",
         LogFormat::Mcap => "mcap",
+        LogFormat::Bin => "bin",
+        LogFormat::Tlog => "tlog",
     }
 }
 
@@ -105,6 +195,10 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
             command_topic: a.command_topic.clone(),
             command_field: a.command_field.clone(),
         },
+        mapping: a.mapping.as_deref().map(load_mapping).transpose().map_err(|e| e.to_string())?,
+        thrusters: a.vehicle.as_deref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?,
+        inputs: (a.inputs, a.js_gain),
+        water_density: a.water_density,
     };
     let split: [f64; 3] =
         a.split.clone().try_into().map_err(|_| "--split: three fractions, e.g. 0.7,0.15,0.15".to_string())?;
@@ -113,7 +207,10 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
         .iter()
         .map(|path| {
             a.format.or_else(|| format_of(path)).ok_or_else(|| {
-                format!("{}: format not known from the extension (.csv, .mcap); give --format", path.display())
+                format!(
+                    "{}: format not known from the extension (.csv, .mcap, .bin, .tlog); give --format",
+                    path.display()
+                )
             })
         })
         .collect::<Result<_, _>>()?;

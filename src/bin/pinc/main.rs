@@ -17,6 +17,7 @@ mod eval_cmd;
 mod identify_cmd;
 mod import_cmd;
 mod sweep_cmd;
+mod thrusters_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
@@ -155,6 +156,8 @@ enum Command {
     },
     /// Estimate the vehicle's added masses, damping and buoyancy from a dataset's train split.
     Identify(identify_cmd::IdentifyArgs),
+    /// A vehicle file's thrusters: the allocation matrix and the reachable body inputs.
+    Thrusters(thrusters_cmd::ThrustersArgs),
 }
 
 #[derive(Subcommand)]
@@ -222,6 +225,7 @@ fn main() -> ExitCode {
         Command::VptSweep(args) => sweep_cmd::run_sweep(args),
         Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
         Command::Identify(args) => identify_cmd::run_identify(args),
+        Command::Thrusters(args) => thrusters_cmd::run_thrusters(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
