@@ -7,3 +7,4 @@ mod dataset;
 mod eval_rollouts;
 mod identify;
 mod import;
+mod import_ros2;
