@@ -2,6 +2,8 @@
 //! messages `rosbags` wrote in tests/fixtures/ros2, copied with advancing stamps into a bag of
 //! about 64 MB; reported as MB/s of bag read (`read_ros2` end to end).
 
+#![allow(missing_docs)] // criterion_group! generates undocumented items.
+
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use pinc::dataset::import::{Ros2Options, read_ros2};
 use std::collections::BTreeMap;
@@ -45,7 +47,8 @@ fn write_bag(path: &Path, seconds: u64, compression: Option<mcap::Compression>) 
             let mut data = payload.clone();
             data[4..8].copy_from_slice(&((ns / 1_000_000_000) as i32).to_le_bytes());
             data[8..12].copy_from_slice(&((ns % 1_000_000_000) as u32).to_le_bytes());
-            let header = mcap::records::MessageHeader { channel_id: channels[i], sequence: seq, log_time: ns, publish_time: ns };
+            let header =
+                mcap::records::MessageHeader { channel_id: channels[i], sequence: seq, log_time: ns, publish_time: ns };
             seq += 1;
             total += data.len() as u64;
             w.write_to_known_channel(&header, &data).unwrap();

@@ -2,7 +2,7 @@
 //! every stream against the values the writer wrote, converted to NED / FRD by hand here.
 
 use pinc::Input;
-use pinc::dataset::import::{ImportError, Ros2Options, StreamSet, read_ros2};
+use pinc::dataset::import::{CommandsToInput, ImportError, Ros2Options, StreamSet, read_ros2};
 use serde_json::Value;
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 use std::path::PathBuf;
@@ -37,7 +37,7 @@ fn close(a: f64, b: f64, what: &str) {
     assert!((a - b).abs() < 1e-9, "{what}: {a} != {b}");
 }
 
-fn no_converter() -> Option<&'static dyn Fn(&[f64]) -> Input> {
+fn no_converter() -> Option<CommandsToInput<'static>> {
     None
 }
 
@@ -126,11 +126,8 @@ fn both_storage_formats_give_identical_streams() {
 fn the_same_motion_logged_in_ned_frd_reads_to_the_same_streams() {
     let enu = default_read("enu_mcap");
     let ned = default_read("ned_sqlite3");
-    let pairs3 = [
-        (&enu.position, &ned.position),
-        (&enu.attitude, &ned.attitude),
-        (&enu.velocity_body, &ned.velocity_body),
-    ];
+    let pairs3 =
+        [(&enu.position, &ned.position), (&enu.attitude, &ned.attitude), (&enu.velocity_body, &ned.velocity_body)];
     for (a, b) in pairs3 {
         let (a, b) = (a.as_ref().unwrap(), b.as_ref().unwrap());
         assert_eq!(a.t, b.t);
@@ -148,7 +145,8 @@ fn the_same_motion_logged_in_ned_frd_reads_to_the_same_streams() {
 #[test]
 fn named_pose_and_twist_topics_replace_the_odometry() {
     let v = values();
-    let opts = Ros2Options { pose_topic: Some("/pose".into()), twist_topic: Some("/twist".into()), ..Default::default() };
+    let opts =
+        Ros2Options { pose_topic: Some("/pose".into()), twist_topic: Some("/twist".into()), ..Default::default() };
     for bag in ["enu_mcap", "ned_mcap"] {
         let s = read_ros2(&fixture(bag), &opts, no_converter()).unwrap();
         let poses = messages(&v, bag, "/pose");

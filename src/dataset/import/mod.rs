@@ -10,7 +10,7 @@ mod windows;
 
 pub use csv_log::read_csv;
 pub use mcap_log::{McapTopics, read_mcap};
-pub use ros2::{BodyFrame, Ros2Options, WorldFrame, read_ros2};
+pub use ros2::{BodyFrame, CommandsToInput, Ros2Options, WorldFrame, read_ros2};
 pub use streams::{Series, StreamSet};
 pub use windows::{SkipCounts, cut_windows};
 

@@ -42,6 +42,10 @@ pub struct Ros2Options {
     pub body_frame: Option<BodyFrame>,
 }
 
+/// Turns one message of thruster commands (index `c - 1` is channel `c`) into the body
+/// input `[X, Y, Z, Mz]`: the vehicle's thrusters.
+pub type CommandsToInput<'a> = &'a dyn Fn(&[f64]) -> Input;
+
 /// What a topic is read for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Role {
@@ -160,7 +164,7 @@ impl<const N: usize> Raw<N> {
 pub fn read_ros2(
     path: &Path,
     opts: &Ros2Options,
-    commands_to_input: Option<&dyn Fn(&[f64]) -> Input>,
+    commands_to_input: Option<CommandsToInput<'_>>,
 ) -> Result<StreamSet, ImportError> {
     let bag = Bag::open(path)?;
     let malformed = |message: String| ImportError::Malformed { path: bag.file.clone(), message };
@@ -181,9 +185,7 @@ pub fn read_ros2(
         )));
     }
     if opts.wrench_topic.is_some() && opts.outputs_topic.is_some() {
-        return Err(ImportError::Unusable(
-            "--wrench-topic and --outputs-topic both name an input: give one".into(),
-        ));
+        return Err(ImportError::Unusable("--wrench-topic and --outputs-topic both name an input: give one".into()));
     }
     let wrench = wrench.filter(|_| opts.outputs_topic.is_none());
     let outputs = outputs.filter(|_| wrench.is_none());
@@ -267,10 +269,8 @@ pub fn read_ros2(
             let t = stamp_of(&m.header);
             let w = world_of(&m.header.frame_id, world_over);
             let b = body_over.unwrap_or(partner(w));
-            frames_used.insert(format!(
-                "{topic}: frame_id {:?} read as {w}, the body (unnamed) as {b}",
-                m.header.frame_id
-            ));
+            frames_used
+                .insert(format!("{topic}: frame_id {:?} read as {w}, the body (unnamed) as {b}", m.header.frame_id));
             let q = quat(&m.pose.orientation, t)?;
             position.samples.push((t, rotate(&to_ned(w), m.pose.position.array())));
             att.samples.push((t, attitude(q, w, b)));
@@ -335,7 +335,10 @@ pub fn read_ros2(
     if let Some(i) = outputs {
         let t = &bag.topics[i];
         if canonical(&t.msg_type) == ACTUATOR_OUTPUTS {
-            notes.push(format!("{}: timed by the receive time (its timestamp counts from the autopilot's boot)", t.name));
+            notes.push(format!(
+                "{}: timed by the receive time (its timestamp counts from the autopilot's boot)",
+                t.name
+            ));
         }
         notes.push(format!("{}: thruster commands turned into the input by the vehicle's thrusters", t.name));
     }

@@ -17,6 +17,9 @@ pub struct Topic {
     pub encoding: String,
 }
 
+/// What [`Bag::for_each`] calls per message: topic index, receive time (ns), payload.
+pub type Visit<'a> = dyn FnMut(usize, i64, &[u8]) -> Result<(), ImportError> + 'a;
+
 enum Store {
     /// The file's bytes and, per MCAP channel id, the topic index.
     Mcap { bytes: Vec<u8>, channels: HashMap<u16, usize> },
@@ -91,7 +94,8 @@ impl Bag {
                 }
             } else {
                 // No summary section (a log cut short): the channels come from a first pass.
-                let stream = mcap::MessageStream::new(&bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
+                let stream =
+                    mcap::MessageStream::new(&bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
                 for m in stream {
                     let m = m.map_err(|e| malformed(format!("damaged MCAP: {e}")))?;
                     if !channels.contains_key(&m.channel.id) {
@@ -130,15 +134,12 @@ impl Bag {
     ///
     /// # Errors
     /// A damaged file, or the first error `f` returns.
-    pub fn for_each(
-        &self,
-        wanted: &[bool],
-        f: &mut dyn FnMut(usize, i64, &[u8]) -> Result<(), ImportError>,
-    ) -> Result<(), ImportError> {
+    pub fn for_each(&self, wanted: &[bool], f: &mut Visit<'_>) -> Result<(), ImportError> {
         let malformed = |message: String| ImportError::Malformed { path: self.file.clone(), message };
         match &self.store {
             Store::Mcap { bytes, channels } => {
-                let stream = mcap::MessageStream::new(bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
+                let stream =
+                    mcap::MessageStream::new(bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
                 for m in stream {
                     let m = m.map_err(|e| malformed(format!("damaged MCAP: {e}")))?;
                     if let Some(&i) = channels.get(&m.channel.id)
