@@ -261,3 +261,22 @@ fn a_quaternion_off_unit_length_is_an_error_naming_topic_and_time() {
     assert!(msg.contains("/odom") && msg.contains(&format!("{stamp} ns")) && msg.contains("quaternion"), "{msg}");
     assert!(msg.contains("1.01"), "{msg}");
 }
+
+#[test]
+fn frame_options_override_the_names() {
+    // Declared NED / FRD, the ENU bag's values pass unconverted.
+    let v = values();
+    let opts = Ros2Options {
+        world_frame: Some("ned".parse().unwrap()),
+        body_frame: Some("frd".parse().unwrap()),
+        ..Default::default()
+    };
+    let s = read_ros2(&fixture("enu_mcap"), &opts, no_converter()).unwrap();
+    let odom = messages(&v, "enu_mcap", "/odom");
+    for (k, m) in odom.iter().enumerate() {
+        assert_eq!(s.position.as_ref().unwrap().v[k], f3(m, "position"));
+        assert_eq!(s.velocity_body.as_ref().unwrap().v[k], f3(m, "linear"));
+        assert_eq!(s.yaw_rate.as_ref().unwrap().v[k][0], f3(m, "angular")[2]);
+    }
+    assert!(s.notes.iter().any(|n| n.contains("\"odom\" read as NED") && n.contains("\"base_link\" as FRD")));
+}

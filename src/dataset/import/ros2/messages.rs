@@ -1,11 +1,11 @@
 //! The ROS 2 messages read, as serde structs in their CDR field order (`cdr-encoding` does
 //! the decoding), and the encapsulation header every serialized message starts with.
 
+use serde::Deserialize;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
-use serde::{Deserialize, Serialize, Serializer, ser::SerializeTuple};
 
 /// `builtin_interfaces/msg/Time`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Time {
     pub sec: i32,
     pub nanosec: u32,
@@ -20,14 +20,14 @@ impl Time {
 }
 
 /// `std_msgs/msg/Header`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Header {
     pub stamp: Time,
     pub frame_id: String,
 }
 
 /// `geometry_msgs/msg/Vector3` and `Point`.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize)]
 pub struct Vector3 {
     pub x: f64,
     pub y: f64,
@@ -41,7 +41,7 @@ impl Vector3 {
 }
 
 /// `geometry_msgs/msg/Quaternion`.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize)]
 pub struct Quaternion {
     pub x: f64,
     pub y: f64,
@@ -50,21 +50,21 @@ pub struct Quaternion {
 }
 
 /// `geometry_msgs/msg/Pose`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Pose {
     pub position: Vector3,
     pub orientation: Quaternion,
 }
 
 /// `geometry_msgs/msg/Twist`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Twist {
     pub linear: Vector3,
     pub angular: Vector3,
 }
 
 /// `geometry_msgs/msg/Wrench`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Wrench {
     pub force: Vector3,
     pub torque: Vector3,
@@ -95,32 +95,24 @@ impl<'de, const N: usize> Deserialize<'de> for Fixed<N> {
     }
 }
 
-impl<const N: usize> Serialize for Fixed<N> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut t = s.serialize_tuple(N)?;
-        for v in &self.0 {
-            t.serialize_element(v)?;
-        }
-        t.end()
-    }
-}
-
 /// `geometry_msgs/msg/PoseWithCovariance`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct PoseWithCovariance {
     pub pose: Pose,
+    #[allow(dead_code)] // decoded for the layout only
     pub covariance: Fixed<36>,
 }
 
 /// `geometry_msgs/msg/TwistWithCovariance`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct TwistWithCovariance {
     pub twist: Twist,
+    #[allow(dead_code)] // decoded for the layout only
     pub covariance: Fixed<36>,
 }
 
 /// `nav_msgs/msg/Odometry`: pose in `header.frame_id`, twist in `child_frame_id`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct Odometry {
     pub header: Header,
     pub child_frame_id: String,
@@ -129,28 +121,28 @@ pub struct Odometry {
 }
 
 /// `geometry_msgs/msg/PoseStamped`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct PoseStamped {
     pub header: Header,
     pub pose: Pose,
 }
 
 /// `geometry_msgs/msg/TwistStamped`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct TwistStamped {
     pub header: Header,
     pub twist: Twist,
 }
 
 /// `geometry_msgs/msg/WrenchStamped`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct WrenchStamped {
     pub header: Header,
     pub wrench: Wrench,
 }
 
 /// `mavros_msgs/msg/RCOut`: PWM per output channel (us).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct RcOut {
     pub header: Header,
     pub channels: Vec<u16>,
@@ -158,8 +150,9 @@ pub struct RcOut {
 
 /// `px4_msgs/msg/ActuatorOutputs`: 16 outputs, the first `noutputs` in use; `timestamp` is
 /// microseconds since the autopilot booted.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct ActuatorOutputs {
+    #[allow(dead_code)] // decoded for the layout only: the receive time is used
     pub timestamp: u64,
     pub noutputs: u32,
     pub output: [f32; 16],

@@ -226,8 +226,10 @@ pub fn read_ros2(
     let mut zero_stamps = vec![0usize; bag.topics.len()];
     let world_over = opts.world_frame;
     let body_over = opts.body_frame;
+    let mut counts = vec![0usize; bag.topics.len()];
     bag.for_each(&wanted, &mut |i, recv, data| {
         t0 = t0.min(recv);
+        counts[i] += 1;
         let topic = &bag.topics[i].name;
         let at = |m: String| malformed(format!("{topic} at receive time {recv} ns: {m}"));
         let mut stamp_of = |h: &messages::Header| {
@@ -307,7 +309,7 @@ pub fn read_ros2(
             let n = rotate(&frd, m.wrench.torque.array());
             input.samples.push((t, [f[0], f[1], f[2], n[2]]));
         } else if Some(i) == outputs {
-            let to_input = convert.expect("checked above: outputs need the converter");
+            let to_input = convert.ok_or_else(|| at("thruster outputs need the vehicle's thrusters".into()))?;
             let (t, commands): (i64, Vec<f64>) = if canonical(&bag.topics[i].msg_type) == RCOUT {
                 let m: messages::RcOut = decode(data).map_err(at)?;
                 (stamp_of(&m.header), m.channels.iter().map(|&c| f64::from(c)).collect())
@@ -322,6 +324,11 @@ pub fn read_ros2(
         Ok(())
     })?;
 
+    for (i, t) in bag.topics.iter().enumerate() {
+        if wanted[i] && counts[i] == 0 {
+            return Err(malformed(format!("topic {} ({}) has no messages", t.name, t.msg_type)));
+        }
+    }
     let mut notes = vec![format!(
         "time: header.stamp in s from the first receive time read ({} ns since the epoch)",
         if t0 == i64::MAX { 0 } else { t0 }
