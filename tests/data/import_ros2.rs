@@ -280,3 +280,15 @@ fn frame_options_override_the_names() {
     }
     assert!(s.notes.iter().any(|n| n.contains("\"odom\" read as NED") && n.contains("\"base_link\" as FRD")));
 }
+
+#[test]
+fn a_file_that_is_no_bag_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    std::fs::write(&path, b"not a bag at all").unwrap();
+    let msg = read_ros2(&path, &Ros2Options::default(), no_converter()).unwrap_err().to_string();
+    assert!(msg.contains("run.mcap") && msg.contains("neither an MCAP file nor an SQLite"), "{msg}");
+    let empty = tempfile::tempdir().unwrap();
+    let msg = read_ros2(empty.path(), &Ros2Options::default(), no_converter()).unwrap_err().to_string();
+    assert!(msg.contains("without a .mcap or .db3 file"), "{msg}");
+}
