@@ -9,4 +9,5 @@ mod eval_rollouts;
 mod identify;
 mod import;
 mod import_mapped;
+mod import_ros2;
 mod resample;

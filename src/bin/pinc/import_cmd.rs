@@ -1,8 +1,9 @@
 //! `pinc dataset import`: recorded runs (CSV or MCAP) to a dataset folder.
 
 use pinc::dataset::import::{
-    ArdupilotOptions, CsvMapping, ImportError, ImportOptions, InputSource, LogFile, McapTopics, StreamSet, import_logs,
-    load_mapping, log_dt, read_bin, read_csv, read_mapped_csv, read_mcap, read_tlog, sha256_hex, stream_set_of,
+    ArdupilotOptions, BodyFrame, CsvMapping, ImportError, ImportOptions, InputSource, LogFile, McapTopics, Ros2Options,
+    StreamSet, WorldFrame, import_logs, load_mapping, log_dt, read_bin, read_csv, read_mapped_csv, read_mcap,
+    read_ros2, read_tlog, sha256_hex, stream_set_of,
 };
 use pinc::vehicle::Thrusters;
 use std::path::{Path, PathBuf};
@@ -10,7 +11,8 @@ use std::path::{Path, PathBuf};
 /// Arguments of `pinc dataset import`.
 #[derive(clap::Args)]
 pub struct ImportArgs {
-    /// Format of the files [default: each file's extension: .csv, .mcap, .bin, .tlog].
+    /// Format of the files [default: each file's extension: .csv, .mcap (pinc's JSON or a ROS 2
+    /// bag's CDR), .bin, .tlog, .db3; a folder is a ROS 2 bag].
     #[arg(long, value_enum)]
     pub format: Option<LogFormat>,
     /// Output dataset folder (written whole or not at all).
@@ -67,10 +69,34 @@ pub struct ImportArgs {
     /// .tlog: water density (kg/m^3) that turns pressure into depth where no position exists.
     #[arg(long, default_value_t = 1000.0)]
     pub water_density: f64,
+    /// ROS 2 bags: the nav_msgs/Odometry topic [default: the only one of that type].
+    #[arg(long)]
+    pub odometry_topic: Option<String>,
+    /// ROS 2 bags: a geometry_msgs/PoseStamped topic replacing the odometry's pose.
+    #[arg(long)]
+    pub pose_topic: Option<String>,
+    /// ROS 2 bags: a geometry_msgs/TwistStamped topic replacing the odometry's twist.
+    #[arg(long)]
+    pub twist_topic: Option<String>,
+    /// ROS 2 bags: the geometry_msgs/WrenchStamped topic of the body input.
+    #[arg(long)]
+    pub wrench_topic: Option<String>,
+    /// ROS 2 bags: thruster commands (mavros_msgs/RCOut or px4_msgs/ActuatorOutputs) as the
+    /// input, through --vehicle's thrusters.
+    #[arg(long)]
+    pub outputs_topic: Option<String>,
+    /// ROS 2 bags: the world frame's axes, overriding what the frame names say (REP 103:
+    /// `map`, `odom` are ENU; a `_ned` suffix is NED).
+    #[arg(long, value_parser = ["ned", "enu"])]
+    pub world_frame: Option<String>,
+    /// ROS 2 bags: the body frame's axes, overriding what the frame names say (`base_link`
+    /// is forward-left-up; a `_frd` suffix is forward-right-down).
+    #[arg(long, value_parser = ["frd", "flu"])]
+    pub body_frame: Option<String>,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
-    /// The recorded runs, one per file.
+    /// The recorded runs, one per file (a ROS 2 bag: its folder or its .mcap / .db3 file).
     #[arg(required = true)]
     pub files: Vec<PathBuf>,
 }
@@ -87,6 +113,8 @@ pub enum LogFormat {
     Bin,
     /// QGroundControl's telemetry log (time-stamped MAVLink).
     Tlog,
+    /// A ROS 2 bag (MCAP with CDR messages, or sqlite3 .db3).
+    Ros2,
 }
 
 /// Where ArduPilot logs' inputs come from.
@@ -111,6 +139,8 @@ pub struct ReaderOptions {
     pub inputs: (InputsFrom, f64),
     /// Water density for pressure depth (kg/m^3).
     pub water_density: f64,
+    /// ROS 2 topics and frames.
+    pub ros2: Ros2Options,
 }
 
 impl ReaderOptions {
@@ -164,14 +194,24 @@ fn reader(format: LogFormat) -> Reader {
         LogFormat::Mcap => |p, o| read_mcap(p, &o.topics).map(|r| stream_set_of(&r)),
         LogFormat::Bin => |p, o| read_bin(p, &o.ardupilot(p)?),
         LogFormat::Tlog => |p, o| read_tlog(p, &o.ardupilot(p)?),
+        LogFormat::Ros2 => |p, o| match &o.thrusters {
+            Some(t) => read_ros2(p, &o.ros2, Some(&|c: &[f64]| t.input_from_commands(c))),
+            None => read_ros2(p, &o.ros2, None),
+        },
     }
 }
 
-/// The format of a file from its extension.
+/// The format of a file from its extension; an MCAP file whose messages are CDR is a ROS 2
+/// bag, a folder is a ROS 2 bag's.
 fn format_of(path: &Path) -> Option<LogFormat> {
+    if path.is_dir() {
+        return Some(LogFormat::Ros2);
+    }
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("csv") => Some(LogFormat::Csv),
+        Some("mcap") if mcap_is_cdr(path) => Some(LogFormat::Ros2),
         Some("mcap") => Some(LogFormat::Mcap),
+        Some("db3") => Some(LogFormat::Ros2),
         Some("bin") => Some(LogFormat::Bin),
         Some("tlog") => Some(LogFormat::Tlog),
         _ => None,
@@ -184,6 +224,33 @@ fn format_name(f: LogFormat) -> &'static str {
         LogFormat::Mcap => "mcap",
         LogFormat::Bin => "bin",
         LogFormat::Tlog => "tlog",
+        LogFormat::Ros2 => "ros2",
+    }
+}
+
+/// The bytes the manifest's SHA-256 covers: the file's, or for a bag folder every file in
+/// it, in name order.
+fn file_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
+    if !path.is_dir() {
+        return std::fs::read(path);
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>()?;
+    files.retain(|f| f.is_file());
+    files.sort();
+    let mut bytes = Vec::new();
+    for f in files {
+        bytes.extend(std::fs::read(f)?);
+    }
+    Ok(bytes)
+}
+
+/// True if the MCAP file's summary lists a channel with CDR messages (a ROS 2 bag); a file
+/// that cannot be read says no here and gets its error from the reader.
+fn mcap_is_cdr(path: &Path) -> bool {
+    let Ok(bytes) = std::fs::read(path) else { return false };
+    match mcap::Summary::read(&bytes) {
+        Ok(Some(summary)) => summary.channels.values().any(|c| c.message_encoding == "cdr"),
+        _ => false,
     }
 }
 
@@ -199,6 +266,15 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
         thrusters: a.vehicle.as_deref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?,
         inputs: (a.inputs, a.js_gain),
         water_density: a.water_density,
+        ros2: Ros2Options {
+            odometry_topic: a.odometry_topic.clone(),
+            pose_topic: a.pose_topic.clone(),
+            twist_topic: a.twist_topic.clone(),
+            wrench_topic: a.wrench_topic.clone(),
+            outputs_topic: a.outputs_topic.clone(),
+            world_frame: a.world_frame.as_deref().map(str::parse::<WorldFrame>).transpose()?,
+            body_frame: a.body_frame.as_deref().map(str::parse::<BodyFrame>).transpose()?,
+        },
     };
     let split: [f64; 3] =
         a.split.clone().try_into().map_err(|_| "--split: three fractions, e.g. 0.7,0.15,0.15".to_string())?;
@@ -208,7 +284,7 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
         .map(|path| {
             a.format.or_else(|| format_of(path)).ok_or_else(|| {
                 format!(
-                    "{}: format not known from the extension (.csv, .mcap, .bin, .tlog); give --format",
+                    "{}: format not known from the extension (.csv, .mcap, .bin, .tlog, .db3, or a bag folder); give --format",
                     path.display()
                 )
             })
@@ -231,7 +307,7 @@ pub fn run_import(a: ImportArgs) -> Result<(), String> {
     options.check().map_err(|e| e.to_string())?;
     let mut logs = Vec::with_capacity(a.files.len());
     for (path, &format) in a.files.iter().zip(&formats) {
-        let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let bytes = file_bytes(path).map_err(|e| format!("{}: {e}", path.display()))?;
         let streams = reader(format)(path, &reader_options).map_err(|e| e.to_string())?;
         logs.push(LogFile { path: path.clone(), sha256: sha256_hex(&bytes), streams });
     }

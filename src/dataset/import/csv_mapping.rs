@@ -3,8 +3,7 @@
 //! converts everything to pinc's conventions (NED world, forward-right-down body, rad, s) and
 //! returns the per-quantity streams.
 
-use super::{ImportError, Series, StreamSet};
-use crate::types::Input;
+use super::{BodyFrame, CommandsToInput, ImportError, Series, StreamSet, WorldFrame};
 use crate::vehicle::wrap_angle;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -79,16 +78,6 @@ impl TimeUnit {
             Self::Ns => 1e-9,
         }
     }
-}
-
-/// A world frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum WorldFrame {
-    /// North-east-down (pinc's own).
-    Ned,
-    /// East-north-up (z up, as ROS).
-    Enu,
 }
 
 /// `[position]`: three columns in a world frame (m).
@@ -190,16 +179,6 @@ pub struct VelocityMapping {
     pub axes: VelocityAxes,
 }
 
-/// Body axes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BodyAxes {
-    /// Forward-right-down (pinc's own).
-    Frd,
-    /// Forward-left-up (ROS).
-    Flu,
-}
-
 /// `[yaw_rate]`: the angular rate about the body's vertical axis.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -207,7 +186,7 @@ pub struct YawRateMapping {
     /// The column.
     pub column: String,
     /// `frd`: about the down axis; `flu`: about the up axis (the sign flips).
-    pub axes: BodyAxes,
+    pub axes: BodyFrame,
     /// Angle unit per second [default: `rad`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub unit: Option<AngleUnit>,
@@ -222,7 +201,7 @@ pub struct InputMapping {
     pub wrench_columns: Option<[String; 4]>,
     /// Axes of the wrench columns.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub axes: Option<BodyAxes>,
+    pub axes: Option<BodyFrame>,
     /// Thruster command columns (as the vehicle file's thrusters take them, e.g. PWM in us).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub thruster_columns: Option<Vec<String>>,
@@ -438,10 +417,6 @@ enum InputPlan {
     Thrusters { slots: Vec<usize>, channels: Vec<usize>, n_channels: usize },
 }
 
-/// The vehicle's thrusters: commands by channel (index `c - 1` for channel `c`) to the body
-/// wrench `[X, Y, Z, Mz]`, as `Thrusters::input_from_commands` computes it.
-pub type CommandsToInput<'a> = &'a dyn Fn(&[f64]) -> Input;
-
 /// Reads one CSV file through `mapping`, converting every quantity to pinc's frames and units.
 /// Only the columns the mapping names are parsed; an empty field or `nan` is a missing value
 /// (NaN, skipped by the windowing). Thruster command columns go through `commands_to_input`
@@ -572,7 +547,7 @@ pub fn read_mapped_csv(
         Some(y) => {
             let slot = cols.slot(&header, &y.column, "[yaw_rate] column").map_err(&malformed)?;
             let unit = y.unit.unwrap_or(AngleUnit::Rad);
-            let flu = y.axes == BodyAxes::Flu;
+            let flu = y.axes == BodyFrame::Flu;
             notes.push(format!(
                 "yaw rate: {} in {}/s{}",
                 y.column,
@@ -590,7 +565,7 @@ pub fn read_mapped_csv(
     let input = match &mapping.input {
         Some(i) => Some(match (&i.wrench_columns, &i.thruster_columns) {
             (Some(w), _) => {
-                let flu = i.axes == Some(BodyAxes::Flu);
+                let flu = i.axes == Some(BodyFrame::Flu);
                 notes.push(format!(
                     "input: wrench {}{}",
                     w.join(","),

@@ -8,6 +8,7 @@ mod csv_mapping;
 mod dataflash;
 mod mcap_log;
 mod resample;
+mod ros2;
 mod streams;
 mod tlog;
 mod windows;
@@ -17,14 +18,15 @@ pub use ardupilot::{
 };
 pub use csv_log::read_csv;
 pub use csv_mapping::{
-    AngleUnit, BodyAxes, CommandsToInput, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping,
-    QUATERNION_NORM_TOLERANCE, QuaternionOrder, TimeMapping, TimeUnit, VelocityAxes, VelocityMapping, WorldFrame,
-    YawRateMapping, load_mapping, read_mapped_csv,
+    AngleUnit, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping, QUATERNION_NORM_TOLERANCE,
+    QuaternionOrder, TimeMapping, TimeUnit, VelocityAxes, VelocityMapping, YawRateMapping, load_mapping,
+    read_mapped_csv,
 };
 pub use dataflash::read_bin;
 pub use mcap_log::{McapTopics, read_mcap};
 pub use resample::{StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
-pub use streams::{Series, StreamSet};
+pub use ros2::{Ros2Options, read_ros2};
+pub use streams::{BodyFrame, CommandsToInput, Series, StreamSet, WorldFrame};
 pub use tlog::read_tlog;
 pub use windows::{SkipCounts, cut_windows};
 

@@ -4,6 +4,11 @@
 //! per file). Converting frames and units is the reader's job; merging the streams onto one
 //! sample period is shared (`resample`).
 
+use crate::types::Input;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
 /// One quantity sampled at its own times.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series<const N: usize> {
@@ -67,3 +72,67 @@ pub struct StreamSet {
     /// each, printed with the import report.
     pub notes: Vec<String>,
 }
+
+/// The axes of a world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WorldFrame {
+    /// North-east-down (pinc's).
+    Ned,
+    /// East-north-up (REP 103).
+    Enu,
+}
+
+/// The axes of a body frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BodyFrame {
+    /// Forward-right-down (pinc's).
+    Frd,
+    /// Forward-left-up (REP 103).
+    Flu,
+}
+
+impl FromStr for WorldFrame {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "ned" => Ok(Self::Ned),
+            "enu" => Ok(Self::Enu),
+            _ => Err(format!("world frame {s:?}: expected ned or enu")),
+        }
+    }
+}
+
+impl FromStr for BodyFrame {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "frd" => Ok(Self::Frd),
+            "flu" => Ok(Self::Flu),
+            _ => Err(format!("body frame {s:?}: expected frd or flu")),
+        }
+    }
+}
+
+impl fmt::Display for WorldFrame {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Ned => "NED",
+            Self::Enu => "ENU",
+        })
+    }
+}
+
+impl fmt::Display for BodyFrame {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Frd => "FRD",
+            Self::Flu => "FLU",
+        })
+    }
+}
+
+/// A vehicle's thrusters as a reader needs them: commands by output channel (index `c - 1`
+/// for channel `c`) to the body input `[X, Y, Z, Mz]` (`Thrusters::input_from_commands`).
+pub type CommandsToInput<'a> = &'a dyn Fn(&[f64]) -> Input;
