@@ -20,6 +20,8 @@ mod sweep_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
+#[cfg(feature = "vehicle")]
+mod vehicle_cmd;
 
 #[derive(Parser)]
 #[command(name = "pinc", version, about = "Physics-informed neural network with control for a BlueROV2")]
@@ -154,6 +156,12 @@ enum Command {
     },
     /// Estimate the vehicle's added masses, damping and buoyancy from a dataset's train split.
     Identify(identify_cmd::IdentifyArgs),
+    /// A live ArduSub vehicle over MAVLink: check the link, record a session.
+    #[cfg(feature = "vehicle")]
+    Vehicle {
+        #[command(subcommand)]
+        action: vehicle_cmd::VehicleAction,
+    },
 }
 
 #[derive(Subcommand)]
@@ -220,6 +228,8 @@ fn main() -> ExitCode {
         Command::VptSweep(args) => sweep_cmd::run_sweep(args),
         Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
         Command::Identify(args) => identify_cmd::run_identify(args),
+        #[cfg(feature = "vehicle")]
+        Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
