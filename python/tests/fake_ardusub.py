@@ -123,6 +123,7 @@ class FakeArduSub:
         self.conn = mavutil.mavlink_connection(device, source_system=args.sysid, source_component=1,
                                                dialect="ardupilotmega")
         self.mav = self.conn.mav
+        print(f"fake ArduSub on {device}", flush=True)  # tests wait for this line
         self.start = time.monotonic()
         self.t = 0.0  # simulation time = boot time (s)
         self.state = np.array(args.x0, dtype=float)
