@@ -535,6 +535,78 @@ impl Drop for VehicleLink {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mavlink::dialects::ardupilotmega::ATTITUDE_DATA;
+
+    fn free_port() -> u16 {
+        std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    }
+
+    /// An autopilot on a loopback socket: pinc listens, the autopilot sends to it.
+    #[test]
+    fn link_finds_the_autopilot_and_commands_come_from_the_gcs_ids() {
+        let port = free_port();
+        let address: LinkAddress = format!("udpin:127.0.0.1:{port}").parse().unwrap();
+        let mut link = VehicleLink::connect(&address, LinkConfig { gcs_system_id: 254, ..LinkConfig::default() })
+            .expect("listen on a free port");
+        let autopilot = mavlink::connect::<MavMessage>(&format!("udpout:127.0.0.1:{port}")).unwrap();
+        let ap = MavHeader { system_id: 7, component_id: 1, sequence: 0 };
+        let gcs = MavHeader { system_id: 200, component_id: 190, sequence: 0 };
+        let sub = HEARTBEAT_DATA {
+            custom_mode: SubMode::Manual as u32,
+            mavtype: MavType::MAV_TYPE_SUBMARINE,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base_mode: MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED | MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        };
+        // Another ground station's heartbeat and an attitude come first: neither is the autopilot.
+        autopilot.send(&gcs, &MavMessage::HEARTBEAT(gcs_heartbeat())).unwrap();
+        autopilot.send(&ap, &MavMessage::ATTITUDE(ATTITUDE_DATA::default())).unwrap();
+        autopilot.send(&ap, &MavMessage::HEARTBEAT(sub.clone())).unwrap();
+        let mut seen = Vec::new();
+        let found = link.wait_for_autopilot(Duration::from_secs(5), |r| seen.push(r.header.system_id)).unwrap();
+        assert_eq!((found.system_id, found.component_id), (7, 1));
+        assert!(Autopilot::armed(&found.heartbeat));
+        assert_eq!(seen, [200, 7, 7]);
+        // The link now knows where to send: a stream request and an arm command reach the
+        // autopilot from system 254, addressed to system 7.
+        link.set_message_rate(30, 12.5).unwrap();
+        link.arm(true).unwrap();
+        let mut commands = Vec::new();
+        let mut heartbeat_from_gcs = false;
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while commands.len() < 2 && Instant::now() < deadline {
+            let (h, m) = autopilot.recv().unwrap();
+            assert_eq!((h.system_id, h.component_id), (254, 190));
+            match m {
+                MavMessage::COMMAND_LONG(c) => commands.push(c),
+                MavMessage::HEARTBEAT(b) => heartbeat_from_gcs |= is_ground_station(&b),
+                _ => {}
+            }
+        }
+        assert_eq!(commands.len(), 2);
+        let rate = &commands[0];
+        assert_eq!((rate.command, rate.target_system, rate.target_component), (MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL, 7, 1));
+        assert_eq!((rate.param1, rate.param2), (30.0, 80_000.0));
+        assert_eq!((commands[1].command, commands[1].param1), (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 1.0));
+        // The 1 Hz ground-station heartbeat flows too (its first beat may precede the peer).
+        let deadline = Instant::now() + Duration::from_secs(3);
+        while !heartbeat_from_gcs && Instant::now() < deadline {
+            if let Ok((_, MavMessage::HEARTBEAT(b))) = autopilot.recv() {
+                heartbeat_from_gcs = is_ground_station(&b);
+            }
+        }
+        assert!(heartbeat_from_gcs);
+    }
+
+    #[test]
+    fn no_autopilot_is_a_timeout_naming_the_address() {
+        let address: LinkAddress = format!("udpin:127.0.0.1:{}", free_port()).parse().unwrap();
+        let mut link = VehicleLink::connect(&address, LinkConfig::default()).unwrap();
+        let e = link.wait_for_autopilot(Duration::from_millis(300), |_| {}).unwrap_err();
+        assert!(matches!(e, LinkError::NoAutopilot { received: 0, .. }), "{e}");
+        assert!(e.to_string().contains(&address.to_string()), "{e}");
+    }
 
     #[test]
     fn ardusub_modes_round_trip_by_number() {

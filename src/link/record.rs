@@ -293,3 +293,54 @@ impl Drop for Recorder {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::import::{McapTopics, read_mcap};
+    use crate::link::state::{Part, PartStatus};
+
+    fn estimate(t: f64, sim: [f64; 8]) -> StateEstimate {
+        let part = |part| PartStatus { part, stamp: Some(t), age: Some(0.0), fresh: true };
+        StateEstimate {
+            t,
+            sim,
+            parts: Part::ALL.map(part),
+            depth_source: Some(DepthSource::Position),
+            capability: Capability::Full,
+        }
+    }
+
+    #[test]
+    fn dataset_import_reads_the_recorded_state_and_missing_inputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let mut rec = Recorder::create(&path, BTreeMap::new()).unwrap();
+        assert!(partial_path(&path).exists() && !path.exists());
+        let a = [1.0, 2.0, 3.0, 0.5, 0.1, 0.2, 0.3, 0.4];
+        let mut b = a;
+        b[4] = f64::NAN; // a stale velocity
+        rec.state(&estimate(10.0, a), Some(&Input::from([1.0, 2.0, 3.0, 4.0]))).unwrap();
+        rec.state(&estimate(10.08, b), None).unwrap();
+        rec.log(10.1, Level::Info, "end").unwrap();
+        let stats = rec.finish().unwrap();
+        assert_eq!((stats.states, stats.log_lines, stats.messages), (2, 1, 5));
+        assert!(path.exists() && !partial_path(&path).exists());
+        let run = read_mcap(&path, &McapTopics::default()).unwrap();
+        assert_eq!(run.t, [10.0, 10.08]);
+        assert_eq!(run.states[0].as_slice(), a);
+        assert!(run.states[1][4].is_nan() && run.states[1][5] == 0.2);
+        assert_eq!(run.inputs[0].as_slice(), [1.0, 2.0, 3.0, 4.0]);
+        assert!(run.inputs[1].iter().all(|v| v.is_nan()));
+    }
+
+    #[test]
+    fn an_unfinished_recording_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let mut rec = Recorder::create(&path, BTreeMap::new()).unwrap();
+        rec.log(0.0, Level::Info, "start").unwrap();
+        drop(rec);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
