@@ -233,8 +233,9 @@ impl VehicleLink {
             LinkAddress::Serial { device, baud } => {
                 mavlink::SerialConfig::new(device.clone(), *baud).timeout(config.read_timeout).connect::<MavMessage>()
             }
-            other => mavlink::ConnectionAddress::parse_address(&other.to_string())
-                .and_then(|a| a.connect::<MavMessage>()),
+            other => {
+                mavlink::ConnectionAddress::parse_address(&other.to_string()).and_then(|a| a.connect::<MavMessage>())
+            }
         }
         .map_err(open)?;
         let mut connection = connection;
@@ -586,7 +587,10 @@ mod tests {
         }
         assert_eq!(commands.len(), 2);
         let rate = &commands[0];
-        assert_eq!((rate.command, rate.target_system, rate.target_component), (MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL, 7, 1));
+        assert_eq!(
+            (rate.command, rate.target_system, rate.target_component),
+            (MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL, 7, 1)
+        );
         assert_eq!((rate.param1, rate.param2), (30.0, 80_000.0));
         assert_eq!((commands[1].command, commands[1].param1), (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 1.0));
         // The 1 Hz ground-station heartbeat flows too (its first beat may precede the peer).

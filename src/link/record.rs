@@ -144,7 +144,14 @@ impl Recorder {
         Ok(id)
     }
 
-    fn write(&mut self, topic: &str, schema: &str, properties: Value, t: f64, message: &Value) -> Result<(), RecordError> {
+    fn write(
+        &mut self,
+        topic: &str,
+        schema: &str,
+        properties: Value,
+        t: f64,
+        message: &Value,
+    ) -> Result<(), RecordError> {
         let channel_id = self.channel(topic, schema, properties)?;
         let data = serde_json::to_vec(message).map_err(|source| RecordError::Json {
             path: self.partial.clone(),
@@ -187,7 +194,8 @@ impl Recorder {
     /// Writing fails.
     pub fn state(&mut self, s: &StateEstimate, input: Option<&Input>) -> Result<(), RecordError> {
         let t = s.t;
-        let sim: Map<String, Value> = s.named().map(|(k, v)| (k.to_owned(), v.map_or(Value::Null, Value::from))).collect();
+        let sim: Map<String, Value> =
+            s.named().map(|(k, v)| (k.to_owned(), v.map_or(Value::Null, Value::from))).collect();
         let age: Map<String, Value> =
             s.parts.iter().map(|p| (p.part.name().to_owned(), p.age.map_or(Value::Null, Value::from))).collect();
         let fresh: Map<String, Value> = s.parts.iter().map(|p| (p.part.name().to_owned(), p.fresh.into())).collect();

@@ -253,7 +253,8 @@ impl StateEstimator {
                     return None;
                 }
                 let f = |v: f32| f64::from(v);
-                self.local = Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
+                self.local =
+                    Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
                 Some(self.estimate_at(t))
             }
             MavMessage::SCALED_PRESSURE2(m) => {
@@ -366,7 +367,11 @@ mod tests {
     }
 
     fn pressure(ms: u32, hpa: f32) -> Received {
-        rx(MavMessage::SCALED_PRESSURE2(SCALED_PRESSURE2_DATA { time_boot_ms: ms, press_abs: hpa, ..Default::default() }))
+        rx(MavMessage::SCALED_PRESSURE2(SCALED_PRESSURE2_DATA {
+            time_boot_ms: ms,
+            press_abs: hpa,
+            ..Default::default()
+        }))
     }
 
     #[test]

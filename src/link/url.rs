@@ -90,8 +90,7 @@ fn serial(url: &str, rest: &str) -> Result<LinkAddress, UrlError> {
 /// A device path rather than a transport name: `/dev/...`, `COM3`.
 fn looks_like_device(url: &str) -> bool {
     let upper = url.to_ascii_uppercase();
-    url.starts_with('/')
-        || (upper.starts_with("COM") && upper[3..].chars().next().is_some_and(|c| c.is_ascii_digit()))
+    url.starts_with('/') || (upper.starts_with("COM") && upper[3..].chars().next().is_some_and(|c| c.is_ascii_digit()))
 }
 
 impl FromStr for LinkAddress {

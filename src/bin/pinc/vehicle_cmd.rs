@@ -1,6 +1,7 @@
 //! `pinc vehicle status` and `pinc vehicle record`: pinc as a MAVLink participant next to an
 //! ArduSub autopilot (docs/VEHICLE.md).
 
+use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
 use pinc::link::state::message_time;
@@ -8,7 +9,6 @@ use pinc::link::{
     Autopilot, Capability, LinkAddress, LinkConfig, Part, Received, Recorder, StateConfig, StateEstimator, SubMode,
     VehicleLink,
 };
-use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -308,21 +308,16 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
         // The first stamped message fixes the clock; what waited is written at its own time.
         for p in std::mem::take(&mut pending).into_iter().chain(std::iter::once(r)) {
             let t = estimator.autopilot_time(p.at).unwrap_or(0.0);
-            if let Err(e) = write_one(&mut rec, &mut session, &autopilot, t, &p) {
-                return Err(e);
-            }
+            // A write error ends here: the unfinished file is removed (`Recorder`'s drop).
+            write_one(&mut rec, &mut session, &autopilot, t, &p)?;
         }
         clock_known = true;
         if let Some(s) = state {
             session.note_capability(s.t, s.capability);
-            if let Err(e) = rec.state(&s, None) {
-                return Err(e.to_string());
-            }
+            rec.state(&s, None).map_err(|e| e.to_string())?;
         }
         for (t, level, line) in session.log.drain(..) {
-            if let Err(e) = rec.log(t, level, &line) {
-                return Err(e.to_string());
-            }
+            rec.log(t, level, &line).map_err(|e| e.to_string())?;
         }
     };
     let end_t = estimator.autopilot_time(Instant::now()).unwrap_or(0.0);
