@@ -217,3 +217,27 @@ def test_record_refuses_when_nothing_answers(tmp_path):
                  "--timeout", "1", "--duration", "1")
     assert r.returncode == 1 and "no autopilot heartbeat" in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_finishes_the_recording(fake_factory, tmp_path):
+    import signal
+
+    fake = fake_factory("--armed", "--pilot", "--position-delay", "0")
+    out = tmp_path / "run.mcap"
+    proc = subprocess.Popen([str(pinc_binary()), "vehicle", "record", "--connect", fake.url, "--out", str(out),
+                             "--timeout", "5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Recording has begun once the partial file exists; then a second of messages.
+    deadline = time.monotonic() + 8
+    while not (tmp_path / "run.mcap.partial").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=10)
+    assert proc.returncode == 0, stderr
+    assert "Ctrl-C" in stdout
+    assert out.is_file() and not (tmp_path / "run.mcap.partial").exists()
+    with open(out, "rb") as f:  # finished: the summary section is written
+        assert mcap_reader.make_reader(f).get_summary() is not None
+    topics = read_mcap(out)
+    assert len(topics["/vehicle/state"]) >= 5
+    assert "recording ended: Ctrl-C" in topics["/log"][-1][1]["message"]
