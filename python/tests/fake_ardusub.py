@@ -17,6 +17,8 @@ describes ArduSub's simulator and its logs):
 - MANUAL_CONTROL in MANUAL mode through ArduSub's mixer for the vectored (BlueROV2) frame:
   axis s = g x / 1000 for x, y, r and g (z - 500) / 500 for z (g = JS_GAIN_DEFAULT), output
   per thruster o = sum of the frame's factors times the axes, clipped to +-1, PWM = 1500 + 400 o;
+  (the factors agree within 0.1 with a least-squares fit of RCOU on RCIN in the simulator's
+  own log sitl_excite_1.BIN: docs/VEHICLE.md);
 - RC_CHANNELS_OVERRIDE as per-thruster commands (outputs set to RC pass-through): channel i is
   thruster i's PWM (0 or 65535 releases it);
 - the thruster model of ArduSub's simulator: s = (PWM - 1500) / 400, zero within +-25 us of
