@@ -204,6 +204,8 @@ def test_record_holds_the_fakes_state_at_matching_times(fake_factory, tmp_path):
     # no window can be cut, which is what it must say.
     r = run_pinc("dataset", "import", "--out", str(tmp_path / "ds"), str(out))
     if r.returncode != 0:
+        for unread in ["no messages on topic", "not an MCAP", "damaged", "not JSON", "no field", "has no"]:
+            assert unread not in r.stderr, r.stderr
         found = re.search(r"(\d+) rows with NaN", r.stderr)
         assert found, r.stderr
         # The import may drop a row at an edge while aligning; the rest are all read.
