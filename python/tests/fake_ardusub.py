@@ -281,16 +281,18 @@ class FakeArduSub:
         if self.armed and self.args.pilot_timeout > 0 and self.t - self.last_pilot > self.args.pilot_timeout:
             self.arm(False, "pilot input failsafe")
 
-    def step(self):
+    def command_outputs(self):
+        """The outputs held from now until the next step."""
         if self.args.pilot and self.armed:
             self.own_pilot()
         self.failsafes()
         self.pwm = self.outputs()
         self.wrench = wrench(self.pwm)
+
+    def step(self):
         traj = self.pinc.simulate(self.state, np.array([self.wrench]), dt=self.args.dt)
         self.state = np.asarray(traj[1], dtype=float)
-        self.t += self.args.dt
-        self.t = round(self.t, 9)
+        self.t = round(self.t + self.args.dt, 9)
 
     def write_truth(self):
         if self.truth is not None:
@@ -298,13 +300,15 @@ class FakeArduSub:
                                          "wrench": self.wrench, "pwm": self.pwm, "armed": self.armed}) + "\n")
 
     def tick(self):
-        """Sends what is due at the current time, then steps the physics once."""
+        """Takes the messages received, sets the outputs, sends what is due at the current
+        time (the state at this time, the outputs from it on), then steps the physics once."""
         while True:
             m = self.conn.recv_match(blocking=False)
             if m is None:
                 break
             if m.get_type() != "BAD_DATA":
                 self.handle(m)
+        self.command_outputs()
         if self.t >= self.next_heartbeat:
             self.heartbeat()
             self.next_heartbeat += 1.0

@@ -243,3 +243,55 @@ def test_ctrl_c_finishes_the_recording(fake_factory, tmp_path):
     topics = read_mcap(out)
     assert len(topics["/vehicle/state"]) >= 5
     assert "recording ended: Ctrl-C" in topics["/log"][-1][1]["message"]
+
+
+def test_fake_mixes_manual_control_like_ardusub_and_disarms_on_pilot_silence(fake_factory, tmp_path):
+    """The fake itself, driven by pymavlink as the ground station (system 255): what the
+    later commanding steps rely on."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    truth = tmp_path / "truth.jsonl"
+    fake = fake_factory("--position-delay", "0", "--truth", str(truth), "--x0", "0", "0", "5", "0", "0", "0", "0", "0")
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{fake.port}", source_system=255, source_component=190)
+    m = gcs.mav
+    m.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=5) is not None
+    m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                        mavutil.mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 50_000, 0, 0, 0, 0, 0)
+    m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+
+    def outputs_after(x, y, z, r, seconds=0.6):
+        end = time.monotonic() + seconds
+        last = None
+        while time.monotonic() < end:
+            m.manual_control_send(1, x, y, z, r, 0)
+            m.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            msg = gcs.recv_match(type="SERVO_OUTPUT_RAW", blocking=True, timeout=0.1)
+            if msg is not None:
+                last = [msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw, msg.servo5_raw,
+                        msg.servo6_raw]
+        return last
+
+    # Full forward: the factor signs fitted on ArduSub's own simulator log (docs/VEHICLE.md),
+    # -1 -1 +1 +1 on the horizontal thrusters, +-400 us at JS_GAIN_DEFAULT 1.
+    assert outputs_after(1000, 0, 500, 0) == [1100, 1100, 1900, 1900, 1500, 1500]
+    # Half up (z = 750): the vertical thrusters' factor is -1, 0.8 us per unit above 500.
+    assert outputs_after(0, 0, 750, 0) == [1500, 1500, 1500, 1500, 1300, 1300]
+    # Pilot input stops: disarmed by the 3 s failsafe, with a STATUSTEXT saying so.
+    end = time.monotonic() + 6
+    text = None
+    while time.monotonic() < end and text is None:
+        m.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        msg = gcs.recv_match(type="STATUSTEXT", blocking=True, timeout=0.5)
+        if msg is not None:
+            text = msg.text
+    assert text is not None and "pilot input failsafe" in text
+    fake.stop()
+    rows = [json.loads(line) for line in truth.read_text().splitlines()]
+    armed = [r for r in rows if r["armed"]]
+    # Going forward, then up: u > 0 while forward, z falls (NED: up) during the heave step.
+    assert max(r["state"][4] for r in armed) > 0.05
+    up = [r for r in armed if r["pwm"][4] == 1300]
+    assert up and up[-1]["state"][2] < up[0]["state"][2]
+    assert rows[-1]["pwm"] == [1500] * 6 and not rows[-1]["armed"]
