@@ -29,6 +29,8 @@ pub mod dataset;
 pub mod eval;
 #[cfg(feature = "tools")]
 pub mod identify;
+#[cfg(feature = "vehicle")]
+pub mod link;
 #[cfg(feature = "tools")]
 pub mod plot;
 

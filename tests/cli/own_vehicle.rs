@@ -184,7 +184,10 @@ fn bad_input_on_the_path_is_a_one_line_error_and_leaves_nothing_behind() {
         "no messages on topic /odometry (the file has: /log, /mpc/command",
     );
     // A file that is neither and no --format.
-    fails(pinc(&["dataset", "import", "--out", &out, &inputs.replace(".csv", ".txt")]), "format not known from the extension");
+    fails(
+        pinc(&["dataset", "import", "--out", &out, &inputs.replace(".csv", ".txt")]),
+        "format not known from the extension",
+    );
     // A vehicle file with a typo, for identification.
     ok(pinc(&["dataset", "import", "--out", &out, "--split", "0.5,0,0.5", &whole, &whole]), "import");
     let typo = d("typo.toml");

@@ -21,6 +21,8 @@ mod thrusters_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
+#[cfg(feature = "vehicle")]
+mod vehicle_cmd;
 
 #[derive(Parser)]
 #[command(name = "pinc", version, about = "Physics-informed neural network with control for a BlueROV2")]
@@ -158,6 +160,12 @@ enum Command {
     Identify(identify_cmd::IdentifyArgs),
     /// A vehicle file's thrusters: the allocation matrix and the reachable body inputs.
     Thrusters(thrusters_cmd::ThrustersArgs),
+    /// A live ArduSub vehicle over MAVLink: check the link, record a session.
+    #[cfg(feature = "vehicle")]
+    Vehicle {
+        #[command(subcommand)]
+        action: vehicle_cmd::VehicleAction,
+    },
 }
 
 #[derive(Subcommand)]
@@ -226,6 +234,8 @@ fn main() -> ExitCode {
         Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
         Command::Identify(args) => identify_cmd::run_identify(args),
         Command::Thrusters(args) => thrusters_cmd::run_thrusters(args),
+        #[cfg(feature = "vehicle")]
+        Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

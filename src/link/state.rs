@@ -1,0 +1,443 @@
+//! The vehicle's state `x y z psi u v w r` rebuilt from ArduSub's standard messages, on the
+//! autopilot's own time base (`time_boot_ms`).
+//!
+//! - heading `psi` (unwrapped across +-pi) and yaw rate `r`: `ATTITUDE` (`yaw`, `yawspeed`);
+//! - position `x y z` and the NED velocity: `LOCAL_POSITION_NED`, which ArduSub sends only
+//!   once its EKF has a position source (GPS at the surface, a DVL, an underwater GPS);
+//! - body velocities `u v w`: the NED velocity turned by the heading of the `ATTITUDE`
+//!   nearest in time (pinc's 4-DOF kinematics: roll and pitch taken as zero);
+//! - depth `z` without a position: `SCALED_PRESSURE2` (ArduSub's external depth sensor) or
+//!   `SCALED_PRESSURE`, as `(p - p_surface) / (rho g)`.
+//!
+//! Every part keeps its time stamp; a part older than [`StateConfig::max_age`] (autopilot
+//! time) is stale and reported as missing (`NaN`), never held.
+
+use super::link::Received;
+use crate::types::{NS, SIM_STATE_NAMES};
+use mavlink::dialects::ardupilotmega::MavMessage;
+use std::collections::VecDeque;
+use std::fmt;
+use std::time::Instant;
+
+/// The parts of the state, each from its own message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Part {
+    /// `psi` from `ATTITUDE.yaw`.
+    Heading,
+    /// `r` from `ATTITUDE.yawspeed`.
+    YawRate,
+    /// `x y z` from `LOCAL_POSITION_NED`.
+    Position,
+    /// `u v w` from `LOCAL_POSITION_NED`'s velocity turned by the heading.
+    Velocity,
+    /// `z` from the position, or from the pressure without one.
+    Depth,
+}
+
+impl Part {
+    /// Every part, in the order of [`StateEstimate::parts`].
+    pub const ALL: [Part; 5] = [Part::Heading, Part::YawRate, Part::Position, Part::Velocity, Part::Depth];
+
+    /// Its name in output (`heading`, `yaw_rate`, `position`, `velocity`, `depth`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Part::Heading => "heading",
+            Part::YawRate => "yaw_rate",
+            Part::Position => "position",
+            Part::Velocity => "velocity",
+            Part::Depth => "depth",
+        }
+    }
+}
+
+/// Settings of the reconstruction.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateConfig {
+    /// A part older than this (s, autopilot time) is stale.
+    pub max_age: f64,
+    /// Absolute pressure at the surface (hPa), for depth from pressure.
+    pub surface_pressure_hpa: f64,
+    /// Water density (kg/m^3): ArduSub's `BARO_SPEC_GRAV` times 1000.
+    pub water_density: f64,
+}
+
+impl Default for StateConfig {
+    fn default() -> Self {
+        // 0.5 s: five samples at the 10 Hz the SITL logs show for LOCAL_POSITION_NED.
+        Self { max_age: 0.5, surface_pressure_hpa: 1013.25, water_density: 1000.0 }
+    }
+}
+
+/// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
+const GRAVITY: f64 = 9.80665;
+
+/// One part's time stamp and age.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PartStatus {
+    /// The part.
+    pub part: Part,
+    /// Autopilot time of its newest sample (s), if any arrived.
+    pub stamp: Option<f64>,
+    /// Age at the estimate's time (s).
+    pub age: Option<f64>,
+    /// Seen and not older than the limit.
+    pub fresh: bool,
+}
+
+/// Which controller the fresh parts allow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Capability {
+    /// Every part: the full-state MPC.
+    Full,
+    /// Heading, yaw rate and depth but no body velocities (no position source such as a
+    /// DVL): a depth and heading controller only.
+    DepthHeading,
+    /// Heading or depth missing: no controller.
+    None,
+}
+
+impl fmt::Display for Capability {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Capability::Full => "full state: the full-state MPC can run",
+            Capability::DepthHeading => {
+                "depth and heading only (no position source such as a DVL, so no body velocities u v w): \
+                 a depth and heading controller only"
+            }
+            Capability::None => "no controller: heading or depth missing",
+        })
+    }
+}
+
+/// Where the depth came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthSource {
+    /// `LOCAL_POSITION_NED.z`.
+    Position,
+    /// A pressure message.
+    Pressure,
+}
+
+/// The state at one autopilot time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateEstimate {
+    /// Autopilot time (s since its boot).
+    pub t: f64,
+    /// `x y z psi u v w r` (m, rad, m/s, rad/s), `NaN` where a part is stale or missing.
+    pub sim: [f64; NS],
+    /// Each part's stamp and age, in [`Part::ALL`] order.
+    pub parts: [PartStatus; 5],
+    /// Where `z` came from, when fresh.
+    pub depth_source: Option<DepthSource>,
+    /// What the fresh parts allow.
+    pub capability: Capability,
+}
+
+impl StateEstimate {
+    /// The status of one part.
+    pub fn part(&self, part: Part) -> &PartStatus {
+        &self.parts[Part::ALL.iter().position(|p| *p == part).expect("every part is listed")]
+    }
+
+    /// `(name, value)` pairs of `sim`, `None` for a missing value.
+    pub fn named(&self) -> impl Iterator<Item = (&'static str, Option<f64>)> + '_ {
+        SIM_STATE_NAMES.into_iter().zip(self.sim.iter().map(|v| v.is_finite().then_some(*v)))
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Attitude {
+    t: f64,
+    yaw: f64,
+    yaw_rate: f64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Local {
+    t: f64,
+    position: [f64; 3],
+    velocity_ned: [f64; 3],
+}
+
+/// How many `ATTITUDE`s are kept to find the one nearest a position's time (1.3 s at 25 Hz).
+const ATTITUDE_HISTORY: usize = 32;
+/// A time stamp this far before the newest is a reboot of the autopilot (s).
+const REBOOT_STEP: f64 = 5.0;
+
+/// Builds [`StateEstimate`]s from the messages of one autopilot.
+#[derive(Debug, Clone, Default)]
+pub struct StateEstimator {
+    config: StateConfig,
+    attitudes: VecDeque<Attitude>,
+    local: Option<Local>,
+    /// (autopilot time, hPa); `SCALED_PRESSURE2` wins over `SCALED_PRESSURE` once seen.
+    pressure: Option<(f64, f64)>,
+    external_pressure_seen: bool,
+    /// The newest autopilot time seen and when it was received.
+    clock: Option<(f64, Instant)>,
+}
+
+fn wrap(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI { w - std::f64::consts::TAU } else { w }
+}
+
+/// The autopilot time stamp (s) of a message that has one.
+pub fn message_time(message: &MavMessage) -> Option<f64> {
+    let ms = match message {
+        MavMessage::ATTITUDE(m) => m.time_boot_ms,
+        MavMessage::LOCAL_POSITION_NED(m) => m.time_boot_ms,
+        MavMessage::SCALED_PRESSURE(m) => m.time_boot_ms,
+        MavMessage::SCALED_PRESSURE2(m) => m.time_boot_ms,
+        MavMessage::SCALED_PRESSURE3(m) => m.time_boot_ms,
+        MavMessage::GLOBAL_POSITION_INT(m) => m.time_boot_ms,
+        MavMessage::SYSTEM_TIME(m) => m.time_boot_ms,
+        _ => return None,
+    };
+    Some(f64::from(ms) * 1e-3)
+}
+
+impl StateEstimator {
+    /// An estimator with `config`.
+    pub fn new(config: StateConfig) -> Self {
+        Self { config, ..Self::default() }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &StateConfig {
+        &self.config
+    }
+
+    /// The autopilot time (s) at host instant `at`: the newest stamp plus the host time since
+    /// it arrived; `None` before any stamped message.
+    pub fn autopilot_time(&self, at: Instant) -> Option<f64> {
+        self.clock.map(|(t, host)| {
+            let dt = if at >= host { (at - host).as_secs_f64() } else { -(host - at).as_secs_f64() };
+            (t + dt).max(0.0)
+        })
+    }
+
+    /// Feeds one message. Returns a new state sample when the message is the state's clock:
+    /// `LOCAL_POSITION_NED` while the position is fresh, `ATTITUDE` otherwise (so a sample
+    /// never pairs a new position with an old one or the other way round).
+    pub fn update(&mut self, r: &Received) -> Option<StateEstimate> {
+        let t = message_time(&r.message)?;
+        match self.clock {
+            Some((newest, _)) if t < newest - REBOOT_STEP => {
+                // The autopilot rebooted: nothing before belongs to the new time base.
+                *self = Self::new(self.config.clone());
+                self.clock = Some((t, r.at));
+            }
+            Some((newest, _)) if t <= newest => {}
+            _ => self.clock = Some((t, r.at)),
+        }
+        match &r.message {
+            MavMessage::ATTITUDE(m) => {
+                let last = self.attitudes.back().copied();
+                if last.is_some_and(|a| t <= a.t) {
+                    return None; // late or repeated: the history is in time order
+                }
+                let yaw = match last {
+                    Some(a) => a.yaw + wrap(f64::from(m.yaw) - a.yaw),
+                    None => f64::from(m.yaw),
+                };
+                self.attitudes.push_back(Attitude { t, yaw, yaw_rate: f64::from(m.yawspeed) });
+                if self.attitudes.len() > ATTITUDE_HISTORY {
+                    self.attitudes.pop_front();
+                }
+                let position_clock = self.local.is_some_and(|l| t - l.t <= self.config.max_age);
+                (!position_clock).then(|| self.estimate_at(t))
+            }
+            MavMessage::LOCAL_POSITION_NED(m) => {
+                if self.local.is_some_and(|l| t <= l.t) {
+                    return None;
+                }
+                let f = |v: f32| f64::from(v);
+                self.local =
+                    Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
+                Some(self.estimate_at(t))
+            }
+            MavMessage::SCALED_PRESSURE2(m) => {
+                self.external_pressure_seen = true;
+                self.set_pressure(t, m.press_abs);
+                None
+            }
+            MavMessage::SCALED_PRESSURE(m) if !self.external_pressure_seen => {
+                self.set_pressure(t, m.press_abs);
+                None
+            }
+            _ => None,
+        }
+    }
+
+    fn set_pressure(&mut self, t: f64, hpa: f32) {
+        if self.pressure.is_none_or(|(last, _)| t > last) {
+            self.pressure = Some((t, f64::from(hpa)));
+        }
+    }
+
+    /// The attitude nearest to `t` (the newest one on a tie).
+    fn attitude_near(&self, t: f64) -> Option<Attitude> {
+        self.attitudes.iter().rev().min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs())).copied()
+    }
+
+    /// The state now, by the host clock (for a controller's cycle).
+    pub fn estimate_now(&self, now: Instant) -> StateEstimate {
+        self.estimate_at(self.autopilot_time(now).unwrap_or(0.0))
+    }
+
+    /// The state at autopilot time `t` (s) from the newest sample of each part.
+    pub fn estimate_at(&self, t: f64) -> StateEstimate {
+        let max_age = self.config.max_age;
+        let status = |part, stamp: Option<f64>| {
+            let age = stamp.map(|s| (t - s).max(0.0));
+            PartStatus { part, stamp, age, fresh: age.is_some_and(|a| a <= max_age) }
+        };
+        let mut sim = [f64::NAN; NS];
+        // The attitude of the estimate's time: the nearest one to `t`, if it is fresh.
+        let attitude = self.attitude_near(t);
+        let heading = status(Part::Heading, attitude.map(|a| a.t));
+        let yaw_rate = status(Part::YawRate, attitude.map(|a| a.t));
+        if let (Some(a), true) = (attitude, heading.fresh) {
+            sim[3] = a.yaw;
+            sim[7] = a.yaw_rate;
+        }
+        let position = status(Part::Position, self.local.map(|l| l.t));
+        let mut velocity = status(Part::Velocity, self.local.map(|l| l.t));
+        if let (Some(l), true) = (self.local, position.fresh) {
+            sim[..3].copy_from_slice(&l.position);
+            // Body velocities need the heading at the position's own time.
+            match self.attitude_near(l.t).filter(|a| (a.t - l.t).abs() <= max_age) {
+                Some(a) => {
+                    let (s, c) = a.yaw.sin_cos();
+                    let [vn, ve, vd] = l.velocity_ned;
+                    sim[4] = c * vn + s * ve;
+                    sim[5] = -s * vn + c * ve;
+                    sim[6] = vd;
+                }
+                None => velocity.fresh = false,
+            }
+        }
+        let (depth, depth_source) = if position.fresh {
+            (status(Part::Depth, position.stamp), Some(DepthSource::Position))
+        } else {
+            let d = status(Part::Depth, self.pressure.map(|(s, _)| s));
+            if let (Some((_, p)), true) = (self.pressure, d.fresh) {
+                sim[2] = (p - self.config.surface_pressure_hpa) * 100.0 / (self.config.water_density * GRAVITY);
+            }
+            let source = d.fresh.then_some(DepthSource::Pressure);
+            (d, source)
+        };
+        let parts = [heading, yaw_rate, position, velocity, depth];
+        let capability = if parts.iter().all(|p| p.fresh) {
+            Capability::Full
+        } else if heading.fresh && yaw_rate.fresh && depth.fresh {
+            Capability::DepthHeading
+        } else {
+            Capability::None
+        };
+        StateEstimate { t, sim, parts, depth_source, capability }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::MavHeader;
+    use mavlink::dialects::ardupilotmega::{ATTITUDE_DATA, LOCAL_POSITION_NED_DATA, SCALED_PRESSURE2_DATA};
+
+    fn rx(message: MavMessage) -> Received {
+        Received { at: Instant::now(), header: MavHeader::default(), message }
+    }
+
+    fn attitude(ms: u32, yaw: f32, yawspeed: f32) -> Received {
+        rx(MavMessage::ATTITUDE(ATTITUDE_DATA { time_boot_ms: ms, yaw, yawspeed, ..Default::default() }))
+    }
+
+    fn local(ms: u32, p: [f32; 3], v: [f32; 3]) -> Received {
+        rx(MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+            time_boot_ms: ms,
+            x: p[0],
+            y: p[1],
+            z: p[2],
+            vx: v[0],
+            vy: v[1],
+            vz: v[2],
+        }))
+    }
+
+    fn pressure(ms: u32, hpa: f32) -> Received {
+        rx(MavMessage::SCALED_PRESSURE2(SCALED_PRESSURE2_DATA {
+            time_boot_ms: ms,
+            press_abs: hpa,
+            ..Default::default()
+        }))
+    }
+
+    #[test]
+    fn surge_while_heading_east_is_an_east_velocity_turned_into_u() {
+        // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
+        let mut e = StateEstimator::default();
+        assert!(e.update(&attitude(1000, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
+        let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
+        assert_eq!(s.capability, Capability::Full);
+        let want = [1.0, 2.0, 3.0, std::f64::consts::FRAC_PI_2, 1.0, 0.0, 0.2, 0.1];
+        for (i, (got, want)) in s.sim.iter().zip(want).enumerate() {
+            assert!((got - want).abs() < 1e-6, "{}: {got} vs {want}", SIM_STATE_NAMES[i]);
+        }
+        // Moving north while heading east is a sway to port: v = -1.
+        let s = e.update(&local(1100, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0])).unwrap();
+        assert!((s.sim[4]).abs() < 1e-6 && (s.sim[5] + 1.0).abs() < 1e-6, "{:?}", s.sim);
+        // With the position fresh, attitudes do not make samples of their own.
+        assert!(e.update(&attitude(1140, std::f32::consts::FRAC_PI_2, 0.0)).is_none());
+    }
+
+    #[test]
+    fn heading_is_unwrapped_across_pi() {
+        let mut e = StateEstimator::default();
+        e.update(&attitude(0, 3.1, 0.0));
+        let s = e.update(&attitude(40, -3.1, 0.0)).unwrap();
+        assert!((s.sim[3] - (3.1 + (std::f64::consts::TAU - 6.2))).abs() < 1e-5, "{}", s.sim[3]);
+    }
+
+    #[test]
+    fn without_a_position_depth_comes_from_pressure_and_velocities_are_missing() {
+        let mut e = StateEstimator::default();
+        // 2 m of fresh water: 2 * 1000 * 9.80665 Pa = 196.133 hPa above the surface.
+        e.update(&pressure(900, 1013.25 + 196.133));
+        let s = e.update(&attitude(1000, 0.5, 0.0)).unwrap();
+        assert_eq!(s.capability, Capability::DepthHeading);
+        assert_eq!(s.depth_source, Some(DepthSource::Pressure));
+        assert!((s.sim[2] - 2.0).abs() < 1e-4, "{}", s.sim[2]);
+        for i in [0, 1, 4, 5, 6] {
+            assert!(s.sim[i].is_nan(), "{} should be missing", SIM_STATE_NAMES[i]);
+        }
+        assert!(!s.part(Part::Velocity).fresh && s.part(Part::Velocity).stamp.is_none());
+    }
+
+    #[test]
+    fn stale_parts_are_missing_not_held() {
+        let mut e = StateEstimator::default();
+        e.update(&attitude(1000, 0.0, 0.0));
+        e.update(&local(1000, [1.0, 1.0, 1.0], [0.0; 3]));
+        // 0.6 s later only attitudes arrive: the position is stale and the attitude is the clock.
+        let s = e.update(&attitude(1600, 0.0, 0.0)).expect("attitude is the clock again");
+        let p = s.part(Part::Position);
+        assert!(!p.fresh && (p.age.unwrap() - 0.6).abs() < 1e-9, "{p:?}");
+        assert!(s.sim[0].is_nan() && s.sim[2].is_nan() && s.sim[4].is_nan());
+        assert_eq!(s.capability, Capability::None);
+        // And a frozen attitude is stale too, when asked later.
+        let later = e.estimate_at(2.2);
+        assert!(later.sim[3].is_nan() && !later.part(Part::Heading).fresh);
+    }
+
+    #[test]
+    fn a_reboot_clears_the_state() {
+        let mut e = StateEstimator::default();
+        e.update(&attitude(60_000, 1.0, 0.0));
+        e.update(&local(60_000, [5.0; 3], [0.0; 3]));
+        let s = e.update(&attitude(100, 0.2, 0.0)).unwrap();
+        assert!(s.part(Part::Position).stamp.is_none());
+        assert!((s.sim[3] - 0.2).abs() < 1e-6);
+    }
+}
