@@ -70,6 +70,10 @@ struct Args {
     /// Weights on input changes between samples, X,Y,Z,Mz [default: MpcConfig's].
     #[arg(long, value_delimiter = ',')]
     input_rate: Option<Vec<f64>>,
+    /// Wall-clock limit of one QP solve, s [default: MpcConfig's]; a solve that hits it falls
+    /// back, so raise it where runs must repeat exactly on a loaded machine.
+    #[arg(long)]
+    solver_time_limit: Option<f64>,
     /// Run N closed loops on perturbed plants (damping and added masses +-20 %, net buoyancy
     /// +-30 %, a current up to 0.2 m/s, sensor noise) for both controllers on the same draws,
     /// and summarise them instead of one run.
@@ -125,6 +129,7 @@ fn try_main(a: Args) -> Result<(), String> {
             Some(v) => Some(v.clone().try_into().map_err(|_| "--input-rate: four weights X,Y,Z,Mz".to_string())?),
             None => None,
         },
+        solver_time_limit: a.solver_time_limit,
     };
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;

@@ -31,13 +31,14 @@ _DEFAULTS = {
     "envelope_penalty": None,
     "envelope_margin": None,
     "input_rate": None,
+    "solver_time_limit": None,
 }
 
 
 def settings(**kw):
     """Closed-loop settings: `mpc_track`'s flags as keys (model, vehicle, scenario,
     reference, duration, horizon, disturbance_gain, envelope_constraints, envelope_penalty,
-    envelope_margin, input_rate). Unset keys keep `mpc_track`'s defaults."""
+    envelope_margin, input_rate, solver_time_limit). Unset keys keep `mpc_track`'s defaults."""
     unknown = sorted(set(kw) - set(_DEFAULTS))
     if unknown:
         raise ValueError(f"settings: unknown key(s) {unknown} (known: {sorted(_DEFAULTS)})")

@@ -42,6 +42,10 @@ pub struct Settings {
     pub envelope_margin: f64,
     /// Weights on input changes X, Y, Z, Mz [`None`: [`MpcConfig`]'s].
     pub input_rate: Option<[f64; 4]>,
+    /// Wall-clock limit of one QP solve (s) [`None`: [`MpcConfig`]'s]. A solve that hits it
+    /// falls back, so a run is reproducible only while no solve does: raise it for
+    /// campaigns on loaded or slow machines.
+    pub solver_time_limit: Option<f64>,
 }
 
 impl Default for Settings {
@@ -59,6 +63,7 @@ impl Default for Settings {
             envelope_penalty: c.envelope_penalty,
             envelope_margin: c.envelope_margin,
             input_rate: None,
+            solver_time_limit: None,
         }
     }
 }
@@ -130,6 +135,11 @@ impl Campaign {
             }
             scenario.duration = d;
         }
+        if let Some(t) = s.solver_time_limit
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(SetupError::Setting(format!("--solver-time-limit must be a positive number of seconds, got {t}")));
+        }
         let model =
             PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
         let vehicle = match &s.vehicle {
@@ -146,6 +156,7 @@ impl Campaign {
             envelope_constraints: s.envelope_constraints,
             envelope_penalty: s.envelope_penalty,
             envelope_margin: s.envelope_margin,
+            solver_time_limit: s.solver_time_limit.unwrap_or(defaults.solver_time_limit),
             ..defaults
         };
         Ok(Self { model, vehicle, scenario, config, bounds })
