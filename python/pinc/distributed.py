@@ -150,6 +150,8 @@ def _stream(ray, refs, on_done):
                 for p in pending:
                     ray.cancel(p, force=True)
                 cause = getattr(e, "cause", None) or e
+                if isinstance(cause, DistributedError):  # raised in the task, naming the run
+                    raise DistributedError(str(cause)) from e
                 raise DistributedError(f"{tag}: {cause}") from e
             on_done(tag, value)
 
@@ -340,8 +342,8 @@ def _train_one(pinc_bin, config):
         except OSError as e:
             raise DistributedError(f"configuration {name!r} on {socket.gethostname()}: cannot run {pinc_bin}: {e}") from None
         if p.returncode != 0:
-            why = (p.stderr.strip() or p.stdout.strip()).splitlines()[-3:]
-            raise DistributedError(f"configuration {name!r}: pinc train refused it: {' | '.join(why)}")
+            why = [x.strip() for x in (p.stderr.strip() or p.stdout.strip()).splitlines() if x.strip()]
+            raise DistributedError(f"configuration {name!r}: pinc train refused it: {' | '.join(why)[:600]}")
         summary = json.loads(p.stdout)
         with open(out, "rb") as f:
             model = f.read()
