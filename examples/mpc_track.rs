@@ -13,9 +13,9 @@
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
+use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::Outcome;
 use pinc::closed_loop::{LogError, McapLog, RunInfo};
-use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::plot::{Panel, Series, figure};
@@ -146,7 +146,7 @@ fn try_main(a: Args) -> Result<(), String> {
     let info = RunInfo {
         controller,
         model_path: &a.model,
-        scenario: &scenario,
+        scenario,
         config: &cfg,
         bounds,
         dt: model.dt,
@@ -155,11 +155,11 @@ fn try_main(a: Args) -> Result<(), String> {
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     let (samples, log_error) = if a.oracle {
         let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     } else {
-        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     };
-    let summary = summarise(&samples, &scenario, a.horizon as f64 * model.dt);
+    let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
     // The log is finished even when a write failed mid-run, so what was written stays readable.
     let t_end = samples.last().map_or(0.0, |s| s.t);
     let finished = log.finish(&summary, t_end);

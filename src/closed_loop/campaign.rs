@@ -9,11 +9,11 @@ use super::summary::{Summary, summarise};
 use crate::Input;
 use crate::model::PincModel;
 use crate::mpc::{Mpc, MpcConfig, MpcError};
+use crate::plot::{Panel, Series, figure};
 use crate::runtime::Predictor;
 use crate::traits::DiscreteModel;
 use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use serde::{Deserialize, Serialize};
-use crate::plot::{Panel, Series, figure};
 use std::path::{Path, PathBuf};
 
 /// Everything a closed-loop run is built from, as plain values (the flags of `mpc_track`).
@@ -138,7 +138,9 @@ impl Campaign {
         if let Some(t) = s.solver_time_limit
             && !(t.is_finite() && t > 0.0)
         {
-            return Err(SetupError::Setting(format!("--solver-time-limit must be a positive number of seconds, got {t}")));
+            return Err(SetupError::Setting(format!(
+                "--solver-time-limit must be a positive number of seconds, got {t}"
+            )));
         }
         let model =
             PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
@@ -146,7 +148,8 @@ impl Campaign {
             Some(path) => VehicleParams::load(path).map_err(|e| SetupError::File(e.to_string()))?,
             None => VehicleParams::default(),
         };
-        let bounds = Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
+        let bounds =
+            Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
         let defaults = MpcConfig::default();
         let config = MpcConfig {
             input_rate: s.input_rate.unwrap_or(defaults.input_rate),
@@ -172,7 +175,9 @@ impl Campaign {
     pub fn monte_carlo_run(&self, seed: u64, controller: Controller) -> Outcome {
         let d = self.draw(seed);
         let outcome = match controller {
-            Controller::Oracle => Mpc::new(self.oracle(), self.config.clone()).map(|mut m| run_perturbed(&mut m, &self.scenario, &d)),
+            Controller::Oracle => {
+                Mpc::new(self.oracle(), self.config.clone()).map(|mut m| run_perturbed(&mut m, &self.scenario, &d))
+            }
             Controller::Pinc => Mpc::new(Predictor::reference(&self.model), self.config.clone())
                 .map(|mut m| run_perturbed(&mut m, &self.scenario, &d)),
         };
@@ -182,7 +187,9 @@ impl Campaign {
     /// One unperturbed run's summary (the figures of `mpc_track --json`, without its log).
     pub fn nominal_run(&self, controller: Controller) -> Result<Summary, MpcError> {
         let samples = match controller {
-            Controller::Oracle => run(&mut Mpc::new(self.oracle(), self.config.clone())?, &self.scenario, &self.vehicle, |_| true),
+            Controller::Oracle => {
+                run(&mut Mpc::new(self.oracle(), self.config.clone())?, &self.scenario, &self.vehicle, |_| true)
+            }
             Controller::Pinc => run(
                 &mut Mpc::new(Predictor::reference(&self.model), self.config.clone())?,
                 &self.scenario,
@@ -219,9 +226,11 @@ pub fn table(n: usize, seed: u64, scenario: &Scenario, rp: &Robustness, ro: &Rob
     let mut out = String::new();
     let spread = |s: &Spread, f: f64| format!("{:.3} / {:.3} / {:.3}", s.median * f, s.p95 * f, s.max * f);
     // Writing to a String cannot fail.
-    let _ = writeln!(out, "{n} perturbed runs of scenario {} (seeds {}..{})", scenario.name(), seed, seed + n as u64 - 1);
+    let _ =
+        writeln!(out, "{n} perturbed runs of scenario {} (seeds {}..{})", scenario.name(), seed, seed + n as u64 - 1);
     let _ = writeln!(out, "{:<28} {:>26} {:>26}", "", "PINC", "oracle");
-    let _ = writeln!(out, "{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
+    let _ =
+        writeln!(out, "{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
     let _ = writeln!(
         out,
         "{:<28} {:>26} {:>26}",
@@ -304,4 +313,3 @@ pub fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) ->
     }
     figure(path, 1400, 560, 2, &panels)
 }
-
