@@ -13,10 +13,10 @@
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
+use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::Outcome;
 use pinc::closed_loop::{LogError, McapLog, RunInfo};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
-use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
@@ -70,6 +70,10 @@ struct Args {
     /// Weights on input changes between samples, X,Y,Z,Mz [default: MpcConfig's].
     #[arg(long, value_delimiter = ',')]
     input_rate: Option<Vec<f64>>,
+    /// Wall-clock limit of one QP solve, s [default: MpcConfig's]; a solve that hits it falls
+    /// back, so raise it where runs must repeat exactly on a loaded machine.
+    #[arg(long)]
+    solver_time_limit: Option<f64>,
     /// Run N closed loops on perturbed plants (damping and added masses +-20 %, net buoyancy
     /// +-30 %, a current up to 0.2 m/s, sensor noise) for both controllers on the same draws,
     /// and summarise them instead of one run.
@@ -106,47 +110,36 @@ fn main() -> ExitCode {
 }
 
 fn try_main(a: Args) -> Result<(), String> {
-    let mut scenario = match (&a.reference, a.scenario) {
-        (Some(path), _) => Scenario::from_file(path, a.duration).map_err(|e| e.to_string())?,
-        (None, ScenarioName::Default) => Scenario::default(),
-        (None, ScenarioName::Disturbed) => Scenario::disturbed(),
-    };
-    // A reference file took --duration above (checked there); the built-ins take it here.
-    if a.reference.is_none()
-        && let Some(d) = a.duration
-    {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(format!("--duration must be a positive number of seconds, got {d}"));
+    // The controller and scenario come from the library's one set-up path (shared with the
+    // Python package, so a seed's run is the same everywhere).
+    let settings = Settings {
+        model: a.model.clone(),
+        vehicle: a.vehicle.clone(),
+        scenario: match a.scenario {
+            ScenarioName::Default => "default",
+            ScenarioName::Disturbed => "disturbed",
         }
-        scenario.duration = d;
-    }
-    let model = PincModel::load(&a.model).map_err(|e| format!("{}: {e}", a.model.display()))?;
-    let vehicle = match &a.vehicle {
-        Some(path) => VehicleParams::load(path).map_err(|e| e.to_string())?,
-        None => VehicleParams::default(),
-    };
-    let predictor = Predictor::reference(&model);
-    let bounds = predictor
-        .input_bounds()
-        .ok_or_else(|| format!("{}: no training envelope to bound the inputs", a.model.display()))?;
-    let defaults = MpcConfig::default();
-    let input_rate = match &a.input_rate {
-        Some(v) => v.clone().try_into().map_err(|_| "--input-rate: four weights X,Y,Z,Mz".to_string())?,
-        None => defaults.input_rate,
-    };
-    let cfg = MpcConfig {
-        input_rate,
+        .into(),
+        reference: a.reference.clone(),
+        duration: a.duration,
         horizon: a.horizon,
-        bounds: Some(bounds),
         disturbance_gain: a.disturbance_gain,
         envelope_constraints: !a.no_envelope_constraints,
         envelope_penalty: a.envelope_penalty,
         envelope_margin: a.envelope_margin,
-        ..MpcConfig::default()
+        input_rate: match &a.input_rate {
+            Some(v) => Some(v.clone().try_into().map_err(|_| "--input-rate: four weights X,Y,Z,Mz".to_string())?),
+            None => None,
+        },
+        solver_time_limit: a.solver_time_limit,
     };
+    let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
+    let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;
+    let (model, vehicle, scenario, cfg, bounds) = (model, *vehicle, scenario, cfg.clone(), *bounds);
+    let predictor = Predictor::reference(model);
     std::fs::create_dir_all(&a.out_dir).map_err(|e| format!("{}: {e}", a.out_dir.display()))?;
     if let Some(n) = a.monte_carlo {
-        return monte_carlo(&a, n, &model, &cfg, &scenario, &vehicle);
+        return monte_carlo(&a, n, &campaign);
     }
     let controller = if a.oracle { "oracle" } else { "pinc" };
     let name = format!("mpc_{}_{controller}", scenario.name());
@@ -155,7 +148,7 @@ fn try_main(a: Args) -> Result<(), String> {
     let info = RunInfo {
         controller,
         model_path: &a.model,
-        scenario: &scenario,
+        scenario,
         config: &cfg,
         bounds,
         dt: model.dt,
@@ -164,11 +157,11 @@ fn try_main(a: Args) -> Result<(), String> {
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     let (samples, log_error) = if a.oracle {
         let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     } else {
-        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, &scenario, &vehicle, a.json, &mut log)
+        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
     };
-    let summary = summarise(&samples, &scenario, a.horizon as f64 * model.dt);
+    let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
     // The log is finished even when a write failed mid-run, so what was written stays readable.
     let t_end = samples.last().map_or(0.0, |s| s.t);
     let finished = log.finish(&summary, t_end);
@@ -238,16 +231,10 @@ fn closed_loop<M: DiscreteModel>(
 }
 
 /// `--monte-carlo N`: both controllers on the same N perturbed plants, on every core.
-fn monte_carlo(
-    a: &Args,
-    n: usize,
-    model: &PincModel,
-    cfg: &MpcConfig,
-    scenario: &Scenario,
-    vehicle: &VehicleParams,
-) -> Result<(), String> {
-    use pinc::closed_loop::monte_carlo::{draw, robustness, run_perturbed};
+fn monte_carlo(a: &Args, n: usize, campaign: &Campaign) -> Result<(), String> {
+    use pinc::closed_loop::monte_carlo::robustness;
     use rayon::prelude::*;
+    let scenario = &campaign.scenario;
     if n == 0 {
         return Err("--monte-carlo: at least one run".into());
     }
@@ -260,26 +247,15 @@ fn monte_carlo(
             .progress_chars("=> "),
     );
     bar.set_message(format!("Monte Carlo, {} threads", pool.current_num_threads()));
-    let draws: Vec<_> = (0..n as u64).map(|i| draw(vehicle, a.seed + i)).collect();
+    let seeds: Vec<u64> = (0..n as u64).map(|i| a.seed + i).collect();
     // Each run builds its own controller: the model's nominal coefficients, never the draw's.
-    let one = |d: &pinc::closed_loop::monte_carlo::Draw, oracle: bool| -> Outcome {
-        let outcome = if oracle {
-            let m = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(model.dt) };
-            match Mpc::new(m, cfg.clone()) {
-                Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
-                Err(e) => setup_failure(d.seed, e),
-            }
-        } else {
-            match Mpc::new(Predictor::reference(model), cfg.clone()) {
-                Ok(mut mpc) => run_perturbed(&mut mpc, scenario, d),
-                Err(e) => setup_failure(d.seed, e),
-            }
-        };
+    let one = |seed: u64, controller: Controller| -> Outcome {
+        let outcome = campaign.monte_carlo_run(seed, controller);
         bar.inc(1);
         outcome
     };
     let (pinc, oracle): (Vec<Outcome>, Vec<Outcome>) =
-        pool.install(|| draws.par_iter().map(|d| (one(d, false), one(d, true))).unzip());
+        pool.install(|| seeds.par_iter().map(|&s| (one(s, Controller::Pinc), one(s, Controller::Oracle))).unzip());
     bar.finish_and_clear();
     let (rp, ro) = (robustness(&pinc), robustness(&oracle));
     let png = a.out_dir.join(format!("mpc_{}_monte_carlo.png", scenario.name()));
@@ -306,99 +282,9 @@ fn monte_carlo(
         println!("{text}");
         return Ok(());
     }
-    println!("{n} perturbed runs of scenario {} (seeds {}..{})", scenario.name(), a.seed, a.seed + n as u64 - 1);
-    println!("{:<28} {:>26} {:>26}", "", "PINC", "oracle");
-    println!("{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
-    let spread = |s: &pinc::closed_loop::monte_carlo::Spread, f: f64| {
-        format!("{:.3} / {:.3} / {:.3}", s.median * f, s.p95 * f, s.max * f)
-    };
-    println!(
-        "{:<28} {:>26} {:>26}",
-        "RMS depth, cm (med/p95/max)",
-        spread(&rp.rms_depth_m, 100.0),
-        spread(&ro.rms_depth_m, 100.0)
-    );
-    println!(
-        "{:<28} {:>26} {:>26}",
-        "RMS heading, deg",
-        spread(&rp.rms_heading_deg, 1.0),
-        spread(&ro.rms_heading_deg, 1.0)
-    );
-    println!("{:<28} {:>26.3} {:>26.3}", "solve time p99, ms", rp.solve_ms_p99, ro.solve_ms_p99);
-    for (name, r) in [("PINC", &rp), ("oracle", &ro)] {
-        for (seed, why) in r.failures.iter().take(10) {
-            println!("  {name} failed, seed {seed}: {why}");
-        }
-        if r.failures.len() > 10 {
-            println!("  ... and {} more {name} failures (all in {})", r.failures.len() - 10, json_path.display());
-        }
-    }
+    print!("{}", table(n, a.seed, scenario, &rp, &ro, &json_path));
     println!("histogram: {}\nfigures:   {}", png.display(), json_path.display());
     Ok(())
-}
-
-/// A controller that cannot be built from a configuration that built before is a bug, but a
-/// Monte-Carlo batch reports it as that run's failure rather than stopping.
-fn setup_failure(seed: u64, e: pinc::mpc::MpcError) -> Outcome {
-    Outcome {
-        seed,
-        success: false,
-        failure: Some(format!("controller set-up: {e}")),
-        rms_depth_m: f64::INFINITY,
-        rms_heading_deg: f64::INFINITY,
-        solve_ms: Vec::new(),
-    }
-}
-
-/// Histograms (as step outlines) of the runs' RMS depth and heading errors, both controllers.
-fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) -> Result<(), String> {
-    let bins = 30usize.min(n.max(5));
-    let outline = |values: Vec<f64>, (lo, hi): (f64, f64)| -> Vec<(f64, f64)> {
-        let w = (hi - lo) / bins as f64;
-        let mut counts = vec![0usize; bins];
-        for v in values.into_iter().filter(|v| v.is_finite()) {
-            counts[(((v - lo) / w) as usize).min(bins - 1)] += 1;
-        }
-        let mut pts = vec![(lo, 0.0)];
-        for (i, c) in counts.iter().enumerate() {
-            pts.push((lo + i as f64 * w, *c as f64));
-            pts.push((lo + (i + 1) as f64 * w, *c as f64));
-        }
-        pts.push((hi, 0.0));
-        pts
-    };
-    // The range of both controllers' finite values, widened by 5 % on each side.
-    let range = |f: &dyn Fn(&Outcome) -> f64| {
-        let v: Vec<f64> = pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).collect();
-        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        let pad = 0.05 * (hi - lo).max(1e-9);
-        if lo.is_finite() { ((lo - pad).max(0.0), hi + pad) } else { (0.0, 1.0) }
-    };
-    let mut panels = Vec::new();
-    type Measure = fn(&Outcome) -> f64;
-    let quantities: [(&str, &str, Measure); 2] = [
-        ("RMS depth error per run", "cm", |o| o.rms_depth_m * 100.0),
-        ("RMS heading error per run", "deg", |o| o.rms_heading_deg),
-    ];
-    for (title, unit, f) in quantities {
-        let span = range(&f);
-        panels.push(Panel {
-            title,
-            x_label: unit,
-            y_label: "runs",
-            log_y: false,
-            series: vec![
-                Series { label: "PINC", points: outline(pinc.iter().map(f).collect(), span), color: 0, dashed: false },
-                Series {
-                    label: "oracle",
-                    points: outline(oracle.iter().map(f).collect(), span),
-                    color: 1,
-                    dashed: true,
-                },
-            ],
-        });
-    }
-    figure(path, 1400, 560, 2, &panels)
 }
 
 fn print_summary(s: &Summary) {

@@ -7,6 +7,8 @@
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayViewD, Dimension};
 use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn};
+use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
+use pinc::closed_loop::monte_carlo::{Outcome, robustness};
 use pinc::model::PincModel;
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor as RustPredictor, Workspace};
 use pinc::vehicle::{Rk4Vehicle, VehicleParams};
@@ -252,6 +254,128 @@ fn params(overrides: &Bound<'_, PyDict>) -> PyResult<VehicleParams> {
 fn _pinc(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Predictor>()?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_class::<ClosedLoop>()?;
+    m.add_function(wrap_pyfunction!(monte_carlo_report, m)?)?;
     m.add("PincError", m.py().get_type::<PincError>())?;
     Ok(())
+}
+
+/// One controller's outcome as the Python side stores it (JSON; `null` for an infinite
+/// RMS error, since JSON has no infinity).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct OutcomeJson {
+    seed: u64,
+    success: bool,
+    failure: Option<String>,
+    rms_depth_m: Option<f64>,
+    rms_heading_deg: Option<f64>,
+    #[serde(default)]
+    solve_ms: Vec<f64>,
+}
+
+impl From<Outcome> for OutcomeJson {
+    fn from(o: Outcome) -> Self {
+        let finite = |v: f64| v.is_finite().then_some(v);
+        Self {
+            seed: o.seed,
+            success: o.success,
+            failure: o.failure,
+            rms_depth_m: finite(o.rms_depth_m),
+            rms_heading_deg: finite(o.rms_heading_deg),
+            solve_ms: o.solve_ms,
+        }
+    }
+}
+
+impl From<OutcomeJson> for Outcome {
+    fn from(o: OutcomeJson) -> Self {
+        Self {
+            seed: o.seed,
+            success: o.success,
+            failure: o.failure,
+            rms_depth_m: o.rms_depth_m.unwrap_or(f64::INFINITY),
+            rms_heading_deg: o.rms_heading_deg.unwrap_or(f64::INFINITY),
+            solve_ms: o.solve_ms,
+        }
+    }
+}
+
+fn controller(name: &str) -> PyResult<Controller> {
+    match name {
+        "pinc" => Ok(Controller::Pinc),
+        "oracle" => Ok(Controller::Oracle),
+        other => Err(PyValueError::new_err(format!("controller: `{other}` is neither pinc nor oracle"))),
+    }
+}
+
+fn json_err(what: &str) -> impl Fn(serde_json::Error) -> PyErr + '_ {
+    move |e| PyValueError::new_err(format!("{what}: {e}"))
+}
+
+/// A closed-loop campaign built from its settings (JSON of `mpc_track`'s flags, see
+/// `pinc.closed_loop`): the library's one set-up path, shared with `mpc_track`.
+#[pyclass(frozen, module = "pinc")]
+struct ClosedLoop {
+    inner: Campaign,
+}
+
+#[pymethods]
+impl ClosedLoop {
+    #[new]
+    fn new(settings_json: &str) -> PyResult<Self> {
+        let settings: Settings = serde_json::from_str(settings_json).map_err(json_err("settings"))?;
+        let inner = Campaign::new(&settings).map_err(|e| PincError::new_err(e.to_string()))?;
+        Ok(Self { inner })
+    }
+
+    /// The perturbed plant of `seed` (JSON): vehicle coefficients and current.
+    fn draw(&self, seed: u64) -> PyResult<String> {
+        serde_json::to_string(&self.inner.draw(seed)).map_err(json_err("draw"))
+    }
+
+    /// One Monte-Carlo run of `controller` against the plant of `seed` (JSON outcome).
+    fn monte_carlo_run(&self, py: Python<'_>, seed: u64, controller_name: &str) -> PyResult<String> {
+        let c = controller(controller_name)?;
+        let outcome = py.detach(|| self.inner.monte_carlo_run(seed, c));
+        serde_json::to_string(&OutcomeJson::from(outcome)).map_err(json_err("outcome"))
+    }
+
+    /// One unperturbed run's summary (JSON; the figures of `mpc_track --json`).
+    fn nominal_run(&self, py: Python<'_>, controller_name: &str) -> PyResult<String> {
+        let c = controller(controller_name)?;
+        let summary = py.detach(|| self.inner.nominal_run(c)).map_err(runtime_err)?;
+        serde_json::to_string(&summary).map_err(json_err("summary"))
+    }
+
+    /// The scenario's name.
+    fn scenario_name(&self) -> String {
+        self.inner.scenario.name().to_string()
+    }
+}
+
+/// `mpc_track --monte-carlo`'s summary of two controllers' outcomes (JSON lists, in seed
+/// order): returns the JSON of both robustness figures and the table text, and writes the
+/// histogram PNG at `png`.
+#[pyfunction]
+fn monte_carlo_report(
+    settings_json: &str,
+    pinc_json: &str,
+    oracle_json: &str,
+    first_seed: u64,
+    png: std::path::PathBuf,
+    json_path: std::path::PathBuf,
+) -> PyResult<(String, String, String)> {
+    let settings: Settings = serde_json::from_str(settings_json).map_err(json_err("settings"))?;
+    let scenario = Campaign::new(&settings).map_err(|e| PincError::new_err(e.to_string()))?.scenario;
+    let read = |what: &str, text: &str| -> PyResult<Vec<Outcome>> {
+        let v: Vec<OutcomeJson> = serde_json::from_str(text).map_err(json_err(what))?;
+        Ok(v.into_iter().map(Outcome::from).collect())
+    };
+    let (p, o) = (read("pinc outcomes", pinc_json)?, read("oracle outcomes", oracle_json)?);
+    let n = p.len();
+    histogram(&png, &p, &o, n).map_err(|e| PincError::new_err(format!("{}: {e}", png.display())))?;
+    let (rp, ro) = (robustness(&p), robustness(&o));
+    let text = table(n, first_seed, &scenario, &rp, &ro, &json_path);
+    let j = |r| serde_json::to_string(r).map_err(json_err("robustness"));
+    Ok((j(&rp)?, j(&ro)?, text))
 }

@@ -3,6 +3,7 @@
 //! the summary of a run (tracking errors, overshoot, settling, solver timing, fallbacks,
 //! bound violations) and its MCAP log for Foxglove.
 
+pub mod campaign;
 mod log;
 pub mod monte_carlo;
 mod run;

@@ -1,0 +1,315 @@
+//! A closed-loop campaign from plain settings: the one code path that `mpc_track` and the
+//! Python package both take to build the controller and scenario and to run one perturbed
+//! plant, so a run of a seed anywhere equals the same seed's run in `mpc_track`, bit for bit.
+
+use super::monte_carlo::{Draw, Outcome, Robustness, Spread, draw, run_perturbed};
+use super::run::run;
+use super::scenario::Scenario;
+use super::summary::{Summary, summarise};
+use crate::Input;
+use crate::model::PincModel;
+use crate::mpc::{Mpc, MpcConfig, MpcError};
+use crate::plot::{Panel, Series, figure};
+use crate::runtime::Predictor;
+use crate::traits::DiscreteModel;
+use crate::vehicle::{Rk4Vehicle, VehicleParams};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Everything a closed-loop run is built from, as plain values (the flags of `mpc_track`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Settings {
+    /// The frozen model inside the MPC (its training envelope bounds the inputs).
+    pub model: PathBuf,
+    /// Vehicle file of the plant and of the oracle's model [`None`: the BlueROV2].
+    pub vehicle: Option<PathBuf>,
+    /// Built-in scenario: `default` or `disturbed` (ignored when `reference` is given).
+    pub scenario: String,
+    /// References from a CSV file `t,depth_m,heading_deg`.
+    pub reference: Option<PathBuf>,
+    /// Length of the run (s) [`None`: the scenario's, or the reference file's last time].
+    pub duration: Option<f64>,
+    /// Prediction horizon (samples).
+    pub horizon: usize,
+    /// Gain of the disturbance estimate.
+    pub disturbance_gain: f64,
+    /// Constrain the predicted velocities to the model's training envelope.
+    pub envelope_constraints: bool,
+    /// Linear penalty per unit of envelope slack.
+    pub envelope_penalty: f64,
+    /// Fraction of each velocity range the envelope bounds sit inside the envelope.
+    pub envelope_margin: f64,
+    /// Weights on input changes X, Y, Z, Mz [`None`: [`MpcConfig`]'s].
+    pub input_rate: Option<[f64; 4]>,
+    /// Wall-clock limit of one QP solve (s) [`None`: [`MpcConfig`]'s]. A solve that hits it
+    /// falls back, so a run is reproducible only while no solve does: raise it for
+    /// campaigns on loaded or slow machines.
+    pub solver_time_limit: Option<f64>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        let c = MpcConfig::default();
+        Self {
+            model: PathBuf::from("models/mpc_pinc.pinc"),
+            vehicle: None,
+            scenario: "default".into(),
+            reference: None,
+            duration: None,
+            horizon: 20,
+            disturbance_gain: c.disturbance_gain,
+            envelope_constraints: true,
+            envelope_penalty: c.envelope_penalty,
+            envelope_margin: c.envelope_margin,
+            input_rate: None,
+            solver_time_limit: None,
+        }
+    }
+}
+
+/// Which controller runs: the MPC on the PINC, or the identical MPC on the analytic model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Controller {
+    /// The MPC on the frozen PINC of [`Settings::model`].
+    Pinc,
+    /// The MPC on the analytic vehicle (it knows the nominal plant).
+    Oracle,
+}
+
+/// Why a campaign could not be set up (each names the file or setting at fault).
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The model file could not be loaded.
+    #[error("{path}: {why}")]
+    Model {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        why: String,
+    },
+    /// The model has no training envelope to bound the inputs.
+    #[error("{0}: no training envelope to bound the inputs")]
+    NoEnvelope(PathBuf),
+    /// The vehicle or reference file could not be read.
+    #[error("{0}")]
+    File(String),
+    /// A setting out of range.
+    #[error("{0}")]
+    Setting(String),
+}
+
+/// A campaign ready to run: model, plant, scenario and controller configuration loaded once.
+#[derive(Debug, Clone)]
+pub struct Campaign {
+    /// The frozen model.
+    pub model: PincModel,
+    /// The nominal plant (each perturbed run draws around it).
+    pub vehicle: VehicleParams,
+    /// The scenario.
+    pub scenario: Scenario,
+    /// The controller configuration (bounds from the model's envelope).
+    pub config: MpcConfig,
+    /// Input bounds (from the model's envelope).
+    pub bounds: (Input, Input),
+}
+
+impl Campaign {
+    /// Loads and checks everything `s` names.
+    pub fn new(s: &Settings) -> Result<Self, SetupError> {
+        let mut scenario = match (&s.reference, s.scenario.as_str()) {
+            (Some(path), _) => Scenario::from_file(path, s.duration).map_err(|e| SetupError::File(e.to_string()))?,
+            (None, "default") => Scenario::default(),
+            (None, "disturbed") => Scenario::disturbed(),
+            (None, other) => {
+                return Err(SetupError::Setting(format!("scenario: `{other}` is none of default, disturbed")));
+            }
+        };
+        // A reference file took the duration above (checked there); the built-ins take it here.
+        if s.reference.is_none()
+            && let Some(d) = s.duration
+        {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(SetupError::Setting(format!("--duration must be a positive number of seconds, got {d}")));
+            }
+            scenario.duration = d;
+        }
+        if let Some(t) = s.solver_time_limit
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(SetupError::Setting(format!(
+                "--solver-time-limit must be a positive number of seconds, got {t}"
+            )));
+        }
+        let model =
+            PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
+        let vehicle = match &s.vehicle {
+            Some(path) => VehicleParams::load(path).map_err(|e| SetupError::File(e.to_string()))?,
+            None => VehicleParams::default(),
+        };
+        let bounds =
+            Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
+        let defaults = MpcConfig::default();
+        let config = MpcConfig {
+            input_rate: s.input_rate.unwrap_or(defaults.input_rate),
+            horizon: s.horizon,
+            bounds: Some(bounds),
+            disturbance_gain: s.disturbance_gain,
+            envelope_constraints: s.envelope_constraints,
+            envelope_penalty: s.envelope_penalty,
+            envelope_margin: s.envelope_margin,
+            solver_time_limit: s.solver_time_limit.unwrap_or(defaults.solver_time_limit),
+            ..defaults
+        };
+        Ok(Self { model, vehicle, scenario, config, bounds })
+    }
+
+    /// The perturbed plant of `seed`, as `mpc_track --monte-carlo` draws it.
+    pub fn draw(&self, seed: u64) -> Draw {
+        draw(&self.vehicle, seed)
+    }
+
+    /// One Monte-Carlo run: `controller` (built afresh on the nominal model) against the
+    /// plant of `seed`. A controller that cannot be built is that run's failure.
+    pub fn monte_carlo_run(&self, seed: u64, controller: Controller) -> Outcome {
+        let d = self.draw(seed);
+        let outcome = match controller {
+            Controller::Oracle => {
+                Mpc::new(self.oracle(), self.config.clone()).map(|mut m| run_perturbed(&mut m, &self.scenario, &d))
+            }
+            Controller::Pinc => Mpc::new(Predictor::reference(&self.model), self.config.clone())
+                .map(|mut m| run_perturbed(&mut m, &self.scenario, &d)),
+        };
+        outcome.unwrap_or_else(|e| setup_failure(seed, e))
+    }
+
+    /// One unperturbed run's summary (the figures of `mpc_track --json`, without its log).
+    pub fn nominal_run(&self, controller: Controller) -> Result<Summary, MpcError> {
+        let samples = match controller {
+            Controller::Oracle => {
+                run(&mut Mpc::new(self.oracle(), self.config.clone())?, &self.scenario, &self.vehicle, |_| true)
+            }
+            Controller::Pinc => run(
+                &mut Mpc::new(Predictor::reference(&self.model), self.config.clone())?,
+                &self.scenario,
+                &self.vehicle,
+                |_| true,
+            ),
+        };
+        Ok(summarise(&samples, &self.scenario, self.config.horizon as f64 * self.model.dt))
+    }
+
+    /// The analytic model of the nominal plant at the model's sample time.
+    pub fn oracle(&self) -> Rk4Vehicle {
+        Rk4Vehicle { params: self.vehicle, ..Rk4Vehicle::with_dt(self.model.dt) }
+    }
+}
+
+/// A controller that cannot be built from a configuration that built before is a bug, but a
+/// Monte-Carlo batch reports it as that run's failure rather than stopping.
+fn setup_failure(seed: u64, e: MpcError) -> Outcome {
+    Outcome {
+        seed,
+        success: false,
+        failure: Some(format!("controller set-up: {e}")),
+        rms_depth_m: f64::INFINITY,
+        rms_heading_deg: f64::INFINITY,
+        solve_ms: Vec::new(),
+    }
+}
+
+/// The summary table of a campaign of `n` runs from `seed` (`mpc_track --monte-carlo`'s),
+/// the full figures being in `json_path`.
+pub fn table(n: usize, seed: u64, scenario: &Scenario, rp: &Robustness, ro: &Robustness, json_path: &Path) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let spread = |s: &Spread, f: f64| format!("{:.3} / {:.3} / {:.3}", s.median * f, s.p95 * f, s.max * f);
+    // Writing to a String cannot fail.
+    let _ =
+        writeln!(out, "{n} perturbed runs of scenario {} (seeds {}..{})", scenario.name(), seed, seed + n as u64 - 1);
+    let _ = writeln!(out, "{:<28} {:>26} {:>26}", "", "PINC", "oracle");
+    let _ =
+        writeln!(out, "{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
+    let _ = writeln!(
+        out,
+        "{:<28} {:>26} {:>26}",
+        "RMS depth, cm (med/p95/max)",
+        spread(&rp.rms_depth_m, 100.0),
+        spread(&ro.rms_depth_m, 100.0)
+    );
+    let _ = writeln!(
+        out,
+        "{:<28} {:>26} {:>26}",
+        "RMS heading, deg",
+        spread(&rp.rms_heading_deg, 1.0),
+        spread(&ro.rms_heading_deg, 1.0)
+    );
+    let _ = writeln!(out, "{:<28} {:>26.3} {:>26.3}", "solve time p99, ms", rp.solve_ms_p99, ro.solve_ms_p99);
+    for (name, r) in [("PINC", rp), ("oracle", ro)] {
+        for (seed, why) in r.failures.iter().take(10) {
+            let _ = writeln!(out, "  {name} failed, seed {seed}: {why}");
+        }
+        if r.failures.len() > 10 {
+            let _ = writeln!(
+                out,
+                "  ... and {} more {name} failures (all in {})",
+                r.failures.len() - 10,
+                json_path.display()
+            );
+        }
+    }
+    out
+}
+
+/// Histograms (as step outlines) of the runs' RMS depth and heading errors, both
+/// controllers, as a PNG at `path`; `n` runs each.
+pub fn histogram(path: &Path, pinc: &[Outcome], oracle: &[Outcome], n: usize) -> Result<(), String> {
+    let bins = 30usize.min(n.max(5));
+    let outline = |values: Vec<f64>, (lo, hi): (f64, f64)| -> Vec<(f64, f64)> {
+        let w = (hi - lo) / bins as f64;
+        let mut counts = vec![0usize; bins];
+        for v in values.into_iter().filter(|v| v.is_finite()) {
+            counts[(((v - lo) / w) as usize).min(bins - 1)] += 1;
+        }
+        let mut pts = vec![(lo, 0.0)];
+        for (i, c) in counts.iter().enumerate() {
+            pts.push((lo + i as f64 * w, *c as f64));
+            pts.push((lo + (i + 1) as f64 * w, *c as f64));
+        }
+        pts.push((hi, 0.0));
+        pts
+    };
+    // The range of both controllers' finite values, widened by 5 % on each side.
+    let range = |f: &dyn Fn(&Outcome) -> f64| {
+        let v: Vec<f64> = pinc.iter().chain(oracle).map(f).filter(|v| v.is_finite()).collect();
+        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let pad = 0.05 * (hi - lo).max(1e-9);
+        if lo.is_finite() { ((lo - pad).max(0.0), hi + pad) } else { (0.0, 1.0) }
+    };
+    let mut panels = Vec::new();
+    type Measure = fn(&Outcome) -> f64;
+    let quantities: [(&str, &str, Measure); 2] = [
+        ("RMS depth error per run", "cm", |o| o.rms_depth_m * 100.0),
+        ("RMS heading error per run", "deg", |o| o.rms_heading_deg),
+    ];
+    for (title, unit, f) in quantities {
+        let span = range(&f);
+        panels.push(Panel {
+            title,
+            x_label: unit,
+            y_label: "runs",
+            log_y: false,
+            series: vec![
+                Series { label: "PINC", points: outline(pinc.iter().map(f).collect(), span), color: 0, dashed: false },
+                Series {
+                    label: "oracle",
+                    points: outline(oracle.iter().map(f).collect(), span),
+                    color: 1,
+                    dashed: true,
+                },
+            ],
+        });
+    }
+    figure(path, 1400, 560, 2, &panels)
+}
