@@ -172,7 +172,12 @@ impl DatasetPreset {
     /// [`DatasetPreset::mpc`] for another vehicle: its initial velocities are what that
     /// vehicle reaches with the same inputs.
     pub fn mpc_for(vehicle: VehicleParams) -> Self {
-        let (lo, hi) = (BLUEROV2_INPUT_LO, BLUEROV2_INPUT_HI);
+        Self::mpc_with_bounds(vehicle, BLUEROV2_INPUT_LO, BLUEROV2_INPUT_HI)
+    }
+
+    /// [`DatasetPreset::mpc_for`] with its own input bounds, e.g. a vehicle file's thrusters'
+    /// reachable box ([`input_bounds_from_file`]).
+    pub fn mpc_with_bounds(vehicle: VehicleParams, lo: [f64; NU], hi: [f64; NU]) -> Self {
         let v = reachable_velocities(&vehicle, lo, hi);
         let initial = InitialRanges {
             lo: [-1.0, -1.0, 0.0, -PI, v.lo[0], v.lo[1], v.lo[2], v.lo[3]],
@@ -218,6 +223,24 @@ impl DatasetPreset {
 pub const BLUEROV2_INPUT_HI: [f64; NU] = [88.3, 88.3, 68.7, 23.6];
 /// The lower limits: the vectored and vertical layouts push both ways (see [`BLUEROV2_INPUT_HI`]).
 pub const BLUEROV2_INPUT_LO: [f64; NU] = [-88.3, -88.3, -68.7, -23.6];
+
+/// The input bounds `(lo, hi)` of a vehicle file's thrusters (their reachable box of
+/// `[X, Y, Z, Mz]`, [`crate::vehicle::Thrusters::input_bounds`]); `None` for a file without
+/// thrusters. The constants [`BLUEROV2_INPUT_LO`] / `_HI` stay the paper's values: the shipped
+/// models/bluerov2.toml's T200 curve at 16 V gives more (docs/THRUSTERS.md).
+///
+/// # Errors
+/// The file cannot be read or its thruster tables are wrong.
+pub fn input_bounds_from_file(
+    path: &std::path::Path,
+) -> Result<Option<([f64; NU], [f64; NU])>, crate::vehicle::VehicleFileError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| crate::vehicle::VehicleFileError::Io { path: path.into(), source })?;
+    Ok(crate::vehicle::Thrusters::from_toml(&text, path)?.map(|t| {
+        let (lo, hi) = t.input_bounds();
+        (lo.into(), hi.into())
+    }))
+}
 
 /// Steady body velocities `[u, v, w, r]` reachable with inputs in `[lo, hi]`: each axis's
 /// terminal speed under its extreme force (heave includes the net buoyancy). Cross-coupling

@@ -71,6 +71,9 @@ enum Command {
         /// Segment length (s): each segment draws its own steps, ramps or multisines.
         #[arg(long, default_value_t = 10.0)]
         segment: f64,
+        /// Vehicle file whose [[thruster]] tables bound the inputs [default: the BlueROV2 constants].
+        #[arg(long)]
+        vehicle: Option<PathBuf>,
     },
     /// Generate every set of a dataset preset as .npy arrays plus manifest.json.
     GenData {
@@ -208,10 +211,17 @@ fn main() -> ExitCode {
         Command::Simulate { x0, inputs, dt, vehicle, record } => {
             load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v, record))
         }
-        Command::Excitation { out, duration, dt, seed, segment } => run_excitation(&out, duration, dt, seed, segment),
-        Command::GenData { preset, out, seed, vehicle } => {
-            load_vehicle(vehicle.as_deref()).and_then(|v| run_gen_data(preset.preset_for(v), &out, seed))
+        Command::Excitation { out, duration, dt, seed, segment, vehicle } => {
+            run_excitation(&out, duration, dt, seed, segment, vehicle.as_deref())
         }
+        Command::GenData { preset, out, seed, vehicle } => load_vehicle(vehicle.as_deref()).and_then(|v| {
+            // The `mpc` preset takes its input bounds from the file's thrusters when it has some.
+            let preset = match (preset, thruster_bounds(vehicle.as_deref())?) {
+                (PresetName::Mpc, Some((lo, hi))) => DatasetPreset::mpc_with_bounds(v, lo, hi),
+                _ => preset.preset_for(v),
+            };
+            run_gen_data(preset, &out, seed)
+        }),
         Command::Predict { model, x0, inputs, dt, no_renormalise_yaw } => {
             run_predict(&model, &x0, &inputs, dt, !no_renormalise_yaw)
         }
@@ -272,7 +282,19 @@ fn run_simulate(x0: &str, inputs: &Path, dt: f64, vehicle: VehicleParams, record
         .map_err(|e| format!("writing output: {e}"))
 }
 
-fn run_excitation(out: &Path, duration: f64, dt: f64, seed: u64, segment: f64) -> Result<(), String> {
+/// The reachable input box of `--vehicle FILE`'s thrusters; `None` without a file or thrusters.
+fn thruster_bounds(path: Option<&Path>) -> Result<Option<([f64; 4], [f64; 4])>, String> {
+    path.map_or(Ok(None), |p| dataset::input_bounds_from_file(p).map_err(|e| e.to_string()))
+}
+
+fn run_excitation(
+    out: &Path,
+    duration: f64,
+    dt: f64,
+    seed: u64,
+    segment: f64,
+    vehicle: Option<&Path>,
+) -> Result<(), String> {
     use rand::SeedableRng;
     for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", segment)] {
         if !(v.is_finite() && v > 0.0) {
@@ -282,7 +304,10 @@ fn run_excitation(out: &Path, duration: f64, dt: f64, seed: u64, segment: f64) -
     let n = (duration / dt).round() as usize;
     let per = ((segment / dt).round() as usize).max(1);
     // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
-    let excitation = dataset::DatasetPreset::mpc().sets[0].excitation.clone();
+    let excitation = match thruster_bounds(vehicle)? {
+        Some((lo, hi)) => dataset::Excitation::Mixed { lo, hi },
+        None => dataset::DatasetPreset::mpc().sets[0].excitation.clone(),
+    };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut inputs = Vec::with_capacity(n);
     while inputs.len() < n {
