@@ -145,15 +145,8 @@ fn try_main(a: Args) -> Result<(), String> {
     let name = format!("mpc_{}_{controller}", scenario.name());
     let png = a.out_dir.join(format!("{name}.png"));
     let mcap = a.out_dir.join(format!("{name}.mcap"));
-    let info = RunInfo {
-        controller,
-        model_path: &a.model,
-        scenario,
-        config: &cfg,
-        bounds,
-        dt: model.dt,
-        vehicle: &vehicle,
-    };
+    let info =
+        RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     let (samples, log_error) = if a.oracle {
         let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
