@@ -1,7 +1,7 @@
 """One closed-loop run from Python, through the same Rust code path as `mpc_track`.
 
     import pinc.closed_loop as cl
-    s = cl.settings(model="models/mpc_pinc.pinc", scenario="disturbed", duration=30)
+    s = cl.settings(model="models/mpc_pinc_thrust.pinc", scenario="disturbed", duration=30)
     cl.run(s, seed=7)                  # run 7 of `mpc_track --monte-carlo` (PINC controller)
     cl.run(s, seed=7, controller="oracle")
     cl.run(s)                          # no perturbation: the summary of `mpc_track --json`
@@ -20,7 +20,7 @@ from ._pinc import ClosedLoop
 CONTROLLERS = ("pinc", "oracle")
 
 _DEFAULTS = {
-    "model": "models/mpc_pinc.pinc",
+    "model": "models/mpc_pinc_thrust.pinc",
     "vehicle": None,
     "scenario": "default",
     "reference": None,

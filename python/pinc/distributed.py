@@ -1,7 +1,7 @@
 """Monte-Carlo campaigns and training sweeps as Ray tasks (`pip install "./python[ray]"`).
 
     from pinc import closed_loop, distributed
-    s = closed_loop.settings(model="models/mpc_pinc.pinc", scenario="disturbed")
+    s = closed_loop.settings(model="models/mpc_pinc_thrust.pinc", scenario="disturbed")
     distributed.monte_carlo(s, runs=1000, address="10.0.0.5:6379", out_dir="out")
     distributed.train_sweep({"seed": [0, 1, 2], "lr": [4e-3, 8e-3]}, out_dir="sweep")
 

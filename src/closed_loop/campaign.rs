@@ -52,7 +52,7 @@ impl Default for Settings {
     fn default() -> Self {
         let c = MpcConfig::default();
         Self {
-            model: PathBuf::from("models/mpc_pinc.pinc"),
+            model: PathBuf::from("models/mpc_pinc_thrust.pinc"),
             vehicle: None,
             scenario: "default".into(),
             reference: None,
