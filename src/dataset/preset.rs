@@ -224,6 +224,9 @@ pub const BLUEROV2_INPUT_HI: [f64; NU] = [88.3, 88.3, 68.7, 23.6];
 /// The lower limits: the vectored and vertical layouts push both ways (see [`BLUEROV2_INPUT_HI`]).
 pub const BLUEROV2_INPUT_LO: [f64; NU] = [-88.3, -88.3, -68.7, -23.6];
 
+/// Input bounds `(lo, hi)` of `[X, Y, Z, Mz]` (N, N m).
+pub type InputBounds = ([f64; NU], [f64; NU]);
+
 /// The input bounds `(lo, hi)` of a vehicle file's thrusters (their reachable box of
 /// `[X, Y, Z, Mz]`, [`crate::vehicle::Thrusters::input_bounds`]); `None` for a file without
 /// thrusters. The constants [`BLUEROV2_INPUT_LO`] / `_HI` stay the paper's values: the shipped
@@ -231,9 +234,7 @@ pub const BLUEROV2_INPUT_LO: [f64; NU] = [-88.3, -88.3, -68.7, -23.6];
 ///
 /// # Errors
 /// The file cannot be read or its thruster tables are wrong.
-pub fn input_bounds_from_file(
-    path: &std::path::Path,
-) -> Result<Option<([f64; NU], [f64; NU])>, crate::vehicle::VehicleFileError> {
+pub fn input_bounds_from_file(path: &std::path::Path) -> Result<Option<InputBounds>, crate::vehicle::VehicleFileError> {
     let text = std::fs::read_to_string(path)
         .map_err(|source| crate::vehicle::VehicleFileError::Io { path: path.into(), source })?;
     Ok(crate::vehicle::Thrusters::from_toml(&text, path)?.map(|t| {

@@ -294,7 +294,8 @@ impl Thrusters {
                 return Err(err(&label, format!("channel {channel} is already {}'s", other.name)));
             }
             let norm = Vector3::from(spec.direction).norm();
-            if !((norm - 1.0).abs() <= 1e-3) {
+            // A NaN length is refused too (no ordering).
+            if (norm - 1.0).abs().partial_cmp(&1e-3).is_none_or(|o| o.is_gt()) {
                 return Err(err(&label, format!("direction {:?} has length {norm}, not 1", spec.direction)));
             }
             if spec.position.iter().any(|v| !v.is_finite()) {

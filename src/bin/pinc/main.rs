@@ -157,7 +157,7 @@ enum Command {
     /// Datasets from recorded runs.
     Dataset {
         #[command(subcommand)]
-        action: DatasetAction,
+        action: Box<DatasetAction>,
     },
     /// Estimate the vehicle's added masses, damping and buoyancy from a dataset's train split.
     Identify(identify_cmd::IdentifyArgs),
@@ -241,7 +241,9 @@ fn main() -> ExitCode {
         }
         Command::Eval(args) => eval_cmd::run_eval(args),
         Command::VptSweep(args) => sweep_cmd::run_sweep(args),
-        Command::Dataset { action: DatasetAction::Import(args) } => import_cmd::run_import(args),
+        Command::Dataset { action } => match *action {
+            DatasetAction::Import(args) => import_cmd::run_import(args),
+        },
         Command::Identify(args) => identify_cmd::run_identify(args),
         Command::Thrusters(args) => thrusters_cmd::run_thrusters(args),
         #[cfg(feature = "vehicle")]
@@ -283,7 +285,7 @@ fn run_simulate(x0: &str, inputs: &Path, dt: f64, vehicle: VehicleParams, record
 }
 
 /// The reachable input box of `--vehicle FILE`'s thrusters; `None` without a file or thrusters.
-fn thruster_bounds(path: Option<&Path>) -> Result<Option<([f64; 4], [f64; 4])>, String> {
+fn thruster_bounds(path: Option<&Path>) -> Result<Option<dataset::InputBounds>, String> {
     path.map_or(Ok(None), |p| dataset::input_bounds_from_file(p).map_err(|e| e.to_string()))
 }
 
