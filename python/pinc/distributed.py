@@ -136,9 +136,17 @@ class _Results:
         self.f.close()
 
 
-def _stream(ray, refs, on_done):
-    """Calls `on_done(tag, value)` as each task finishes; a task's error is raised with its
-    tag (the run or configuration it belongs to)."""
+def _stream(ray, refs, on_done, bar):
+    """Calls `on_done(tag, value)` as each task finishes and advances `bar` (closed at the
+    end, also on an error); a task's error is raised with its tag (the run or configuration it
+    belongs to)."""
+    try:
+        _stream_until_done(ray, refs, on_done, bar)
+    finally:
+        bar.close()
+
+
+def _stream_until_done(ray, refs, on_done, bar):
     pending = dict(refs)
     while pending:
         ready, _ = ray.wait(list(pending), num_returns=1)
@@ -154,6 +162,7 @@ def _stream(ray, refs, on_done):
                     raise DistributedError(str(cause)) from e
                 raise DistributedError(f"{tag}: {cause}") from e
             on_done(tag, value)
+            bar.update()
 
 
 # ------------------------------------------------------------------------------ campaigns
@@ -219,14 +228,7 @@ def monte_carlo(
             text_ref = ray.put(text)
             refs = {task.remote(text_ref, k): f"run seed {k}" for k in todo}
 
-            def done(_tag, item):
-                store.add(item)
-                bar.update()
-
-            try:
-                _stream(ray, refs, done)
-            finally:
-                bar.close()
+            _stream(ray, refs, lambda _tag, item: store.add(item), bar)
     finally:
         store.close()
     return _report(s, text, [store.done[k] for k in seeds], int(seed), out_dir, scenario, quiet)
@@ -386,12 +388,8 @@ def train_sweep(grid_or_list, out_dir="sweep", address=None, pinc_bin=None, resu
                     f.write(item.pop("csv"))
                 item["model"] = os.path.join(out_dir, item["name"] + ".pinc")
                 store.add(item)
-                bar.update()
 
-            try:
-                _stream(ray, refs, done)
-            finally:
-                bar.close()
+            _stream(ray, refs, done, bar)
     finally:
         store.close()
     ranked = [store.done[c["name"]] for c in configs]

@@ -34,16 +34,7 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
         match reader.read_byte_record(&mut record) {
             Ok(false) => break,
             Ok(true) => {}
-            Err(e) => {
-                let line = e.position().map_or(0, |p| p.line());
-                let what = match e.kind() {
-                    csv::ErrorKind::UnequalLengths { len, .. } => {
-                        format!("{len} fields, the header has {} (truncated or damaged row)", CSV_COLUMNS.len())
-                    }
-                    _ => e.to_string(),
-                };
-                return Err(malformed(format!("line {line}: {what}")));
-            }
+            Err(e) => return Err(malformed(row_error(&e, CSV_COLUMNS.len()))),
         }
         let line = record.position().map_or(0, |p| p.line());
         let mut v = [0.0; 13];
@@ -61,4 +52,16 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
         return Err(malformed("no rows after the header".into()));
     }
     Ok(rec)
+}
+
+/// `line N: what` for a row the csv crate could not read; a row with the wrong number of fields
+/// (`width` expected) is a truncated or damaged one.
+pub(super) fn row_error(e: &csv::Error, width: usize) -> String {
+    let line = e.position().map_or(0, |p| p.line());
+    match e.kind() {
+        csv::ErrorKind::UnequalLengths { len, .. } => {
+            format!("line {line}: {len} fields, the header has {width} (truncated or damaged row)")
+        }
+        _ => format!("line {line}: {e}"),
+    }
 }

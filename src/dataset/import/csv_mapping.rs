@@ -631,16 +631,7 @@ pub fn read_mapped_csv(
         match reader.read_byte_record(&mut record) {
             Ok(false) => break,
             Ok(true) => {}
-            Err(e) => {
-                let line = e.position().map_or(0, |p| p.line());
-                let what = match e.kind() {
-                    csv::ErrorKind::UnequalLengths { len, .. } => {
-                        format!("{len} fields, the header has {width} (truncated or damaged row)")
-                    }
-                    _ => e.to_string(),
-                };
-                return Err(malformed(format!("line {line}: {what}")));
-            }
+            Err(e) => return Err(malformed(super::csv_log::row_error(&e, width))),
         }
         for (v, &idx) in vals.iter_mut().zip(&cols.index) {
             let field = &record[idx];
