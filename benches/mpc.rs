@@ -1,12 +1,17 @@
-//! `mpc_iteration_h20`: one real-time iteration of the LTV-MPC at horizon 20 (shift,
-//! rollout + exact Jacobians of the shipped controller model, QP data update, one Clarabel
-//! solve), from a state in the middle of a dive and turn. `mpc_iteration_h20_oracle` is the
-//! same controller on the analytic model (RK4 with exact discrete Jacobians).
+//! One real-time iteration of the LTV-MPC (shift, rollout + exact Jacobians, QP data update
+//! and condensing, one Clarabel solve), from a state in the middle of a dive and turn, for
+//! three models at horizons 20 and 80, each in the default (partially condensed) formulation
+//! and in the sparse one it replaced ([`MpcConfig::with_sparse_qp`]):
+//! - `mpc_iteration_h20`: the shipped controller model (`models/mpc_pinc_thrust.pinc`);
+//! - `mpc_iteration_h20_oracle`: the analytic vehicle (RK4, exact discrete Jacobians);
+//! - `mpc_iteration_h20_paper`: the paper's network (`models/paper_pinc.pinc`);
+//! - the same at `_h80`; `.../sparse` is the formulation before.
 //!
-//! Run with `cargo bench --bench mpc`; criterion reports the median.
+//! Run with `cargo bench --bench mpc`; criterion reports the medians, and the end of the
+//! run prints default / sparse for each pair (both measured in this one run).
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, criterion_group};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig, Reference};
 use pinc::runtime::Predictor;
@@ -15,21 +20,68 @@ use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{SimState, State};
 use std::hint::black_box;
 
-fn bench_model<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M, bounds_from: &Predictor<f64>) {
-    let cfg = MpcConfig { bounds: bounds_from.input_bounds(), ..MpcConfig::default() };
-    let mut mpc = Mpc::new(model, cfg).unwrap();
+const HORIZONS: [usize; 2] = [20, 80];
+const FORMULATIONS: [&str; 2] = ["default", "sparse"];
+
+fn bench_model<M: DiscreteModel + Clone>(c: &mut Criterion, id: &str, model: M, bounds_from: &Predictor<f64>) {
     let x: State = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
-    let refs = vec![Reference { depth: 1.5, heading: 0.8 }; 20];
-    c.bench_function(id, |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
+    for horizon in HORIZONS {
+        let mut group = c.benchmark_group(id.replace("h20", &format!("h{horizon}")));
+        for formulation in FORMULATIONS {
+            // No time limit: a solve that stopped early would look fast.
+            let cfg = MpcConfig {
+                bounds: bounds_from.input_bounds(),
+                horizon,
+                solver_time_limit: f64::INFINITY,
+                ..MpcConfig::default()
+            };
+            let cfg = if formulation == "sparse" { cfg.with_sparse_qp() } else { cfg };
+            let mut mpc = Mpc::new(model.clone(), cfg).unwrap();
+            let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+            group.bench_function(formulation, |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
+        }
+        group.finish();
+    }
+}
+
+fn load(name: &str) -> PincModel {
+    PincModel::load(format!("{}/models/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
 }
 
 fn mpc_iteration(c: &mut Criterion) {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc.pinc");
-    let model = PincModel::load(path).unwrap();
-    let p = Predictor::reference(&model);
-    bench_model(c, "mpc_iteration_h20", Predictor::reference(&model), &p);
-    bench_model(c, "mpc_iteration_h20_oracle", Rk4Vehicle::with_dt(model.dt), &p);
+    let shipped = load("mpc_pinc_thrust.pinc");
+    let p = Predictor::reference(&shipped);
+    bench_model(c, "mpc_iteration_h20", Predictor::reference(&shipped), &p);
+    bench_model(c, "mpc_iteration_h20_oracle", Rk4Vehicle::with_dt(shipped.dt), &p);
+    let paper = load("paper_pinc.pinc");
+    let pp = Predictor::reference(&paper);
+    bench_model(c, "mpc_iteration_h20_paper", Predictor::reference(&paper), &pp);
+}
+
+/// Criterion's median estimate (ns) of bench `id` from this run's files.
+fn median_ns(id: &str) -> Option<f64> {
+    let dir = std::env::var("CARGO_TARGET_DIR").unwrap_or_else(|_| format!("{}/target", env!("CARGO_MANIFEST_DIR")));
+    let path = format!("{dir}/criterion/{id}/new/estimates.json");
+    let text = std::fs::read_to_string(path).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    v["median"]["point_estimate"].as_f64()
 }
 
 criterion_group!(benches, mpc_iteration);
-criterion_main!(benches);
+
+fn main() {
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+    println!("\ncycle time, partially condensed / sparse (medians of this run):");
+    for model in ["", "_oracle", "_paper"] {
+        for horizon in HORIZONS {
+            let id = format!("mpc_iteration_h{horizon}{model}");
+            match (median_ns(&format!("{id}/default")), median_ns(&format!("{id}/sparse"))) {
+                (Some(new), Some(old)) => {
+                    println!("{id:28} {:8.1} us / {:8.1} us = {:.2}", new / 1e3, old / 1e3, new / old)
+                }
+                _ => println!("{id:28} (not measured in this run)"),
+            }
+        }
+    }
+}

@@ -74,6 +74,14 @@ struct Args {
     /// back, so raise it where runs must repeat exactly on a loaded machine.
     #[arg(long)]
     solver_time_limit: Option<f64>,
+    /// Steps per condensed block of the QP: only every N-th predicted state stays a variable
+    /// (1: the sparse form, every state a variable) [default: MpcConfig's].
+    #[arg(long, value_name = "N")]
+    condensing_block: Option<usize>,
+    /// Solve the QP as before partial condensing (every state a variable, tolerance 1e-5,
+    /// equilibration and refinement on), for comparison.
+    #[arg(long, conflicts_with = "condensing_block")]
+    sparse_qp: bool,
     /// Run N closed loops on perturbed plants (damping and added masses +-20 %, net buoyancy
     /// +-30 %, a current up to 0.2 m/s, sensor noise) for both controllers on the same draws,
     /// and summarise them instead of one run.
@@ -132,6 +140,8 @@ fn try_main(a: Args) -> Result<(), String> {
             None => None,
         },
         solver_time_limit: a.solver_time_limit,
+        condensing_block: a.condensing_block,
+        sparse_qp: a.sparse_qp,
     };
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;

@@ -46,6 +46,10 @@ pub struct Settings {
     /// falls back, so a run is reproducible only while no solve does: raise it for
     /// campaigns on loaded or slow machines.
     pub solver_time_limit: Option<f64>,
+    /// Steps per condensed block of the QP (1: the sparse form) [`None`: [`MpcConfig`]'s].
+    pub condensing_block: Option<usize>,
+    /// Solve the QP as before partial condensing ([`MpcConfig::with_sparse_qp`]), for comparison.
+    pub sparse_qp: bool,
 }
 
 impl Default for Settings {
@@ -64,6 +68,8 @@ impl Default for Settings {
             envelope_margin: c.envelope_margin,
             input_rate: None,
             solver_time_limit: None,
+            condensing_block: None,
+            sparse_qp: false,
         }
     }
 }
@@ -160,8 +166,10 @@ impl Campaign {
             envelope_penalty: s.envelope_penalty,
             envelope_margin: s.envelope_margin,
             solver_time_limit: s.solver_time_limit.unwrap_or(defaults.solver_time_limit),
+            condensing_block: s.condensing_block.unwrap_or(defaults.condensing_block),
             ..defaults
         };
+        let config = if s.sparse_qp { config.with_sparse_qp() } else { config };
         Ok(Self { model, vehicle, scenario, config, bounds })
     }
 

@@ -101,7 +101,7 @@ impl<M: DiscreteModel> Mpc<M> {
         // The slacks' quadratic price equals the exact (linear) one: it keeps the QP strictly
         // convex in them and Clarabel's iterations as few as without the bounds (a 1000 times
         // smaller one took about twice as many).
-        let qp = Qp::new(n, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
+        let qp = Qp::new(n, cfg.condensing_block, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
         let n_ineq = qp.b.len() - qp.n_eq;
         let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
         // A placeholder problem with the final pattern; every cycle overwrites its data.
@@ -242,7 +242,10 @@ impl<M: DiscreteModel> Mpc<M> {
     /// as the new plan and prediction. Returns why it fell back, if it did.
     fn solve(&mut self, refs: &[Reference], t1: Instant, report: &mut CycleReport) -> Option<Fallback> {
         self.fill_data(refs);
-        let written = self.solver.update_A(&self.qp.a_values).is_ok()
+        // P changes only where inner states are condensed into it.
+        let p_written = self.qp.block == 1 || self.solver.update_P(&self.qp.p_values).is_ok();
+        let written = p_written
+            && self.solver.update_A(&self.qp.a_values).is_ok()
             && self.solver.update_q(&self.qp.q).is_ok()
             && self.solver.update_b(&self.qp.b).is_ok();
         let t2 = Instant::now();
@@ -271,15 +274,18 @@ impl<M: DiscreteModel> Mpc<M> {
         for k in 0..n {
             self.plan[k] = self.clip(&(self.nominal[k] + du(k)));
         }
-        // The QP's states from its solution, any left out (x, y) by propagating the
-        // linearised dynamics: both are the same linear prediction.
+        // The QP's kept states from its solution, the condensed ones and any left out (x, y)
+        // by propagating the linearised dynamics: all the same linear prediction.
         let (traj, a, b) = (self.lin.trajectory(), self.lin.a(), self.lin.b());
         self.predicted[0] = traj[0];
         let mut dx = State::zeros();
         for k in 0..n {
             let mut next = a[k] * dx + b[k] * du(k);
             for (s, &i) in self.qp.states.iter().enumerate() {
-                next[i] = sol[self.qp.x_index(k + 1, s)];
+                next[i] = match self.qp.x_index(k + 1, s) {
+                    Some(at) => sol[at],
+                    None => next[i] + self.disturbance[i],
+                };
             }
             dx = next;
             self.predicted[k + 1] = traj[k + 1] + dx;
@@ -298,11 +304,11 @@ impl<M: DiscreteModel> Mpc<M> {
         report.deadline_missed = report.cycle_us > self.cfg.deadline * 1e6;
     }
 
-    /// The QP's linear cost, bounds and dynamics for this cycle's nominal trajectory.
+    /// The QP's linear cost, bounds and dynamics for this cycle's nominal trajectory, condensed.
     fn fill_data(&mut self, refs: &[Reference]) {
         let n = self.cfg.horizon;
         let qp = &mut self.qp;
-        qp.set_dynamics(self.lin.a(), self.lin.b());
+        let m = qp.states.len();
         let traj = self.lin.trajectory();
         for k in 1..=n {
             let r = refs[(k - 1).min(refs.len() - 1)];
@@ -310,8 +316,7 @@ impl<M: DiscreteModel> Mpc<M> {
             (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
             let f = if k == n { self.cfg.terminal } else { 1.0 };
             for (s, &i) in qp.states.iter().enumerate() {
-                let at = qp.x_index(k, s);
-                qp.q[at] = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
+                qp.state_q[(k - 1) * m + s] = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
             }
         }
         for k in 0..n {
@@ -325,8 +330,7 @@ impl<M: DiscreteModel> Mpc<M> {
                 if k + 1 < n {
                     q -= rate_w * (self.nominal[k + 1][j] - ubar);
                 }
-                let at = qp.u_index(k, j);
-                qp.q[at] = q;
+                qp.input_q[k * NU + j] = q;
                 let (ub, lb) = (qp.bound_row(k, j, true), qp.bound_row(k, j, false));
                 qp.b[ub] = self.hi[j] - ubar;
                 qp.b[lb] = ubar - self.lo[j];
@@ -337,12 +341,9 @@ impl<M: DiscreteModel> Mpc<M> {
                 }
             }
         }
-        // The rollout has no defect: the equality rows carry only the disturbance.
-        let m = qp.states.len();
-        for k in 0..n {
-            for (r, &i) in qp.states.iter().enumerate() {
-                qp.b[m * k + r] = self.disturbance[i];
-            }
+        // The rollout has no defect: the dynamics carry only the disturbance.
+        for (r, &i) in qp.states.iter().enumerate() {
+            qp.disturbance[r] = self.disturbance[i];
         }
         for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
             for (j, &k) in qp.soft_steps.iter().enumerate() {
@@ -354,6 +355,7 @@ impl<M: DiscreteModel> Mpc<M> {
                 qp.q[at] = self.cfg.envelope_penalty;
             }
         }
+        qp.condense(self.lin.a(), self.lin.b());
     }
 }
 

@@ -11,6 +11,10 @@ use clarabel::solver::{DefaultSettings, DefaultSettingsBuilder};
 pub struct MpcConfig {
     /// Prediction horizon (samples).
     pub horizon: usize,
+    /// Steps per partially condensed block of the QP: only every this many predicted states
+    /// (and the last) stay variables, the others are eliminated into their block (1: the
+    /// sparse form, every state a variable). Same solution, a smaller KKT system.
+    pub condensing_block: usize,
     /// Weight on `(z - z_ref)^2` (1/m^2).
     pub depth: f64,
     /// Weight on the heading chord `|(cos psi, sin psi) - (cos ref, sin ref)|^2`.
@@ -31,8 +35,14 @@ pub struct MpcConfig {
     pub solver_time_limit: f64,
     /// Clarabel's iteration limit per solve.
     pub solver_max_iter: u32,
-    /// Clarabel's duality-gap (absolute and relative) and feasibility tolerances.
+    /// Clarabel's duality-gap (absolute and relative) and feasibility tolerances. A real-time
+    /// iteration solves a QP that is itself an approximation, re-solved next sample.
     pub solver_tolerance: f64,
+    /// Let Clarabel equilibrate (rescale) the QP. Its scaling is computed once, when the
+    /// solver is built from a placeholder problem, so it cannot fit the cycles' data.
+    pub solver_equilibrate: bool,
+    /// Iterative refinement of Clarabel's KKT solves (two steps to 1e-8 when on).
+    pub solver_refinement: bool,
     /// The real-time budget of one cycle (s); longer cycles are counted as deadline misses.
     pub deadline: f64,
     /// Apply the shifted previous plan when the nominal rollout leaves the model's training
@@ -62,6 +72,7 @@ impl Default for MpcConfig {
     fn default() -> Self {
         Self {
             horizon: 20,
+            condensing_block: 4,
             depth: 20.0,
             heading: 10.0,
             velocity: [0.05, 0.05, 0.5, 0.2],
@@ -75,7 +86,9 @@ impl Default for MpcConfig {
             bounds: None,
             solver_time_limit: 0.04,
             solver_max_iter: 50,
-            solver_tolerance: 1e-5,
+            solver_tolerance: 1e-3,
+            solver_equilibrate: false,
+            solver_refinement: false,
             deadline: 0.08,
             envelope_fallback: false,
             envelope_constraints: true,
@@ -88,6 +101,12 @@ impl Default for MpcConfig {
 }
 
 impl MpcConfig {
+    /// The QP as it was solved before partial condensing, for comparison: every predicted
+    /// state a variable, tolerance 1e-5, equilibration and iterative refinement on.
+    pub fn with_sparse_qp(self) -> Self {
+        Self { condensing_block: 1, solver_tolerance: 1e-5, solver_equilibrate: true, solver_refinement: true, ..self }
+    }
+
     /// Refuses a horizon under 2, weights, penalties, time constants or rate limits that are
     /// negative or not finite, a disturbance gain outside `[0, 1]` and a margin outside `[0, 0.5)`.
     ///
@@ -96,6 +115,9 @@ impl MpcConfig {
     pub fn validate(&self) -> Result<(), MpcError> {
         if self.horizon < 2 {
             return Err(MpcError::Config(format!("horizon {} (at least 2)", self.horizon)));
+        }
+        if self.condensing_block == 0 {
+            return Err(MpcError::Config("condensing block of 0 steps (at least 1)".into()));
         }
         if !(self.disturbance_gain.is_finite() && (0.0..=1.0).contains(&self.disturbance_gain)) {
             return Err(MpcError::Config(format!("disturbance gain {} (0 to 1)", self.disturbance_gain)));
@@ -134,6 +156,8 @@ pub(super) fn solver_settings(cfg: &MpcConfig) -> Result<DefaultSettings<f64>, M
         .iterative_refinement_reltol(1e-8)
         .iterative_refinement_abstol(1e-8)
         .iterative_refinement_max_iter(2)
+        .equilibrate_enable(cfg.solver_equilibrate)
+        .iterative_refinement_enable(cfg.solver_refinement)
         .build()
         .map_err(|e| MpcError::Config(e.to_string()))
 }

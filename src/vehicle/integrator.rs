@@ -3,7 +3,7 @@
 //! of the discrete map.
 
 use super::VehicleParams;
-use super::dynamics::{rhs, rhs_jacobians, rhs_sim, wrap_angle};
+use super::dynamics::{rhs, rhs_jacobian_times, rhs_jacobians, rhs_sim, wrap_angle};
 use crate::types::{DEFAULT_DT, Input, InputMatrix, NU, NX, SimState, State, StateMatrix};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
@@ -94,9 +94,10 @@ impl Rk4Vehicle {
         let mut xs = *x;
         let mut s = Sens::zeros();
         s.fixed_view_mut::<NX, NX>(0, 0).fill_with_identity();
+        // `fu` is constant; `fx * S` is formed without `fx` (sparse, rhs_jacobian_times).
+        let (_, fu) = rhs_jacobians(p, x);
         let stage = |xi: &State, si: &Sens| -> (State, Sens) {
-            let (fx, fu) = rhs_jacobians(p, xi);
-            let mut ks = fx * si;
+            let mut ks = rhs_jacobian_times(p, xi, si);
             let mut kb = ks.fixed_view_mut::<NX, NU>(0, NX);
             kb += fu;
             (rhs(p, xi, u), ks)

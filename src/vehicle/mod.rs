@@ -10,8 +10,8 @@ mod params;
 mod thrusters;
 
 pub use dynamics::{
-    RhsInputJacobian, RhsStateJacobian, body_accelerations, rhs, rhs_jacobians, rhs_sim, to_network, to_simulator,
-    wrap_angle,
+    RhsInputJacobian, RhsStateJacobian, body_accelerations, rhs, rhs_jacobian_times, rhs_jacobians, rhs_sim,
+    to_network, to_simulator, wrap_angle,
 };
 #[cfg(feature = "tools")]
 pub use file::VehicleFileError;

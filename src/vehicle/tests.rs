@@ -167,6 +167,22 @@ fn rhs_jacobians_match_central_differences() {
 }
 
 #[test]
+fn sparse_jacobian_product_equals_the_dense_jacobian_times_the_matrix() {
+    let p = VehicleParams::default();
+    for (i, x) in [
+        State::from([0.3, -0.1, 1.2, 0.8, 0.6, 0.4, -0.15, 0.2, -0.3]),
+        State::from([-2.0, 4.0, 0.1, -0.6, 0.8, -0.7, 0.3, -0.25, 0.5]),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let s = nalgebra::SMatrix::<f64, 9, 13>::from_fn(|r, c| ((r * 13 + c + i) as f64 * 0.37).sin());
+        let (fx, _) = rhs_jacobians(&p, x);
+        assert!((rhs_jacobian_times(&p, x, &s) - fx * s).amax() < 1e-14);
+    }
+}
+
+#[test]
 fn discrete_jacobians_match_central_differences() {
     let veh = Rk4Vehicle::default();
     let x = State::from([0.3, -0.1, 1.2, 0.8, 0.6, 0.4, -0.15, 0.2, -0.3]);
