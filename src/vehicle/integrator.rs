@@ -87,18 +87,22 @@ impl Rk4Vehicle {
     /// One sample period in the network form together with the exact Jacobians of the
     /// discrete RK4 map: `A = d x_next / d x` and `B = d x_next / d u`.
     pub fn step_with_jacobians(&self, x: &State, u: &Input) -> (State, StateMatrix, InputMatrix) {
-        // Sensitivities S = d x_n / d [x_0, u] propagated through every RK4 stage.
-        type Sens = SMatrix<f64, NX, { NX + NU }>;
+        // Sensitivities S = d x_n / d [z_0 .. r_0, u] propagated through every RK4 stage.
+        // Nothing depends on x, y: their columns of A stay the identity's, so S leaves them out.
+        const NS: usize = NX - 2;
+        type Sens = SMatrix<f64, NX, { NS + NU }>;
         let h = self.h();
         let p = &self.params;
         let mut xs = *x;
         let mut s = Sens::zeros();
-        s.fixed_view_mut::<NX, NX>(0, 0).fill_with_identity();
+        for c in 0..NS {
+            s[(c + 2, c)] = 1.0;
+        }
         // `fu` is constant; `fx * S` is formed without `fx` (sparse, rhs_jacobian_times).
         let (_, fu) = rhs_jacobians(p, x);
         let stage = |xi: &State, si: &Sens| -> (State, Sens) {
             let mut ks = rhs_jacobian_times(p, xi, si);
-            let mut kb = ks.fixed_view_mut::<NX, NU>(0, NX);
+            let mut kb = ks.fixed_view_mut::<NX, NU>(0, NS);
             kb += fu;
             (rhs(p, xi, u), ks)
         };
@@ -110,6 +114,8 @@ impl Rk4Vehicle {
             xs += (k1 + (k2 + k3) * 2.0 + k4) * (h / 6.0);
             s += (s1 + (s2 + s3) * 2.0 + s4) * (h / 6.0);
         }
-        (xs, s.fixed_view::<NX, NX>(0, 0).into(), s.fixed_view::<NX, NU>(0, NX).into())
+        let mut a = StateMatrix::identity();
+        a.fixed_view_mut::<NX, NS>(0, 2).copy_from(&s.fixed_view::<NX, NS>(0, 0));
+        (xs, a, s.fixed_view::<NX, NU>(0, NS).into())
     }
 }
