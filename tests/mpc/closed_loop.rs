@@ -303,3 +303,65 @@ fn the_full_thrust_model_tracks_like_the_oracle_and_its_velocities_stay_in_its_e
     assert_eq!((s.envelope_exits, s.heading_off_circle), (0, 0), "{s:?}");
     assert!(samples.iter().all(|x| x.cycle.envelope.inside() && x.cycle.envelope.heading_on_circle()));
 }
+
+/// Runs the default scenario's first `seconds` with `sparse` and, on every recorded cycle
+/// (the same measured state, references and previous input), `condensed`; returns the worst
+/// input difference per channel as a fraction of the channel's range, and the cycles seen.
+fn condensed_against_sparse<M: DiscreteModel>(
+    mut sparse: Mpc<M>,
+    mut condensed: Mpc<M>,
+    seconds: f64,
+) -> ([f64; 4], usize) {
+    let scenario = Scenario::default();
+    let (dt, n) = (sparse.model().dt(), sparse.config().horizon);
+    let (lo, hi) = sparse.bounds();
+    let mut worst = [0.0f64; 4];
+    let mut cycles = 0;
+    run(&mut sparse, &scenario, &VehicleParams::default(), |s| {
+        let refs: Vec<Reference> = (0..n).map(|j| scenario.reference(s.t + (j + 1) as f64 * dt)).collect();
+        let c = condensed.step(&to_network(&s.state), &refs);
+        assert!(c.fallback.is_none() && s.cycle.fallback.is_none(), "{c:?}");
+        for j in 0..4 {
+            worst[j] = worst[j].max((c.input[j] - s.cycle.input[j]).abs() / (hi[j] - lo[j]));
+        }
+        cycles += 1;
+        s.t < seconds
+    });
+    (worst, cycles)
+}
+
+#[test]
+fn the_partially_condensed_qp_gives_the_sparse_qps_inputs_on_recorded_cycles() {
+    // Both solved to 1e-9: the formulations are the same QP, so their solutions agree to the
+    // solver's tolerance. Block 4 keeps the soft bounds on kept states, block 5 puts them on
+    // condensed ones (rows over a block's variables).
+    let tight = MpcConfig { solver_tolerance: 1e-9, ..common::untimed() };
+    let sparse = MpcConfig { condensing_block: 1, ..tight.clone() };
+    for block in [4, 5] {
+        let (worst, cycles) = condensed_against_sparse(
+            oracle(sparse.clone()),
+            oracle(MpcConfig { condensing_block: block, ..tight.clone() }),
+            25.0,
+        );
+        assert!(cycles > 300 && worst.iter().all(|w| *w < 1e-6), "oracle, block {block}: {worst:?}");
+    }
+    let model = PincModel::load("models/mpc_pinc_thrust.pinc").unwrap();
+    let pinc = Predictor::reference(&model);
+    let envelope = MpcConfig { bounds: pinc.input_bounds(), ..tight };
+    let (worst, _) = condensed_against_sparse(
+        Mpc::new(pinc.clone(), MpcConfig { condensing_block: 1, ..envelope.clone() }).unwrap(),
+        Mpc::new(pinc.clone(), envelope.clone()).unwrap(),
+        25.0,
+    );
+    assert!(worst.iter().all(|w| *w < 1e-6), "shipped model: {worst:?}");
+    // The defaults (block 4, tolerance 1e-3, no refinement) against the formulation they
+    // replaced (`with_sparse_qp`): the real-time tolerance moves the inputs by less than
+    // 0.1 % of their ranges.
+    let rt = MpcConfig { bounds: pinc.input_bounds(), ..common::untimed() };
+    let (worst, _) = condensed_against_sparse(
+        Mpc::new(pinc.clone(), rt.clone().with_sparse_qp()).unwrap(),
+        Mpc::new(pinc, rt).unwrap(),
+        25.0,
+    );
+    assert!(worst.iter().all(|w| *w < 1e-3), "defaults against the sparse QP: {worst:?}");
+}
