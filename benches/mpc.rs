@@ -69,9 +69,39 @@ fn median_ns(id: &str) -> Option<f64> {
 
 criterion_group!(benches, mpc_iteration);
 
+/// Clarabel's own timers for one solve of the default formulation (after 50 cycles from the
+/// bench's state), where the time of a cycle goes.
+fn print_solver_timers<M: DiscreteModel>(id: &str, model: M, bounds_from: &Predictor<f64>, horizon: usize) {
+    let cfg = MpcConfig {
+        bounds: bounds_from.input_bounds(),
+        horizon,
+        solver_time_limit: f64::INFINITY,
+        ..MpcConfig::default()
+    };
+    let mut mpc = Mpc::new(model, cfg).unwrap();
+    let x: State = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
+    let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+    let report = (0..50).map(|_| mpc.step(&x, &refs)).last().unwrap();
+    println!(
+        "\n{id}: cycle {:.1} us (rollout + Jacobians {:.1}, condensing + update {:.1}, solve {:.1}), {} iterations; Clarabel's timers:",
+        report.cycle_us, report.linearise_us, report.update_us, report.solve_us, report.iterations
+    );
+    if let Some(t) = &mpc.solver().timers {
+        t.print();
+    }
+}
+
 fn main() {
     benches();
     Criterion::default().configure_from_args().final_summary();
+    let shipped = load("mpc_pinc_thrust.pinc");
+    let paper = load("paper_pinc.pinc");
+    let (ps, pp) = (Predictor::reference(&shipped), Predictor::reference(&paper));
+    for horizon in HORIZONS {
+        print_solver_timers(&format!("mpc_iteration_h{horizon}"), ps.clone(), &ps, horizon);
+        print_solver_timers(&format!("mpc_iteration_h{horizon}_oracle"), Rk4Vehicle::with_dt(shipped.dt), &ps, horizon);
+        print_solver_timers(&format!("mpc_iteration_h{horizon}_paper"), pp.clone(), &pp, horizon);
+    }
     println!("\ncycle time, partially condensed / sparse (medians of this run):");
     for model in ["", "_oracle", "_paper"] {
         for horizon in HORIZONS {

@@ -146,6 +146,12 @@ impl<M: DiscreteModel> Mpc<M> {
         &self.model
     }
 
+    /// The Clarabel solver inside: its `info` and `timers` describe the last solve
+    /// (iterations, and the time in KKT factorisations, solves and cone updates).
+    pub fn solver(&self) -> &DefaultSolver<f64> {
+        &self.solver
+    }
+
     /// The predicted states `x_0 .. x_N` of the last successful cycle (the linearised
     /// prediction `xbar_k + dx_k`).
     pub fn prediction(&self) -> &[State] {
