@@ -7,7 +7,7 @@ use super::safety::SafetyLimits;
 use super::state::{StateConfig, StateEstimator};
 use super::url::LinkAddress;
 use crate::vehicle::Thrusters;
-use std::path::PathBuf;
+use std::path::Path;
 use std::time::Duration;
 
 /// How to reach the autopilot and rebuild its state.
@@ -40,10 +40,6 @@ pub struct LinkArgs {
 /// How to command the vehicle, and the safety limits.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DriveArgs {
-    /// Vehicle file with the thrusters' [[thruster]] tables (and their ArduSub `mix` factors
-    /// for --command manual).
-    #[arg(long = "vehicle")]
-    pub vehicle_file: PathBuf,
     /// manual: MANUAL_CONTROL pilot axes in MANUAL mode (through ArduSub's mixer and
     /// JS_GAIN); thrusters: one PWM per thruster in RC_CHANNELS_OVERRIDE (outputs set to
     /// SERVOn_FUNCTION = RCINn).
@@ -65,7 +61,7 @@ pub struct DriveArgs {
     #[arg(long, default_value_t = 2.5)]
     pub heartbeat_timeout: f64,
     /// Stop when turning faster than this (deg/s).
-    #[arg(long, default_value_t = 86.0)]
+    #[arg(long, default_value_t = 180.0)]
     pub max_yaw_rate: f64,
     /// Stop after more than this many malformed frames.
     #[arg(long, default_value_t = 0)]
@@ -96,13 +92,13 @@ impl DriveArgs {
         if self.command_way == "manual" { CommandWay::Manual } else { CommandWay::Thrusters }
     }
 
-    /// The commander of the vehicle file.
+    /// The commander of `vehicle_file`'s thrusters.
     ///
     /// # Errors
     /// The file cannot be read or cannot command this way.
-    pub fn commander(&self) -> Result<Commander, String> {
-        let thrusters = Thrusters::load(&self.vehicle_file).map_err(|e| e.to_string())?;
-        Commander::new(thrusters, self.way(), self.js_gain).map_err(|e| format!("{}: {e}", self.vehicle_file.display()))
+    pub fn commander(&self, vehicle_file: &Path) -> Result<Commander, String> {
+        let thrusters = Thrusters::load(vehicle_file).map_err(|e| e.to_string())?;
+        Commander::new(thrusters, self.way(), self.js_gain).map_err(|e| format!("{}: {e}", vehicle_file.display()))
     }
 
     /// The safety limits.

@@ -31,9 +31,8 @@ impl Default for SafetyLimits {
             // Two and a half of ArduSub's 1 Hz heartbeats, well before its own 5 s GCS failsafe.
             heartbeat_timeout: Duration::from_millis(2500),
             max_depth: None,
-            // 90 deg/s: above what the BlueROV2's thrusters reach (its yaw terminal rate is
-            // about 1.3 rad/s at full moment), so only a fault gets there.
-            max_yaw_rate: 1.5,
+            // Half a turn a second: a pilot rarely turns faster; a spinning vehicle stops.
+            max_yaw_rate: std::f64::consts::PI,
             max_malformed: 0,
         }
     }
@@ -210,11 +209,11 @@ mod tests {
         let limits = SafetyLimits { max_depth: Some(3.0), ..SafetyLimits::default() };
         let mut s = Safety::new(limits, t0);
         assert_eq!(s.check(ms(2000), 0), None, "no state yet: only the heartbeat counts");
-        assert_eq!(s.state(ms(100), 2.9, 1.4), None);
+        assert_eq!(s.state(ms(100), 2.9, 3.1), None);
         assert_eq!(s.check(ms(350), 0), None);
         assert_eq!(s.check(ms(351), 0).unwrap().key(), "stale_state");
         assert_eq!(s.state(ms(400), 3.1, 0.0).unwrap().key(), "depth");
-        assert_eq!(s.state(ms(450), 1.0, -1.6).unwrap().key(), "yaw_rate");
+        assert_eq!(s.state(ms(450), 1.0, -3.2).unwrap().key(), "yaw_rate");
         assert_eq!(s.heartbeat(ms(450), true), None);
         assert_eq!(s.check(ms(2950), 0).map(|t| t.key()), Some("stale_state"));
         s.state(ms(3000), 1.0, 0.0);

@@ -72,6 +72,10 @@ pub struct ExciteArgs {
     link: LinkArgs,
     #[command(flatten)]
     drive: DriveArgs,
+    /// Vehicle file with the thrusters' [[thruster]] tables (and their ArduSub `mix` factors
+    /// for --command manual).
+    #[arg(long)]
+    vehicle: PathBuf,
     /// Excitation inputs: CSV with header X,Y,Z,Mz, one row per --dt (`pinc excitation`).
     #[arg(long)]
     inputs: PathBuf,
@@ -421,7 +425,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     if inputs.is_empty() {
         return Err(format!("{}: no input rows", a.inputs.display()));
     }
-    let commander = a.drive.commander()?;
+    let commander = a.drive.commander(&a.vehicle)?;
     let limits = a.drive.limits()?;
     let wait_position = positive("--wait-position", a.drive.wait_position)?;
     let stop = ctrl_c_flag()?;
@@ -430,7 +434,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let (link, autopilot, estimator) = open(&a.link, |r| pending.push(r.clone()))?;
     link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.drive.outputs_rate).map_err(|e| e.to_string())?;
     let mut session = session_metadata(&a.link, &autopilot);
-    session.insert("vehicle_file".to_string(), a.drive.vehicle_file.display().to_string());
+    session.insert("vehicle_file".to_string(), a.vehicle.display().to_string());
     session.insert("inputs_file".to_string(), a.inputs.display().to_string());
     session.insert("command".to_string(), a.drive.command_way.clone());
     session.insert("limits".to_string(), format!("{limits:?}"));
