@@ -97,8 +97,11 @@ struct Args {
     /// Run on a live ArduSub vehicle at this MAVLink address (udpin:HOST:PORT, udpout:...,
     /// tcp:..., serial) instead of the simulator; the link and safety options below apply.
     #[cfg(feature = "vehicle")]
+    #[arg(long)]
+    connect: Option<String>,
+    #[cfg(feature = "vehicle")]
     #[command(flatten)]
-    link: Option<pinc::link::cli::LinkArgs>,
+    link: pinc::link::cli::LinkOptions,
     #[cfg(feature = "vehicle")]
     #[command(flatten)]
     drive: pinc::link::cli::DriveArgs,
@@ -163,7 +166,7 @@ fn try_main(a: Args) -> Result<(), String> {
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
     // On a live vehicle (--connect) the plant is the vehicle; otherwise the simulator.
     #[cfg(feature = "vehicle")]
-    let live_run = match &a.link {
+    let live_run = match &a.connect {
         Some(link) if a.oracle => {
             let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
             Some(live::run(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, link, &a, &mut log)?)
@@ -424,7 +427,7 @@ fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) 
 mod live {
     use super::Args;
     use pinc::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
-    use pinc::link::cli::{LinkArgs, open, positive};
+    use pinc::link::cli::{open, positive};
     use pinc::link::{Capability, Drive, Trigger};
     use pinc::mpc::Mpc;
     use pinc::traits::DiscreteModel;
@@ -444,7 +447,7 @@ mod live {
     pub fn run<M: DiscreteModel>(
         mut mpc: Mpc<M>,
         scenario: &Scenario,
-        link_args: &LinkArgs,
+        connect: &str,
         a: &Args,
         log: &mut McapLog,
     ) -> Result<(Vec<Sample>, Option<LogError>, Option<String>), String> {
@@ -457,11 +460,11 @@ mod live {
         let flag = stop.clone();
         ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
             .map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
-        let (link, autopilot, estimator) = open(link_args, |_| {})?;
+        let (link, autopilot, estimator) = open(connect, &a.link, |_| {})?;
         let mut log_error: Option<LogError> = None;
         let line = format!(
             "live vehicle on {} (system {}), commands by {}, limits {:?}",
-            link_args.connect, autopilot.system_id, a.drive.command_way, limits
+            connect, autopilot.system_id, a.drive.command_way, limits
         );
         log_error = log_error.or(log.log(0.0, Level::Info, &line).err());
         let started = Drive::start(link, autopilot, estimator, commander, limits, a.drive.arm, stop, |_, _| {});

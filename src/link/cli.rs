@@ -10,13 +10,28 @@ use crate::vehicle::Thrusters;
 use std::path::Path;
 use std::time::Duration;
 
-/// How to reach the autopilot and rebuild its state.
+/// Where the autopilot is, and how to talk to it.
 #[derive(clap::Args, Debug, Clone)]
 pub struct LinkArgs {
     /// Connection: udpin:HOST:PORT (or udp:), udpout:HOST:PORT, tcp:HOST:PORT (or tcpout:),
     /// tcpin:HOST:PORT, serial:DEVICE:BAUD or DEVICE:BAUD.
     #[arg(long)]
     pub connect: String,
+    #[command(flatten)]
+    /// The rest.
+    pub options: LinkOptions,
+}
+
+impl std::ops::Deref for LinkArgs {
+    type Target = LinkOptions;
+    fn deref(&self) -> &LinkOptions {
+        &self.options
+    }
+}
+
+/// How to talk to the autopilot and rebuild its state.
+#[derive(clap::Args, Debug, Clone)]
+pub struct LinkOptions {
     /// Seconds to wait for the autopilot's heartbeat.
     #[arg(long, default_value_t = 10.0)]
     pub timeout: f64,
@@ -129,8 +144,12 @@ impl DriveArgs {
 ///
 /// # Errors
 /// A bad option, the link cannot be opened, or no autopilot answers.
-pub fn open(a: &LinkArgs, seen: impl FnMut(&Received)) -> Result<(VehicleLink, Autopilot, StateEstimator), String> {
-    let address: LinkAddress = a.connect.parse().map_err(|e| format!("--connect: {e}"))?;
+pub fn open(
+    connect: &str,
+    a: &LinkOptions,
+    seen: impl FnMut(&Received),
+) -> Result<(VehicleLink, Autopilot, StateEstimator), String> {
+    let address: LinkAddress = connect.parse().map_err(|e| format!("--connect: {e}"))?;
     let timeout = positive("--timeout", a.timeout)?;
     if !(a.rate.is_finite() && a.rate > 0.0) {
         return Err(format!("--rate must be a positive number of Hz, got {}", a.rate));

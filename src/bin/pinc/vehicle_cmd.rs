@@ -145,7 +145,7 @@ impl Arrivals {
 
 fn run_status(a: StatusArgs) -> Result<(), String> {
     let window = positive("--window", a.window)?;
-    let (mut link, autopilot, mut estimator) = open(&a.link, |_| {})?;
+    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |_| {})?;
     link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
     let mut heartbeat = autopilot.heartbeat.clone();
     let mut version: Option<AUTOPILOT_VERSION_DATA> = None;
@@ -367,7 +367,7 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
     let stop = ctrl_c_flag()?;
     let inputs = inputs_from_outputs(a.vehicle.as_ref(), a.link.rate, a.link.max_age)?;
     let mut pending: Vec<Received> = Vec::new();
-    let (mut link, autopilot, mut estimator) = open(&a.link, |r| pending.push(r.clone()))?;
+    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
     if inputs.is_some() {
         link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.outputs_rate).map_err(|e| e.to_string())?;
     }
@@ -431,7 +431,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let stop = ctrl_c_flag()?;
     let recorded = Some(InputsFromOutputs::new(commander.thrusters().clone(), 1.0 / a.link.rate, a.link.max_age));
     let mut pending: Vec<Received> = Vec::new();
-    let (link, autopilot, estimator) = open(&a.link, |r| pending.push(r.clone()))?;
+    let (link, autopilot, estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
     link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.drive.outputs_rate).map_err(|e| e.to_string())?;
     let mut session = session_metadata(&a.link, &autopilot);
     session.insert("vehicle_file".to_string(), a.vehicle.display().to_string());
