@@ -31,7 +31,8 @@ describes ArduSub's simulator and its logs):
 Fault injection for the safety tests: ``--fault KIND --fault-after S`` (seconds after the first
 pilot command received), KIND one of ``heartbeat-stop`` (no more HEARTBEAT), ``state-freeze``
 (the state messages repeat their last time stamp and values), ``drop-reorder`` (10 % of
-outgoing packets: half dropped, half sent after the next six packets), ``self-disarm`` (disarms
+outgoing packets: half dropped, half sent after the next twelve packets, behind the next
+state message of their kind), ``self-disarm`` (disarms
 with a STATUSTEXT and an immediate heartbeat), ``malformed`` (one frame with a valid checksum
 around a HEARTBEAT whose vehicle type is no MAV_TYPE). ``--commands FILE`` writes one JSON
 line per command received (boot time of its arrival, its kind and values) and one per fault
@@ -155,6 +156,13 @@ class FakeArduSub:
         self.pilot_until = 0.0
         self.truth = open(args.truth, "w") if args.truth else None
         self.commands = open(args.commands, "w") if args.commands else None
+        self.params = None  # the BlueROV2 of pinc.simulate, or a vehicle file's coefficients
+        if args.vehicle_params:
+            import tomllib
+
+            with open(args.vehicle_params, "rb") as f:
+                table = tomllib.load(f)
+            self.params = {k: float(v) for k, v in table.items() if isinstance(v, (int, float))}
         self.first_pilot = None  # boot time of the first pilot command received
         self.fault_on = False
         self.frozen = None  # (boot_ms, state) the state messages repeat under state-freeze
@@ -172,7 +180,7 @@ class FakeArduSub:
                 if u < 0.05:
                     buf = None  # dropped
                 elif u < 0.10:
-                    self.held.append([6, buf])
+                    self.held.append([12, buf])
                     buf = None
                 if buf is not None:
                     raw_write(buf)
@@ -373,7 +381,7 @@ class FakeArduSub:
         if self.args.hold_until_armed and self.armed_at is None:
             self.t = round(self.t + self.args.dt, 9)
             return
-        traj = self.pinc.simulate(self.state, np.array([self.wrench]), dt=self.args.dt)
+        traj = self.pinc.simulate(self.state, np.array([self.wrench]), dt=self.args.dt, vehicle=self.params)
         self.state = np.asarray(traj[1], dtype=float)
         self.t = round(self.t + self.args.dt, 9)
 
@@ -446,6 +454,7 @@ def main(argv=None):
     p.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     p.add_argument("--truth", help="JSON lines of the true state per physics step")
     p.add_argument("--commands", help="JSON lines of every command received and fault injected")
+    p.add_argument("--vehicle-params", help="vehicle file whose coefficients the simulated vehicle has")
     p.add_argument("--hold-until-armed", action="store_true", help="the vehicle stays at --x0 until armed")
     p.add_argument("--fault", choices=["heartbeat-stop", "state-freeze", "drop-reorder", "self-disarm", "malformed"])
     p.add_argument("--fault-after", type=float, default=1.0,
