@@ -171,21 +171,37 @@ fn try_main(a: Args) -> Result<(), String> {
             let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
             Some(live::run(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, link, &a, &mut log)?)
         }
-        Some(link) => {
-            Some(live::run(Mpc::new(predictor.clone(), cfg.clone()).map_err(|e| e.to_string())?, scenario, link, &a, &mut log)?)
-        }
+        Some(link) => Some(live::run(
+            Mpc::new(predictor.clone(), cfg.clone()).map_err(|e| e.to_string())?,
+            scenario,
+            link,
+            &a,
+            &mut log,
+        )?),
         None => None,
     };
     #[cfg(not(feature = "vehicle"))]
-    let live_run: Option<(Vec<Sample>, Option<LogError>, Option<String>)> = None;
+    let live_run: Option<LiveRun> = None;
     let (samples, log_error, stopped) = match live_run {
         Some(run) => run,
         None => {
             let (samples, log_error) = if a.oracle {
                 let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-                closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
+                closed_loop(
+                    Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?,
+                    scenario,
+                    &vehicle,
+                    a.json,
+                    &mut log,
+                )
             } else {
-                closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
+                closed_loop(
+                    Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?,
+                    scenario,
+                    &vehicle,
+                    a.json,
+                    &mut log,
+                )
             };
             (samples, log_error, None)
         }
@@ -422,6 +438,9 @@ fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) 
     figure(path, 1400, 1200, 2, &panels)
 }
 
+/// A run on a live vehicle: its samples, a log write error, and why it stopped early.
+type LiveRun = (Vec<Sample>, Option<LogError>, Option<String>);
+
 /// The closed loop on a live vehicle over MAVLink (`--connect`).
 #[cfg(feature = "vehicle")]
 mod live {
@@ -450,7 +469,7 @@ mod live {
         connect: &str,
         a: &Args,
         log: &mut McapLog,
-    ) -> Result<(Vec<Sample>, Option<LogError>, Option<String>), String> {
+    ) -> Result<super::LiveRun, String> {
         let vehicle_file =
             a.vehicle.as_ref().ok_or("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables")?;
         let commander = a.drive.commander(vehicle_file)?;
@@ -523,8 +542,14 @@ mod live {
             };
             let u = cycle.input;
             let bound_violation = (0..NU).any(|j| !(u[j] >= lo[j] - 1e-9 && u[j] <= hi[j] + 1e-9));
-            let sample =
-                Sample { t, state, reference: scenario.reference(t), cycle, prediction: mpc.prediction().to_vec(), bound_violation };
+            let sample = Sample {
+                t,
+                state,
+                reference: scenario.reference(t),
+                cycle,
+                prediction: mpc.prediction().to_vec(),
+                bound_violation,
+            };
             // The state's age when its command went out, and the arrival-to-send latency.
             let state_age = sent.autopilot_t - fresh.state.t;
             let latency = sent.at.saturating_duration_since(fresh.arrived).as_secs_f64();

@@ -216,7 +216,13 @@ impl<W: Write + Seek> McapLog<W> {
     ///
     /// # Errors
     /// Writing fails.
-    pub fn link_cycle(&mut self, t: f64, state_age_s: f64, latency_s: f64, sent_autopilot_s: f64) -> Result<(), LogError> {
+    pub fn link_cycle(
+        &mut self,
+        t: f64,
+        state_age_s: f64,
+        latency_s: f64,
+        sent_autopilot_s: f64,
+    ) -> Result<(), LogError> {
         let channel_id = match self.link_channel {
             Some(id) => id,
             None => {
@@ -224,7 +230,8 @@ impl<W: Write + Seek> McapLog<W> {
                     "timestamp": object(json!({"sec": {"type": "integer"}, "nsec": {"type": "integer"}})),
                     "state_age_s": num(), "latency_s": num(), "sent_autopilot_s": num(),
                 }));
-                let schema_id = self.writer.add_schema("pinc.LinkCycle", "jsonschema", &serde_json::to_vec(&schema)?)?;
+                let schema_id =
+                    self.writer.add_schema("pinc.LinkCycle", "jsonschema", &serde_json::to_vec(&schema)?)?;
                 let id = self.writer.add_channel(schema_id, "/link/cycle", "json", &BTreeMap::new())?;
                 self.link_channel = Some(id);
                 id
@@ -241,12 +248,7 @@ impl<W: Write + Seek> McapLog<W> {
 
     fn write_on(&mut self, channel_id: u16, t: f64, message: &impl Serialize) -> Result<(), LogError> {
         let data = serde_json::to_vec(message)?;
-        let header = MessageHeader {
-            channel_id,
-            sequence: self.sequence,
-            log_time: nanos(t),
-            publish_time: nanos(t),
-        };
+        let header = MessageHeader { channel_id, sequence: self.sequence, log_time: nanos(t), publish_time: nanos(t) };
         self.sequence = self.sequence.wrapping_add(1);
         self.writer.write_to_known_channel(&header, &data)?;
         Ok(())

@@ -58,7 +58,9 @@ pub enum Command {
 #[derive(Debug, thiserror::Error)]
 pub enum CommandError {
     /// MANUAL_CONTROL needs every thruster's ArduSub mixing factors.
-    #[error("thruster {thruster} has no `mix` factors: --command manual needs ArduSub's frame factors for every thruster")]
+    #[error(
+        "thruster {thruster} has no `mix` factors: --command manual needs ArduSub's frame factors for every thruster"
+    )]
     NoMix {
         /// The thruster's name.
         thruster: String,
@@ -149,7 +151,8 @@ impl Commander {
 
     /// The command for body input `input` (NaN components are taken as zero).
     pub fn command(&self, input: &Input) -> Command {
-        let clean = Input::from(std::array::from_fn::<f64, NU, _>(|j| if input[j].is_finite() { input[j] } else { 0.0 }));
+        let clean =
+            Input::from(std::array::from_fn::<f64, NU, _>(|j| if input[j].is_finite() { input[j] } else { 0.0 }));
         let pwm = self.thrusters.allocate(&clean).commands;
         match &self.axes_from_outputs {
             None => {
@@ -249,7 +252,9 @@ mod tests {
     fn both_ways_deliver_the_asked_input() {
         for (way, tol) in [(CommandWay::Thrusters, 0.02), (CommandWay::Manual, 0.06)] {
             let c = Commander::new(sitl(), way, 1.0).unwrap();
-            for want in [[60.0, 0.0, 0.0, 0.0], [0.0, -40.0, 30.0, 0.0], [20.0, 10.0, -50.0, 8.0], [0.0, 0.0, 0.0, -15.0]] {
+            for want in
+                [[60.0, 0.0, 0.0, 0.0], [0.0, -40.0, 30.0, 0.0], [20.0, 10.0, -50.0, 8.0], [0.0, 0.0, 0.0, -15.0]]
+            {
                 let got = c.input_of(&c.command(&Input::from(want)));
                 for j in 0..NU {
                     let scale = if j == 3 { 51.5 } else { 100.0 };

@@ -119,7 +119,9 @@ impl Drive {
             let until = Instant::now() + ARM_TIMEOUT;
             while !d.safety.armed() {
                 if Instant::now() > until {
-                    return Err(d.stop_with_trigger(Trigger::Error("arming was not confirmed by a heartbeat within 5 s".into())));
+                    return Err(d.stop_with_trigger(Trigger::Error(
+                        "arming was not confirmed by a heartbeat within 5 s".into(),
+                    )));
                 }
                 if let Err(t) = d.poll(&mut seen) {
                     return Err(d.stop_with_trigger(t));

@@ -339,8 +339,17 @@ impl InputsFromOutputs {
         if self.outputs.back().is_some_and(|(last, _)| t <= *last) {
             return;
         }
-        let pwm = [o.servo1_raw, o.servo2_raw, o.servo3_raw, o.servo4_raw, o.servo5_raw, o.servo6_raw, o.servo7_raw, o.servo8_raw]
-            .map(f64::from);
+        let pwm = [
+            o.servo1_raw,
+            o.servo2_raw,
+            o.servo3_raw,
+            o.servo4_raw,
+            o.servo5_raw,
+            o.servo6_raw,
+            o.servo7_raw,
+            o.servo8_raw,
+        ]
+        .map(f64::from);
         self.outputs.push_back((t, self.thrusters.input_from_commands(&pwm)));
     }
 
@@ -456,8 +465,12 @@ mod tests {
         let mut p = InputsFromOutputs::new(thrusters.clone(), 0.08, 0.5);
         let out = |ms: u32, pwm5: u16| SERVO_OUTPUT_RAW_DATA {
             time_usec: ms * 1000,
-            servo1_raw: 1500, servo2_raw: 1500, servo3_raw: 1500, servo4_raw: 1500,
-            servo5_raw: pwm5, servo6_raw: pwm5,
+            servo1_raw: 1500,
+            servo2_raw: 1500,
+            servo3_raw: 1500,
+            servo4_raw: 1500,
+            servo5_raw: pwm5,
+            servo6_raw: pwm5,
             ..Default::default()
         };
         let s = |t: f64| estimate(t, [0.0; 8]);

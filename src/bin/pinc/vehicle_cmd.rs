@@ -1,11 +1,11 @@
-//! `pinc vehicle status` and `pinc vehicle record`: pinc as a MAVLink participant next to an
+//! `pinc vehicle status`, `record` and `excite`: pinc as a MAVLink participant next to an
 //! ArduSub autopilot (docs/VEHICLE.md).
 
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
+use pinc::link::cli::{DriveArgs, LinkArgs, open, positive};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
 use pinc::link::state::message_time;
-use pinc::link::cli::{DriveArgs, LinkArgs, open, positive};
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
@@ -353,7 +353,11 @@ impl Writer {
     }
 }
 
-fn inputs_from_outputs(vehicle: Option<&PathBuf>, rate: f64, max_age: f64) -> Result<Option<InputsFromOutputs>, String> {
+fn inputs_from_outputs(
+    vehicle: Option<&PathBuf>,
+    rate: f64,
+    max_age: f64,
+) -> Result<Option<InputsFromOutputs>, String> {
     vehicle
         .map(|v| {
             let thrusters = Thrusters::load(v).map_err(|e| e.to_string())?;
@@ -471,7 +475,10 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
                     continue;
                 }
                 if fresh.state.capability != Capability::Full {
-                    let line = format!("no full state after {:.0} s: playing anyway ({})", a.drive.wait_position, fresh.state.capability);
+                    let line = format!(
+                        "no full state after {:.0} s: playing anyway ({})",
+                        a.drive.wait_position, fresh.state.capability
+                    );
                     keep(w.borrow_mut().log(fresh.state.t, Level::Warning, &line));
                 }
                 t0 = Some(fresh.state.t);
@@ -499,12 +506,23 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
 
 /// Writes the stop into the recording and on stderr, finishes the file; an error (exit 1)
 /// for any safety stop.
-fn end_excite(w: Writer, stopped: &Stopped, write_error: Option<String>, played: usize, total: usize) -> Result<(), String> {
+fn end_excite(
+    w: Writer,
+    stopped: &Stopped,
+    write_error: Option<String>,
+    played: usize,
+    total: usize,
+) -> Result<(), String> {
     let (level, line) = match &stopped.trigger {
         None => (Level::Info, format!("excitation finished: {played} of {total} inputs played")),
-        Some(t) => (Level::Error, format!("{t}; neutral command sent{}{}; {played} of {total} inputs played",
-            stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {n:.3} s")),
-            if stopped.disarm_sent { ", disarm sent" } else { "" })),
+        Some(t) => (
+            Level::Error,
+            format!(
+                "{t}; neutral command sent{}{}; {played} of {total} inputs played",
+                stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {n:.3} s")),
+                if stopped.disarm_sent { ", disarm sent" } else { "" }
+            ),
+        ),
     };
     let stats = w.finish(stopped.t, level, &line);
     if let Some(t) = &stopped.trigger {
