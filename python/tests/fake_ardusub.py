@@ -30,7 +30,7 @@ describes ArduSub's simulator and its logs):
 
 Fault injection for the safety tests: ``--fault KIND --fault-after S`` (seconds after the first
 pilot command received), KIND one of ``heartbeat-stop`` (no more HEARTBEAT), ``state-freeze``
-(the state messages repeat their last time stamp and values), ``drop-reorder`` (10 % of
+(the state messages repeat the last ATTITUDE's time stamp and values), ``drop-reorder`` (10 % of
 outgoing packets: half dropped, half sent after the next twelve packets, behind the next
 state message of their kind), ``self-disarm`` (disarms
 with a STATUSTEXT and an immediate heartbeat), ``malformed`` (one frame with a valid checksum
@@ -53,8 +53,10 @@ import argparse
 import json
 import math
 import os
+import queue
 import random
 import sys
+import threading
 import time
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -166,6 +168,7 @@ class FakeArduSub:
         self.first_pilot = None  # boot time of the first pilot command received
         self.fault_on = False
         self.frozen = None  # (boot_ms, state) the state messages repeat under state-freeze
+        self.last_sent = (0, self.state.copy())  # the newest state message's stamp and state
         self.held = []  # packets held back by drop-reorder: [packets still to pass, bytes]
         self.fault_rng = random.Random(args.seed + 1)
         raw_write = self.conn.write
@@ -190,6 +193,10 @@ class FakeArduSub:
             raw_write(buf)
 
         self.conn.write = write
+        # Messages are read on their own thread and handled at the next physics step.
+        self.arrival = None
+        self.inbox = queue.Queue()
+        threading.Thread(target=self.receive, daemon=True).start()
         if args.armed:
             self.arm(True, "armed at start")
 
@@ -225,6 +232,8 @@ class FakeArduSub:
         if self.frozen is not None:
             ms = self.frozen[0]
             x, y, z, psi, u, v, w, r = (float(s) for s in self.frozen[1])
+        elif mid == mav.MAVLINK_MSG_ID_ATTITUDE:
+            self.last_sent = (ms, self.state.copy())
         if mid == mav.MAVLINK_MSG_ID_ATTITUDE:
             self.mav.attitude_send(ms, 0.0, 0.0, wrap(psi), 0.0, 0.0, r)
         elif mid == mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
@@ -255,9 +264,18 @@ class FakeArduSub:
         simulation follows."""
         return time.monotonic() - self.start
 
+    def receive(self):
+        """The receive thread: every message with its arrival time (boot time, s), so that
+        the command log's times are the arrivals', not the next physics step's."""
+        while True:
+            m = self.conn.recv_match(blocking=True, timeout=0.05)
+            if m is not None:
+                self.inbox.put((self.now_boot(), m))
+
     def log_command(self, kind: str, **values):
         if self.commands is not None:
-            self.commands.write(json.dumps({"t": round(self.now_boot(), 4), "sim_t": self.t, "kind": kind,
+            at = self.arrival if self.arrival is not None else self.now_boot()
+            self.commands.write(json.dumps({"t": round(at, 5), "sim_t": self.t, "kind": kind,
                                             **values}) + "\n")
             self.commands.flush()
 
@@ -366,7 +384,8 @@ class FakeArduSub:
         self.fault_on = True
         self.log_command("FAULT", fault=a.fault)
         if a.fault == "state-freeze":
-            self.frozen = (self.boot_ms(), self.state.copy())
+            # The last state sent is repeated from now on: nothing fresh after the fault.
+            self.frozen = self.last_sent
         elif a.fault == "self-disarm":
             self.arm(False, "fault injected")
             self.heartbeat()
@@ -394,13 +413,15 @@ class FakeArduSub:
         """Takes the messages received, sets the outputs, sends what is due at the current
         time (the state at this time, the outputs from it on), then steps the physics once."""
         while True:
-            m = self.conn.recv_match(blocking=False)
-            if m is None:
+            try:
+                self.arrival, m = self.inbox.get_nowait()
+            except queue.Empty:
                 break
             if m.get_type() != "BAD_DATA":
                 self.handle(m)
             elif self.commands is not None:
                 self.log_command("BAD_DATA", data=repr(m))
+        self.arrival = None
         self.command_outputs()
         self.inject_fault()
         if self.t >= self.next_heartbeat:
