@@ -9,6 +9,10 @@
 //!
 //! Prints a summary table (or `--json`) and writes a PNG of the run and its MCAP log (open it
 //! in Foxglove) to `--out-dir`.
+//!
+//! With `--connect URL --vehicle V.toml` the plant is a live ArduSub vehicle instead
+//! (docs/VEHICLE.md): one MPC cycle per fresh state, the wrench sent as commands, every
+//! safety trigger stopping the run with the neutral command.
 
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -94,9 +98,21 @@ struct Args {
     #[arg(long)]
     jobs: Option<usize>,
     /// Vehicle file of the plant, and of the oracle's model (the oracle knows the plant)
-    /// [default: the BlueROV2].
+    /// [default: the BlueROV2]; with --connect, its [[thruster]] tables turn the wrench into
+    /// commands.
     #[arg(long)]
     vehicle: Option<PathBuf>,
+    /// Run on a live ArduSub vehicle at this MAVLink address (udpin:HOST:PORT, udpout:...,
+    /// tcp:..., serial) instead of the simulator; the link and safety options below apply.
+    #[cfg(feature = "vehicle")]
+    #[arg(long)]
+    connect: Option<String>,
+    #[cfg(feature = "vehicle")]
+    #[command(flatten)]
+    link: pinc::link::cli::LinkOptions,
+    #[cfg(feature = "vehicle")]
+    #[command(flatten)]
+    drive: pinc::link::cli::DriveArgs,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -158,11 +174,47 @@ fn try_main(a: Args) -> Result<(), String> {
     let info =
         RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
-    let (samples, log_error) = if a.oracle {
-        let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-        closed_loop(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
-    } else {
-        closed_loop(Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?, scenario, &vehicle, a.json, &mut log)
+    // On a live vehicle (--connect) the plant is the vehicle; otherwise the simulator.
+    #[cfg(feature = "vehicle")]
+    let live_run = match &a.connect {
+        Some(link) if a.oracle => {
+            let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
+            Some(live::run(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, link, &a, &mut log)?)
+        }
+        Some(link) => Some(live::run(
+            Mpc::new(predictor.clone(), cfg.clone()).map_err(|e| e.to_string())?,
+            scenario,
+            link,
+            &a,
+            &mut log,
+        )?),
+        None => None,
+    };
+    #[cfg(not(feature = "vehicle"))]
+    let live_run: Option<LiveRun> = None;
+    let (samples, log_error, stopped) = match live_run {
+        Some(run) => run,
+        None => {
+            let (samples, log_error) = if a.oracle {
+                let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
+                closed_loop(
+                    Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?,
+                    scenario,
+                    &vehicle,
+                    a.json,
+                    &mut log,
+                )
+            } else {
+                closed_loop(
+                    Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?,
+                    scenario,
+                    &vehicle,
+                    a.json,
+                    &mut log,
+                )
+            };
+            (samples, log_error, None)
+        }
     };
     let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
     // The log is finished even when a write failed mid-run, so what was written stays readable.
@@ -192,13 +244,17 @@ fn try_main(a: Args) -> Result<(), String> {
         o.insert("log".into(), mcap.display().to_string().into());
         o.insert("log_bytes".into(), log_bytes.into());
         o.insert("log_messages".into(), stats.messages.into());
+        o.insert("stopped".into(), stopped.clone().into());
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
         print_summary(&summary);
         println!("plot: {}", png.display());
         println!("log:  {} ({log_bytes} bytes, {} messages; open it in Foxglove)", mcap.display(), stats.messages);
     }
-    Ok(())
+    match stopped {
+        Some(reason) => Err(reason),
+        None => Ok(()),
+    }
 }
 
 /// Runs the loop with a progress bar, logging every sample; Ctrl-C ends it early with the
@@ -390,4 +446,152 @@ fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) 
         },
     ];
     figure(path, 1400, 1200, 2, &panels)
+}
+
+/// A run on a live vehicle: its samples, a log write error, and why it stopped early.
+type LiveRun = (Vec<Sample>, Option<LogError>, Option<String>);
+
+/// The closed loop on a live vehicle over MAVLink (`--connect`).
+#[cfg(feature = "vehicle")]
+mod live {
+    use super::Args;
+    use pinc::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
+    use pinc::link::cli::{open, positive};
+    use pinc::link::{Capability, Drive, Trigger};
+    use pinc::mpc::Mpc;
+    use pinc::traits::DiscreteModel;
+    use pinc::types::{NU, SimState};
+    use pinc::vehicle::to_network;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::time::Instant;
+
+    /// Runs `scenario` on the vehicle: waits (neutral commands) for a full state, then one MPC
+    /// cycle per fresh state sample, its wrench sent as commands, until the scenario ends or a
+    /// safety trigger stops it. The scenario's time 0 is the first full state. Returns the
+    /// samples, a log write error, and the stop's reason.
+    ///
+    /// # Errors
+    /// Set-up: no vehicle file, a bad option, the link, no autopilot; these command nothing.
+    pub fn run<M: DiscreteModel>(
+        mut mpc: Mpc<M>,
+        scenario: &Scenario,
+        connect: &str,
+        a: &Args,
+        log: &mut McapLog,
+    ) -> Result<super::LiveRun, String> {
+        let vehicle_file =
+            a.vehicle.as_ref().ok_or("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables")?;
+        let commander = a.drive.commander(vehicle_file)?;
+        let limits = a.drive.limits()?;
+        let wait_position = positive("--wait-position", a.drive.wait_position)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+            .map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
+        let (link, autopilot, estimator) = open(connect, &a.link, |_| {})?;
+        let mut log_error: Option<LogError> = None;
+        let line = format!(
+            "live vehicle on {} (system {}), commands by {}, limits {:?}",
+            connect, autopilot.system_id, a.drive.command_way, limits
+        );
+        log_error = log_error.or(log.log(0.0, Level::Info, &line).err());
+        let started = Drive::start(link, autopilot, estimator, commander, limits, a.drive.arm, stop, |_, _| {});
+        let mut drive = match started {
+            Ok(d) => d,
+            Err(stopped) => {
+                let reason = stopped.trigger.map_or_else(|| "stopped".to_string(), |t| t.to_string());
+                log_error = log_error.or(log.log(0.0, Level::Error, &reason).err());
+                eprintln!("{reason}");
+                return Ok((Vec::new(), log_error, Some(reason)));
+            }
+        };
+        let dt = mpc.model().dt();
+        let n = mpc.config().horizon;
+        let (lo, hi) = mpc.bounds();
+        let mut samples: Vec<Sample> = Vec::new();
+        let waited = Instant::now();
+        let mut t0: Option<f64> = None;
+        let mut refs = vec![scenario.reference(0.0); n];
+        let outcome: Result<(), Trigger> = loop {
+            let fresh = match drive.next_state(|_, _| {}) {
+                Ok(f) => f,
+                Err(t) => break Err(t),
+            };
+            let start = match t0 {
+                Some(s) => s,
+                None if fresh.state.capability == Capability::Full => *t0.insert(fresh.state.t),
+                None if waited.elapsed() > wait_position => {
+                    break Err(Trigger::Error(format!(
+                        "no full state after {:.0} s: {}; the MPC needs the body velocities (a DVL or another \
+                         position source for ArduSub's EKF) and pinc does not invent them",
+                        wait_position.as_secs_f64(),
+                        fresh.state.capability
+                    )));
+                }
+                None => match drive.send_neutral(&fresh) {
+                    Ok(_) => continue,
+                    Err(t) => break Err(t),
+                },
+            };
+            if fresh.state.capability != Capability::Full {
+                break Err(Trigger::Error(format!("the state lost a part: {}", fresh.state.capability)));
+            }
+            let t = fresh.state.t - start;
+            if t >= scenario.duration() - 1e-9 {
+                break Ok(());
+            }
+            for (j, r) in refs.iter_mut().enumerate() {
+                *r = scenario.reference(t + (j + 1) as f64 * dt);
+            }
+            let state = SimState::from(fresh.state.sim);
+            let cycle = mpc.step(&to_network(&state), &refs);
+            let sent = match drive.send(&fresh, &cycle.input) {
+                Ok(s) => s,
+                Err(t) => break Err(t),
+            };
+            let u = cycle.input;
+            let bound_violation = (0..NU).any(|j| !(u[j] >= lo[j] - 1e-9 && u[j] <= hi[j] + 1e-9));
+            let sample = Sample {
+                t,
+                state,
+                reference: scenario.reference(t),
+                cycle,
+                prediction: mpc.prediction().to_vec(),
+                bound_violation,
+            };
+            // The state's age when its command went out, and the arrival-to-send latency.
+            let state_age = sent.autopilot_t - fresh.state.t;
+            let latency = sent.at.saturating_duration_since(fresh.arrived).as_secs_f64();
+            if log_error.is_none() {
+                log_error = log.record(&sample).err();
+            }
+            if log_error.is_none() {
+                log_error = log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
+            }
+            samples.push(sample);
+        };
+        let stopped = match outcome {
+            Ok(()) => drive.finish(),
+            Err(trigger) => drive.abort(trigger),
+        };
+        // /log times are the scenario's, as in the simulated run.
+        let t_log = |at: f64| t0.map_or(0.0, |s| (at - s).max(0.0));
+        let reason = stopped.trigger.as_ref().map(|t| {
+            format!(
+                "{t}; neutral command sent{}{}",
+                stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {:.3} s", t_log(n))),
+                if stopped.disarm_sent { ", disarm sent" } else { "" }
+            )
+        });
+        if let Some(r) = &reason {
+            log_error = log_error.or(log.log(t_log(stopped.t), Level::Error, r).err());
+            eprintln!("{r}");
+        }
+        if drive.out_of_order() > 0 {
+            let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
+            log_error = log_error.or(log.log(t_log(stopped.t), Level::Warning, &line).err());
+        }
+        Ok((samples, log_error, reason))
+    }
 }

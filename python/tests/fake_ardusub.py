@@ -28,6 +28,17 @@ describes ArduSub's simulator and its logs):
   (MANUAL_CONTROL or RC_CHANNELS_OVERRIDE) for 3 s while armed, with a STATUSTEXT;
 - time base: time_boot_ms from the fake's start, which is also its simulation time.
 
+Fault injection for the safety tests: ``--fault KIND --fault-after S`` (seconds after the first
+pilot command received), KIND one of ``heartbeat-stop`` (no more HEARTBEAT), ``state-freeze``
+(the state messages repeat the last ATTITUDE's time stamp and values), ``drop-reorder`` (10 % of
+outgoing packets: half dropped, half sent after the next twelve packets, behind the next
+state message of their kind), ``self-disarm`` (disarms
+with a STATUSTEXT and an immediate heartbeat), ``malformed`` (one frame with a valid checksum
+around a HEARTBEAT whose vehicle type is no MAV_TYPE). ``--commands FILE`` writes one JSON
+line per command received (boot time of its arrival, its kind and values) and one per fault
+injected; ``--hold-until-armed`` keeps the vehicle at ``--x0`` until it is armed (at rest,
+as a closed loop's simulation starts).
+
 ``--truth FILE`` writes one JSON line per physics step: boot_ms, the true state
 (x y z psi u v w r), the body wrench and the PWM, so that tests can compare what pinc rebuilt
 with what the fake simulated.
@@ -42,8 +53,10 @@ import argparse
 import json
 import math
 import os
+import queue
 import random
 import sys
+import threading
 import time
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -144,6 +157,46 @@ class FakeArduSub:
         self.rng = random.Random(args.seed)
         self.pilot_until = 0.0
         self.truth = open(args.truth, "w") if args.truth else None
+        self.commands = open(args.commands, "w") if args.commands else None
+        self.params = None  # the BlueROV2 of pinc.simulate, or a vehicle file's coefficients
+        if args.vehicle_params:
+            import tomllib
+
+            with open(args.vehicle_params, "rb") as f:
+                table = tomllib.load(f)
+            self.params = {k: float(v) for k, v in table.items() if isinstance(v, (int, float))}
+        self.first_pilot = None  # boot time of the first pilot command received
+        self.fault_on = False
+        self.frozen = None  # (boot_ms, state) the state messages repeat under state-freeze
+        self.last_sent = (0, self.state.copy())  # the newest state message's stamp and state
+        self.held = []  # packets held back by drop-reorder: [packets still to pass, bytes]
+        self.fault_rng = random.Random(args.seed + 1)
+        raw_write = self.conn.write
+
+        def write(buf):
+            if self.fault_on and self.args.fault == "drop-reorder":
+                for h in self.held:
+                    h[0] -= 1
+                due = [h for h in self.held if h[0] <= 0]
+                self.held = [h for h in self.held if h[0] > 0]
+                u = self.fault_rng.random()
+                if u < 0.05:
+                    buf = None  # dropped
+                elif u < 0.10:
+                    self.held.append([12, buf])
+                    buf = None
+                if buf is not None:
+                    raw_write(buf)
+                for _, b in due:
+                    raw_write(b)
+                return
+            raw_write(buf)
+
+        self.conn.write = write
+        # Messages are read on their own thread and handled at the next physics step.
+        self.arrival = None
+        self.inbox = queue.Queue()
+        threading.Thread(target=self.receive, daemon=True).start()
         if args.armed:
             self.arm(True, "armed at start")
 
@@ -176,6 +229,11 @@ class FakeArduSub:
     def send_state(self, mid: int):
         x, y, z, psi, u, v, w, r = (float(s) for s in self.state)
         ms = self.boot_ms()
+        if self.frozen is not None:
+            ms = self.frozen[0]
+            x, y, z, psi, u, v, w, r = (float(s) for s in self.frozen[1])
+        elif mid == mav.MAVLINK_MSG_ID_ATTITUDE:
+            self.last_sent = (ms, self.state.copy())
         if mid == mav.MAVLINK_MSG_ID_ATTITUDE:
             self.mav.attitude_send(ms, 0.0, 0.0, wrap(psi), 0.0, 0.0, r)
         elif mid == mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
@@ -201,6 +259,31 @@ class FakeArduSub:
             self.armed = False
             self.statustext(f"Disarming: {why}")
 
+    def now_boot(self) -> float:
+        """Boot time (s) of this instant: the wall clock since the start, which the
+        simulation follows."""
+        return time.monotonic() - self.start
+
+    def receive(self):
+        """The receive thread: every message with its arrival time (boot time, s), so that
+        the command log's times are the arrivals', not the next physics step's."""
+        while True:
+            m = self.conn.recv_match(blocking=True, timeout=0.05)
+            if m is not None:
+                self.inbox.put((self.now_boot(), m))
+
+    def log_command(self, kind: str, **values):
+        if self.commands is not None:
+            at = self.arrival if self.arrival is not None else self.now_boot()
+            self.commands.write(json.dumps({"t": round(at, 5), "sim_t": self.t, "kind": kind,
+                                            **values}) + "\n")
+            self.commands.flush()
+
+    def pilot_input(self):
+        self.last_pilot = self.t
+        if self.first_pilot is None:
+            self.first_pilot = self.t
+
     def handle(self, m):
         kind = m.get_type()
         src = m.get_srcSystem()
@@ -215,6 +298,7 @@ class FakeArduSub:
                 return
             cmd = m.command
             if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.log_command("ARM" if m.param1 >= 0.5 else "DISARM")
                 self.arm(m.param1 >= 0.5, "commanded")
                 self.ack(cmd)
             elif cmd == mav.MAV_CMD_DO_SET_MODE:
@@ -246,11 +330,13 @@ class FakeArduSub:
         elif kind == "MANUAL_CONTROL":
             self.manual = (m.x, m.y, m.z, m.r)
             self.rc = None
-            self.last_pilot = self.t
+            self.log_command("MANUAL_CONTROL", x=m.x, y=m.y, z=m.z, r=m.r)
+            self.pilot_input()
         elif kind == "RC_CHANNELS_OVERRIDE":
             raw = [m.chan1_raw, m.chan2_raw, m.chan3_raw, m.chan4_raw, m.chan5_raw, m.chan6_raw]
             self.rc = [1500 if c in (0, 65535) else c for c in raw]
-            self.last_pilot = self.t
+            self.log_command("RC_CHANNELS_OVERRIDE", pwm=raw)
+            self.pilot_input()
 
     # ---- the vehicle ----------------------------------------------------------------------
     def own_pilot(self):
@@ -289,8 +375,32 @@ class FakeArduSub:
         self.pwm = self.outputs()
         self.wrench = wrench(self.pwm)
 
+    def inject_fault(self):
+        a = self.args
+        if a.fault is None or self.fault_on or self.first_pilot is None:
+            return
+        if self.t < self.first_pilot + a.fault_after:
+            return
+        self.fault_on = True
+        self.log_command("FAULT", fault=a.fault)
+        if a.fault == "state-freeze":
+            # The last state sent is repeated from now on: nothing fresh after the fault.
+            self.frozen = self.last_sent
+        elif a.fault == "self-disarm":
+            self.arm(False, "fault injected")
+            self.heartbeat()
+        elif a.fault == "malformed":
+            # A HEARTBEAT whose vehicle type (250) is no MAV_TYPE: the checksum is right, the
+            # content is not.
+            msg = mav.MAVLink_heartbeat_message(250, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, self.mode,
+                                                mav.MAV_STATE_ACTIVE, 3)
+            self.conn.write(msg.pack(self.mav))
+
     def step(self):
-        traj = self.pinc.simulate(self.state, np.array([self.wrench]), dt=self.args.dt)
+        if self.args.hold_until_armed and self.armed_at is None:
+            self.t = round(self.t + self.args.dt, 9)
+            return
+        traj = self.pinc.simulate(self.state, np.array([self.wrench]), dt=self.args.dt, vehicle=self.params)
         self.state = np.asarray(traj[1], dtype=float)
         self.t = round(self.t + self.args.dt, 9)
 
@@ -303,14 +413,20 @@ class FakeArduSub:
         """Takes the messages received, sets the outputs, sends what is due at the current
         time (the state at this time, the outputs from it on), then steps the physics once."""
         while True:
-            m = self.conn.recv_match(blocking=False)
-            if m is None:
+            try:
+                self.arrival, m = self.inbox.get_nowait()
+            except queue.Empty:
                 break
             if m.get_type() != "BAD_DATA":
                 self.handle(m)
+            elif self.commands is not None:
+                self.log_command("BAD_DATA", data=repr(m))
+        self.arrival = None
         self.command_outputs()
+        self.inject_fault()
         if self.t >= self.next_heartbeat:
-            self.heartbeat()
+            if not (self.fault_on and self.args.fault == "heartbeat-stop"):
+                self.heartbeat()
             self.next_heartbeat += 1.0
         self.write_truth()
         for mid in STATE_IDS:  # in this order within a tick, as ArduSub's stream loop
@@ -358,6 +474,12 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     p.add_argument("--truth", help="JSON lines of the true state per physics step")
+    p.add_argument("--commands", help="JSON lines of every command received and fault injected")
+    p.add_argument("--vehicle-params", help="vehicle file whose coefficients the simulated vehicle has")
+    p.add_argument("--hold-until-armed", action="store_true", help="the vehicle stays at --x0 until armed")
+    p.add_argument("--fault", choices=["heartbeat-stop", "state-freeze", "drop-reorder", "self-disarm", "malformed"])
+    p.add_argument("--fault-after", type=float, default=1.0,
+                   help="seconds after the first pilot command before the fault starts")
     args = p.parse_args(argv)
     try:
         FakeArduSub(args).run()

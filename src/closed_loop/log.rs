@@ -124,6 +124,8 @@ pub struct McapLog<W: Write + Seek = BufWriter<File>> {
     was_inside: bool,
     /// The same for the predicted heading vector staying on the unit circle.
     was_on_circle: bool,
+    /// `/link/cycle`, created by the first [`McapLog::link_cycle`] (runs on a live vehicle).
+    link_channel: Option<u16>,
 }
 
 /// Foxglove's `time` type.
@@ -177,8 +179,16 @@ impl<W: Write + Seek> McapLog<W> {
             channels[i] = writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
         }
         writer.write_metadata(&Metadata { name: "run".into(), metadata: run_metadata(info)? })?;
-        let mut log =
-            Self { writer, channels, sequence: 0, log_messages: 0, dt: info.dt, was_inside: true, was_on_circle: true };
+        let mut log = Self {
+            writer,
+            channels,
+            sequence: 0,
+            log_messages: 0,
+            dt: info.dt,
+            was_inside: true,
+            was_on_circle: true,
+            link_channel: None,
+        };
         // NED seen from a z-up world: a half turn about x.
         log.write(
             TF,
@@ -200,14 +210,45 @@ impl<W: Write + Seek> McapLog<W> {
         Ok(log)
     }
 
-    fn write(&mut self, topic: usize, t: f64, message: &impl Serialize) -> Result<(), LogError> {
-        let data = serde_json::to_vec(message)?;
-        let header = MessageHeader {
-            channel_id: self.channels[topic],
-            sequence: self.sequence,
-            log_time: nanos(t),
-            publish_time: nanos(t),
+    /// The timing of one cycle on a live vehicle, on `/link/cycle`: the state's age when its
+    /// command went out (autopilot time then minus the state's stamp), the time from the
+    /// state's arrival to the command's send, and the send's autopilot time.
+    ///
+    /// # Errors
+    /// Writing fails.
+    pub fn link_cycle(
+        &mut self,
+        t: f64,
+        state_age_s: f64,
+        latency_s: f64,
+        sent_autopilot_s: f64,
+    ) -> Result<(), LogError> {
+        let channel_id = match self.link_channel {
+            Some(id) => id,
+            None => {
+                let schema = object(json!({
+                    "timestamp": object(json!({"sec": {"type": "integer"}, "nsec": {"type": "integer"}})),
+                    "state_age_s": num(), "latency_s": num(), "sent_autopilot_s": num(),
+                }));
+                let schema_id =
+                    self.writer.add_schema("pinc.LinkCycle", "jsonschema", &serde_json::to_vec(&schema)?)?;
+                let id = self.writer.add_channel(schema_id, "/link/cycle", "json", &BTreeMap::new())?;
+                self.link_channel = Some(id);
+                id
+            }
         };
+        let m = json!({"timestamp": stamp(t), "state_age_s": state_age_s, "latency_s": latency_s,
+                       "sent_autopilot_s": sent_autopilot_s});
+        self.write_on(channel_id, t, &m)
+    }
+
+    fn write(&mut self, topic: usize, t: f64, message: &impl Serialize) -> Result<(), LogError> {
+        self.write_on(self.channels[topic], t, message)
+    }
+
+    fn write_on(&mut self, channel_id: u16, t: f64, message: &impl Serialize) -> Result<(), LogError> {
+        let data = serde_json::to_vec(message)?;
+        let header = MessageHeader { channel_id, sequence: self.sequence, log_time: nanos(t), publish_time: nanos(t) };
         self.sequence = self.sequence.wrapping_add(1);
         self.writer.write_to_known_channel(&header, &data)?;
         Ok(())

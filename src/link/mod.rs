@@ -1,15 +1,24 @@
 //! pinc as a MAVLink participant next to an ArduSub autopilot: the connection address
 //! ([`url`]), the link with its receive thread, ground-station heartbeat and commands
-//! ([`link`]), the vehicle's state rebuilt from the autopilot's messages ([`state`]), and the
-//! MCAP recording of a session ([`record`]). `docs/VEHICLE.md` is the user's guide.
+//! ([`link`]), the vehicle's state rebuilt from the autopilot's messages ([`state`]), the
+//! MCAP recording of a session ([`record`]), the body input turned into commands
+//! ([`command`]), the safety watchdog ([`safety`]) and a command session driven by the
+//! state's arrival ([`drive`]). `docs/VEHICLE.md` is the user's guide.
 
+pub mod cli;
+pub mod command;
+pub mod drive;
 #[allow(clippy::module_inception)]
 pub mod link;
 pub mod record;
+pub mod safety;
 pub mod state;
 pub mod url;
 
+pub use command::{Command, CommandError, CommandWay, Commander};
+pub use drive::{Drive, Fresh, Sent, Stopped};
 pub use link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
-pub use record::{RecordError, RecordStats, Recorder};
+pub use record::{InputsFromOutputs, RecordError, RecordStats, Recorder};
+pub use safety::{Safety, SafetyLimits, Trigger};
 pub use state::{Capability, Part, PartStatus, StateConfig, StateEstimate, StateEstimator};
 pub use url::{LinkAddress, UrlError};

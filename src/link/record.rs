@@ -20,10 +20,11 @@ use super::state::{Capability, DepthSource, StateEstimate};
 use crate::closed_loop::Level;
 use crate::types::INPUT_NAMES;
 use crate::types::Input;
+use crate::vehicle::Thrusters;
 use mavlink::dialects::ardupilotmega::SERVO_OUTPUT_RAW_DATA;
 use mcap::records::{MessageHeader, Metadata};
 use serde_json::{Map, Value, json};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
@@ -302,6 +303,111 @@ impl Drop for Recorder {
     }
 }
 
+/// The body input of each state sample from the thruster outputs the autopilot reports
+/// (`SERVO_OUTPUT_RAW`) through a vehicle file's thrusters: the input over the sample period
+/// after the state's time, `[t, t + period)`, each output held until the next (so outputs
+/// faster than the states are averaged, as `pinc dataset import` averages inputs), known once
+/// an output at or after `t + period` arrived.
+#[derive(Debug, Clone)]
+pub struct InputsFromOutputs {
+    thrusters: Thrusters,
+    period: f64,
+    max_gap: f64,
+    /// (autopilot time s, input) of each output message, in time order.
+    outputs: VecDeque<(f64, Input)>,
+    pending: VecDeque<StateEstimate>,
+}
+
+/// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
+const USEC_WRAP_S: f64 = 4294.967296;
+
+impl InputsFromOutputs {
+    /// Inputs through `thrusters` over samples of `period` s; an output older than `max_gap`
+    /// s at a state's time (outputs stopped) leaves that state's input unknown.
+    pub fn new(thrusters: Thrusters, period: f64, max_gap: f64) -> Self {
+        Self { thrusters, period, max_gap, outputs: VecDeque::new(), pending: VecDeque::new() }
+    }
+
+    /// An output message received at autopilot time `now` (s): its own `time_usec` is put on
+    /// the autopilot's time line (the wrap nearest `now`). Out-of-order outputs are dropped.
+    pub fn outputs(&mut self, now: f64, o: &SERVO_OUTPUT_RAW_DATA) {
+        if o.port != 0 {
+            return; // channels 9-16: no thruster of a vehicle file pinc commands is there
+        }
+        let raw = f64::from(o.time_usec) * 1e-6;
+        let t = raw + ((now - raw) / USEC_WRAP_S).round() * USEC_WRAP_S;
+        if self.outputs.back().is_some_and(|(last, _)| t <= *last) {
+            return;
+        }
+        let pwm = [
+            o.servo1_raw,
+            o.servo2_raw,
+            o.servo3_raw,
+            o.servo4_raw,
+            o.servo5_raw,
+            o.servo6_raw,
+            o.servo7_raw,
+            o.servo8_raw,
+        ]
+        .map(f64::from);
+        self.outputs.push_back((t, self.thrusters.input_from_commands(&pwm)));
+    }
+
+    /// A state sample whose input is wanted.
+    pub fn state(&mut self, s: StateEstimate) {
+        self.pending.push_back(s);
+    }
+
+    /// The states whose input is known or will never be (autopilot time `now`), in order.
+    pub fn ready(&mut self, now: f64) -> Vec<(StateEstimate, Option<Input>)> {
+        let eps = 1e-4;
+        let mut out = Vec::new();
+        while let Some(s) = self.pending.front() {
+            let end = s.t + self.period;
+            let covered = self.outputs.back().is_some_and(|(t, _)| *t >= end - eps);
+            if !covered && now < end + self.max_gap {
+                break;
+            }
+            let input = self.input_over(s.t, end);
+            out.push((self.pending.pop_front().expect("front exists"), input));
+        }
+        // Keep the output in effect at the oldest pending state's time, drop older ones.
+        let keep_from = self.pending.front().map_or(now - self.period, |s| s.t);
+        while self.outputs.len() > 1 && self.outputs[1].0 <= keep_from + eps {
+            self.outputs.pop_front();
+        }
+        out
+    }
+
+    /// Every pending state, with what is known (at the end of a recording).
+    pub fn flush(&mut self) -> Vec<(StateEstimate, Option<Input>)> {
+        self.ready(f64::INFINITY)
+    }
+
+    fn input_over(&self, start: f64, end: f64) -> Option<Input> {
+        let eps = 1e-4;
+        let first = self.outputs.iter().rposition(|(t, _)| *t <= start + eps)?;
+        let mut sum = Input::zeros();
+        let mut covered = 0.0;
+        let list: Vec<&(f64, Input)> = self.outputs.iter().skip(first).collect();
+        for (i, (t, u)) in list.iter().enumerate() {
+            let next = list.get(i + 1).map_or(end, |n| n.0);
+            if next - t > self.max_gap {
+                return None;
+            }
+            let (a, b) = (t.max(start), next.min(end));
+            if b > a {
+                sum += u * (b - a);
+                covered += b - a;
+            }
+            if next >= end {
+                break;
+            }
+        }
+        (covered >= self.period - 2.0 * eps && sum.iter().all(|v| v.is_finite())).then(|| sum / covered)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -350,5 +456,43 @@ mod tests {
         rec.log(0.0, Level::Info, "start").unwrap();
         drop(rec);
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn inputs_average_the_outputs_held_over_each_sample() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/ardusub/sitl_vectored.toml");
+        let thrusters = Thrusters::load(path).unwrap();
+        let mut p = InputsFromOutputs::new(thrusters.clone(), 0.08, 0.5);
+        let out = |ms: u32, pwm5: u16| SERVO_OUTPUT_RAW_DATA {
+            time_usec: ms * 1000,
+            servo1_raw: 1500,
+            servo2_raw: 1500,
+            servo3_raw: 1500,
+            servo4_raw: 1500,
+            servo5_raw: pwm5,
+            servo6_raw: pwm5,
+            ..Default::default()
+        };
+        let s = |t: f64| estimate(t, [0.0; 8]);
+        // Outputs every 20 ms; the vertical thrusters go from 1500 to 1700 at 1.02 s.
+        p.outputs(1.0, &out(1000, 1500));
+        p.state(s(1.0));
+        assert!(p.ready(1.0).is_empty(), "the sample's period is not covered yet");
+        for ms in [1020, 1040, 1060] {
+            p.outputs(f64::from(ms) / 1e3, &out(ms, 1700));
+        }
+        assert!(p.ready(1.06).is_empty());
+        p.outputs(1.08, &out(1080, 1700));
+        let got = p.ready(1.08);
+        assert_eq!(got.len(), 1);
+        let z = got[0].1.unwrap()[2];
+        let full = thrusters.input_from_commands(&[1500.0, 1500.0, 1500.0, 1500.0, 1700.0, 1700.0])[2];
+        assert!((z - 0.75 * full).abs() < 1e-9, "{z} vs 3/4 of {full}");
+        // Outputs stop: the next state's input is unknown once the gap passes.
+        p.state(s(1.6));
+        assert!(p.ready(2.0).is_empty());
+        let late = p.ready(2.3);
+        assert_eq!(late.len(), 1);
+        assert!(late[0].1.is_none());
     }
 }

@@ -1,15 +1,17 @@
-//! `pinc vehicle status` and `pinc vehicle record`: pinc as a MAVLink participant next to an
+//! `pinc vehicle status`, `record` and `excite`: pinc as a MAVLink participant next to an
 //! ArduSub autopilot (docs/VEHICLE.md).
 
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
+use pinc::link::cli::{DriveArgs, LinkArgs, open, positive};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
 use pinc::link::state::message_time;
 use pinc::link::{
-    Autopilot, Capability, LinkAddress, LinkConfig, Part, Received, Recorder, StateConfig, StateEstimator, SubMode,
-    VehicleLink,
+    Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
+use pinc::vehicle::Thrusters;
 use serde_json::{Value, json};
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -25,33 +27,9 @@ pub enum VehicleAction {
     /// Record every MAVLink message, pinc's reconstructed state and the thruster outputs to
     /// an MCAP file that `pinc dataset import` reads.
     Record(RecordArgs),
-}
-
-/// What both actions share.
-#[derive(clap::Args)]
-pub struct LinkArgs {
-    /// Connection: udpin:HOST:PORT (or udp:), udpout:HOST:PORT, tcp:HOST:PORT (or tcpout:),
-    /// tcpin:HOST:PORT, serial:DEVICE:BAUD or DEVICE:BAUD.
-    #[arg(long)]
-    pub connect: String,
-    /// Seconds to wait for the autopilot's heartbeat.
-    #[arg(long, default_value_t = 10.0)]
-    pub timeout: f64,
-    /// Rate (Hz) requested for the state messages (default: pinc's control rate, 1 / 0.08 s).
-    #[arg(long, default_value_t = 1.0 / pinc::DEFAULT_DT)]
-    pub rate: f64,
-    /// System id pinc sends from: the autopilot's SYSID_MYGCS.
-    #[arg(long, default_value_t = 255)]
-    pub gcs_sysid: u8,
-    /// A state part older than this (s) is reported missing.
-    #[arg(long, default_value_t = 0.5)]
-    pub max_age: f64,
-    /// Surface pressure (hPa) for depth from pressure.
-    #[arg(long, default_value_t = 1013.25)]
-    pub surface_pressure: f64,
-    /// Water density (kg/m^3) for depth from pressure: 1000 x ArduSub's BARO_SPEC_GRAV.
-    #[arg(long, default_value_t = 1000.0)]
-    pub water_density: f64,
+    /// Play an excitation file (`pinc excitation`) open loop on the vehicle and record it as
+    /// `record` does, with every safety stop (docs/VEHICLE.md).
+    Excite(ExciteArgs),
 }
 
 /// Arguments of `pinc vehicle status`.
@@ -78,41 +56,43 @@ pub struct RecordArgs {
     /// Seconds to record [default: until Ctrl-C].
     #[arg(long)]
     duration: Option<f64>,
+    /// Vehicle file with [[thruster]] tables: the body input X,Y,Z,Mz of each state sample is
+    /// rebuilt from SERVO_OUTPUT_RAW through its thrusters (for `pinc dataset import`).
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
+    /// Rate (Hz) requested for SERVO_OUTPUT_RAW with --vehicle.
+    #[arg(long, default_value_t = 50.0)]
+    outputs_rate: f64,
+}
+
+/// Arguments of `pinc vehicle excite`.
+#[derive(clap::Args)]
+pub struct ExciteArgs {
+    #[command(flatten)]
+    link: LinkArgs,
+    #[command(flatten)]
+    drive: DriveArgs,
+    /// Vehicle file with the thrusters' [[thruster]] tables (and their ArduSub `mix` factors
+    /// for --command manual).
+    #[arg(long)]
+    vehicle: PathBuf,
+    /// Excitation inputs: CSV with header X,Y,Z,Mz, one row per --dt (`pinc excitation`).
+    #[arg(long)]
+    inputs: PathBuf,
+    /// Sample period of the inputs file (s).
+    #[arg(long, default_value_t = pinc::DEFAULT_DT)]
+    dt: f64,
+    /// Output MCAP file (written as OUT.partial and renamed when complete).
+    #[arg(long)]
+    out: PathBuf,
 }
 
 pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
     match action {
         VehicleAction::Status(a) => run_status(a),
         VehicleAction::Record(a) => run_record(a),
+        VehicleAction::Excite(a) => run_excite(a),
     }
-}
-
-fn positive(name: &str, v: f64) -> Result<Duration, String> {
-    if v.is_finite() && v > 0.0 {
-        Ok(Duration::from_secs_f64(v))
-    } else {
-        Err(format!("{name} must be a positive number of seconds, got {v}"))
-    }
-}
-
-/// Opens the link and waits for the autopilot; `seen` gets every message meanwhile.
-fn open(a: &LinkArgs, seen: impl FnMut(&Received)) -> Result<(VehicleLink, Autopilot, StateEstimator), String> {
-    let address: LinkAddress = a.connect.parse().map_err(|e| format!("--connect: {e}"))?;
-    let timeout = positive("--timeout", a.timeout)?;
-    if !(a.rate.is_finite() && a.rate > 0.0) {
-        return Err(format!("--rate must be a positive number of Hz, got {}", a.rate));
-    }
-    positive("--max-age", a.max_age)?;
-    let config = LinkConfig { gcs_system_id: a.gcs_sysid, ..LinkConfig::default() };
-    let mut link = VehicleLink::connect(&address, config).map_err(|e| e.to_string())?;
-    let autopilot = link.wait_for_autopilot(timeout, seen).map_err(|e| e.to_string())?;
-    link.request_state_streams(a.rate).map_err(|e| e.to_string())?;
-    let estimator = StateEstimator::new(StateConfig {
-        max_age: a.max_age,
-        surface_pressure_hpa: a.surface_pressure,
-        water_density: a.water_density,
-    });
-    Ok((link, autopilot, estimator))
 }
 
 fn from_autopilot(r: &Received, ap: &Autopilot) -> bool {
@@ -165,7 +145,7 @@ impl Arrivals {
 
 fn run_status(a: StatusArgs) -> Result<(), String> {
     let window = positive("--window", a.window)?;
-    let (mut link, autopilot, mut estimator) = open(&a.link, |_| {})?;
+    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |_| {})?;
     link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
     let mut heartbeat = autopilot.heartbeat.clone();
     let mut version: Option<AUTOPILOT_VERSION_DATA> = None;
@@ -263,31 +243,145 @@ fn capability_key(c: Capability) -> &'static str {
     }
 }
 
-fn run_record(a: RecordArgs) -> Result<(), String> {
-    let duration = a.duration.map(|d| positive("--duration", d)).transpose()?;
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
-    }
-    // Messages before the autopilot's clock is known wait here, to be written at their times.
-    let mut pending: Vec<Received> = Vec::new();
-    let (mut link, autopilot, mut estimator) = open(&a.link, |r| pending.push(r.clone()))?;
+/// The session metadata every recording starts with.
+fn session_metadata(a: &LinkArgs, autopilot: &Autopilot) -> BTreeMap<String, String> {
     let mut session = BTreeMap::new();
     session.insert("pinc_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
-    session.insert("connect".to_string(), a.link.connect.clone());
+    session.insert("connect".to_string(), a.connect.clone());
     session.insert("autopilot_system_id".to_string(), autopilot.system_id.to_string());
-    session.insert("gcs_system_id".to_string(), a.link.gcs_sysid.to_string());
-    session.insert("requested_rate_hz".to_string(), a.link.rate.to_string());
-    session.insert("max_age_s".to_string(), a.link.max_age.to_string());
-    session.insert("surface_pressure_hpa".to_string(), a.link.surface_pressure.to_string());
-    session.insert("water_density".to_string(), a.link.water_density.to_string());
+    session.insert("gcs_system_id".to_string(), a.gcs_sysid.to_string());
+    session.insert("requested_rate_hz".to_string(), a.rate.to_string());
+    session.insert("max_age_s".to_string(), a.max_age.to_string());
+    session.insert("surface_pressure_hpa".to_string(), a.surface_pressure.to_string());
+    session.insert("water_density".to_string(), a.water_density.to_string());
     session.insert("time_base".to_string(), "autopilot time_boot_ms".to_string());
-    let mut rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
-    let mut session = Session { last_heartbeat: None, capability: None, log: Vec::new() };
+    session
+}
+
+fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
+    Ok(stop)
+}
+
+/// Writes a session into its recording: every message, the state samples with their body
+/// input (from the thruster outputs when a vehicle file is given), the `/log` lines.
+struct Writer {
+    rec: Recorder,
+    notes: Session,
+    autopilot: Autopilot,
+    inputs: Option<InputsFromOutputs>,
+    /// Messages before the autopilot's clock is known, written at their times once it is.
+    pending: Vec<Received>,
+    clock: Option<(f64, Instant)>,
+}
+
+impl Writer {
+    fn new(rec: Recorder, autopilot: Autopilot, inputs: Option<InputsFromOutputs>, pending: Vec<Received>) -> Self {
+        let notes = Session { last_heartbeat: None, capability: None, log: Vec::new() };
+        Self { rec, notes, autopilot, inputs, pending, clock: None }
+    }
+
+    /// One message received, at autopilot time `t` (meaningless until a stamped message came).
+    fn message(&mut self, r: &Received, t: f64) -> Result<(), String> {
+        if self.clock.is_none() {
+            if message_time(&r.message).is_none() || !from_autopilot(r, &self.autopilot) {
+                self.pending.push(r.clone());
+                return Ok(());
+            }
+            self.clock = Some((t, r.at));
+        }
+        let (t0, at0) = self.clock.expect("set above");
+        for p in std::mem::take(&mut self.pending) {
+            let back = at0.saturating_duration_since(p.at).as_secs_f64();
+            self.one(&p, (t0 - back).max(0.0))?;
+        }
+        self.one(r, t)
+    }
+
+    fn one(&mut self, r: &Received, t: f64) -> Result<(), String> {
+        // A write error ends the session: the unfinished file is removed (`Recorder`'s drop).
+        write_one(&mut self.rec, &mut self.notes, &self.autopilot, t, r)?;
+        if let (Some(p), MavMessage::SERVO_OUTPUT_RAW(o)) = (&mut self.inputs, &r.message)
+            && from_autopilot(r, &self.autopilot)
+        {
+            p.outputs(t, o);
+            for (s, u) in p.ready(t) {
+                self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
+            }
+        }
+        self.flush_log()
+    }
+
+    /// A fresh state sample.
+    fn state(&mut self, s: &pinc::link::StateEstimate) -> Result<(), String> {
+        self.notes.note_capability(s.t, s.capability);
+        match &mut self.inputs {
+            None => self.rec.state(s, None).map_err(|e| e.to_string())?,
+            Some(p) => {
+                p.state(s.clone());
+                for (s, u) in p.ready(s.t) {
+                    self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
+                }
+            }
+        }
+        self.flush_log()
+    }
+
+    fn flush_log(&mut self) -> Result<(), String> {
+        for (t, level, line) in self.notes.log.drain(..) {
+            self.rec.log(t, level, &line).map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    }
+
+    fn log(&mut self, t: f64, level: Level, line: &str) -> Result<(), String> {
+        self.rec.log(t, level, line).map_err(|e| e.to_string())
+    }
+
+    /// Writes what is pending and the last line, and finishes the file.
+    fn finish(mut self, t: f64, level: Level, line: &str) -> Result<pinc::link::RecordStats, String> {
+        if let Some(p) = &mut self.inputs {
+            for (s, u) in p.flush() {
+                self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
+            }
+        }
+        self.flush_log()?;
+        self.rec.log(t, level, line).map_err(|e| e.to_string())?;
+        self.rec.finish().map_err(|e| e.to_string())
+    }
+}
+
+fn inputs_from_outputs(
+    vehicle: Option<&PathBuf>,
+    rate: f64,
+    max_age: f64,
+) -> Result<Option<InputsFromOutputs>, String> {
+    vehicle
+        .map(|v| {
+            let thrusters = Thrusters::load(v).map_err(|e| e.to_string())?;
+            Ok(InputsFromOutputs::new(thrusters, 1.0 / rate, max_age))
+        })
+        .transpose()
+}
+
+fn run_record(a: RecordArgs) -> Result<(), String> {
+    let duration = a.duration.map(|d| positive("--duration", d)).transpose()?;
+    let stop = ctrl_c_flag()?;
+    let inputs = inputs_from_outputs(a.vehicle.as_ref(), a.link.rate, a.link.max_age)?;
+    let mut pending: Vec<Received> = Vec::new();
+    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
+    if inputs.is_some() {
+        link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.outputs_rate).map_err(|e| e.to_string())?;
+    }
+    let mut session = session_metadata(&a.link, &autopilot);
+    if let Some(v) = &a.vehicle {
+        session.insert("vehicle_file".to_string(), v.display().to_string());
+    }
+    let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
+    let mut w = Writer::new(rec, autopilot.clone(), inputs, pending);
     let start = Instant::now();
-    let mut clock_known = false;
     let result = loop {
         if stop.load(Ordering::Relaxed) {
             break Ok("Ctrl-C");
@@ -301,23 +395,10 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
             Err(e) => break Err(e.to_string()),
         };
         let state = if from_autopilot(&r, &autopilot) { estimator.update(&r) } else { None };
-        if !clock_known && message_time(&r.message).is_none() {
-            pending.push(r);
-            continue;
-        }
-        // The first stamped message fixes the clock; what waited is written at its own time.
-        for p in std::mem::take(&mut pending).into_iter().chain(std::iter::once(r)) {
-            let t = estimator.autopilot_time(p.at).unwrap_or(0.0);
-            // A write error ends here: the unfinished file is removed (`Recorder`'s drop).
-            write_one(&mut rec, &mut session, &autopilot, t, &p)?;
-        }
-        clock_known = true;
+        let t = estimator.autopilot_time(r.at).unwrap_or(0.0);
+        w.message(&r, t)?;
         if let Some(s) = state {
-            session.note_capability(s.t, s.capability);
-            rec.state(&s, None).map_err(|e| e.to_string())?;
-        }
-        for (t, level, line) in session.log.drain(..) {
-            rec.log(t, level, &line).map_err(|e| e.to_string())?;
+            w.state(&s)?;
         }
     };
     let end_t = estimator.autopilot_time(Instant::now()).unwrap_or(0.0);
@@ -325,8 +406,7 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
         Ok(reason) => format!("recording ended: {reason}"),
         Err(e) => format!("recording ended on an error: {e}"),
     };
-    rec.log(end_t, if result.is_ok() { Level::Info } else { Level::Error }, &reason).map_err(|e| e.to_string())?;
-    let stats = rec.finish().map_err(|e| e.to_string())?;
+    let stats = w.finish(end_t, if result.is_ok() { Level::Info } else { Level::Error }, &reason)?;
     let types: Vec<String> = stats.mavlink.iter().map(|(k, v)| format!("{k} {v}")).collect();
     println!(
         "{} MAVLink messages ({}), {} state samples over {:.1} s -> {} ({reason})",
@@ -337,6 +417,129 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
         a.out.display()
     );
     result.map(|_| ())
+}
+
+/// Id of `SERVO_OUTPUT_RAW`.
+const SERVO_OUTPUT_RAW_ID: u32 = 36;
+
+fn run_excite(a: ExciteArgs) -> Result<(), String> {
+    let dt = positive("--dt", a.dt)?.as_secs_f64();
+    let file = std::fs::File::open(&a.inputs).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
+    let inputs = crate::trajectory_csv::read_inputs(file).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
+    if inputs.is_empty() {
+        return Err(format!("{}: no input rows", a.inputs.display()));
+    }
+    let commander = a.drive.commander(&a.vehicle)?;
+    let limits = a.drive.limits()?;
+    let wait_position = positive("--wait-position", a.drive.wait_position)?;
+    let stop = ctrl_c_flag()?;
+    let recorded = Some(InputsFromOutputs::new(commander.thrusters().clone(), 1.0 / a.link.rate, a.link.max_age));
+    let mut pending: Vec<Received> = Vec::new();
+    let (link, autopilot, estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
+    link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.drive.outputs_rate).map_err(|e| e.to_string())?;
+    let mut session = session_metadata(&a.link, &autopilot);
+    session.insert("vehicle_file".to_string(), a.vehicle.display().to_string());
+    session.insert("inputs_file".to_string(), a.inputs.display().to_string());
+    session.insert("command".to_string(), a.drive.command_way.clone());
+    session.insert("limits".to_string(), format!("{limits:?}"));
+    let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
+    let w = RefCell::new(Writer::new(rec, autopilot.clone(), recorded, pending));
+    let write_error: RefCell<Option<String>> = RefCell::new(None);
+    let keep = |result: Result<(), String>| {
+        if let Err(e) = result {
+            write_error.borrow_mut().get_or_insert(e);
+        }
+    };
+    let seen = |r: &Received, t: f64| keep(w.borrow_mut().message(r, t));
+    let started = Drive::start(link, autopilot, estimator, commander, limits, a.drive.arm, stop, seen);
+    let mut drive = match started {
+        Ok(d) => d,
+        Err(stopped) => return end_excite(w.into_inner(), &stopped, write_error.into_inner(), 0, inputs.len()),
+    };
+    let line =
+        format!("excitation: {} inputs at {dt} s from {} by {}", inputs.len(), a.inputs.display(), a.drive.command_way);
+    keep(w.borrow_mut().log(drive.now_t(), Level::Info, &line));
+    let mut played = 0usize;
+    let mut t0: Option<f64> = None;
+    let waited = Instant::now();
+    let mut cycle = || -> Result<(), Trigger> {
+        loop {
+            let fresh: Fresh = drive.next_state(seen)?;
+            if let Some(e) = write_error.borrow().as_ref() {
+                return Err(Trigger::Error(e.clone()));
+            }
+            keep(w.borrow_mut().state(&fresh.state));
+            if t0.is_none() {
+                if fresh.state.capability != Capability::Full && waited.elapsed() < wait_position {
+                    drive.send_neutral(&fresh)?;
+                    continue;
+                }
+                if fresh.state.capability != Capability::Full {
+                    let line = format!(
+                        "no full state after {:.0} s: playing anyway ({})",
+                        a.drive.wait_position, fresh.state.capability
+                    );
+                    keep(w.borrow_mut().log(fresh.state.t, Level::Warning, &line));
+                }
+                t0 = Some(fresh.state.t);
+            }
+            let k = ((fresh.state.t - t0.expect("set")) / dt).round() as usize;
+            let Some(u) = inputs.get(k) else { return Ok(()) };
+            drive.send(&fresh, u)?;
+            played = k + 1;
+        }
+    };
+    let outcome = cycle();
+    let stopped = match outcome {
+        Ok(()) => drive.finish(),
+        Err(trigger) => drive.abort(trigger),
+    };
+    // The last outputs (the neutral ones among them) into the recording.
+    drive.drain(Duration::from_millis(300), seen);
+    if drive.out_of_order() > 0 {
+        let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
+        keep(w.borrow_mut().log(stopped.t, Level::Warning, &line));
+    }
+    drop(drive);
+    end_excite(w.into_inner(), &stopped, write_error.into_inner(), played, inputs.len())
+}
+
+/// Writes the stop into the recording and on stderr, finishes the file; an error (exit 1)
+/// for any safety stop.
+fn end_excite(
+    w: Writer,
+    stopped: &Stopped,
+    write_error: Option<String>,
+    played: usize,
+    total: usize,
+) -> Result<(), String> {
+    let (level, line) = match &stopped.trigger {
+        None => (Level::Info, format!("excitation finished: {played} of {total} inputs played")),
+        Some(t) => (
+            Level::Error,
+            format!(
+                "{t}; neutral command sent{}{}; {played} of {total} inputs played",
+                stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {n:.3} s")),
+                if stopped.disarm_sent { ", disarm sent" } else { "" }
+            ),
+        ),
+    };
+    let stats = w.finish(stopped.t, level, &line);
+    if let Some(t) = &stopped.trigger {
+        eprintln!("{line}");
+        let _ = t;
+    }
+    let stats = stats?;
+    if let Some(e) = write_error {
+        return Err(format!("recording: {e}"));
+    }
+    match &stopped.trigger {
+        None => {
+            println!("{line}; {} state samples recorded", stats.states);
+            Ok(())
+        }
+        Some(_) => Err("stopped by a safety trigger (see above)".into()),
+    }
 }
 
 /// What the recording logs about the session as it goes.

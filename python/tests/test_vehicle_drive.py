@@ -1,0 +1,255 @@
+"""Commanding the fake ArduSub autopilot (fake_ardusub.py) over UDP on loopback:
+`pinc vehicle excite` and `mpc_track --connect`, their safety stops, and the path from an
+excitation run to an identified vehicle.
+
+Needs the `pinc` binary and the `mpc_track` example built in release (target/release/pinc,
+target/release/examples/mpc_track, or $PINC_BIN / $MPC_TRACK_BIN), the Python bindings,
+pymavlink and mcap. Every run is real time: about 90 s in all.
+"""
+
+import json
+import os
+import re
+import subprocess
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from test_vehicle_link import ROOT, fake_factory, free_udp_port, read_mcap, run_pinc  # noqa: F401
+
+SITL = ROOT / "tests" / "fixtures" / "ardusub" / "sitl_vectored.toml"
+DT = 0.08
+
+
+def mpc_track_binary() -> Path:
+    given = os.environ.get("MPC_TRACK_BIN")
+    path = Path(given) if given else ROOT / "target" / "release" / "examples" / "mpc_track"
+    if not path.is_file():
+        pytest.skip(f"{path} is not built: run `cargo build --release --example mpc_track` first")
+    return path
+
+
+def excitation(tmp_path, seconds, seed=0):
+    path = tmp_path / f"in_{seconds}.csv"
+    r = run_pinc("excitation", "--vehicle", str(SITL), "--duration", str(seconds), "--seed", str(seed),
+                 "--out", str(path))
+    assert r.returncode == 0, r.stderr
+    return path
+
+
+def commands(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines()]
+
+
+def is_neutral(c):
+    if c["kind"] == "RC_CHANNELS_OVERRIDE":
+        return c["pwm"][:6] == [1500] * 6
+    if c["kind"] == "MANUAL_CONTROL":
+        return (c["x"], c["y"], c["z"], c["r"]) == (0, 0, 500, 0)
+    return False
+
+
+def excite(fake, tmp_path, inputs, *extra, timeout=60):
+    out = tmp_path / "run.mcap"
+    r = run_pinc("vehicle", "excite", "--connect", fake.url, "--timeout", "5", "--inputs", str(inputs),
+                 "--vehicle", str(SITL), "--out", str(out), "--arm", "--max-yaw-rate", "2000", *extra,
+                 timeout=timeout)
+    return r, out
+
+
+# The fault, the trigger's key, and when the trigger must come after the fault starts (s):
+# heartbeats come once a second, so the last one is up to 1 s before the fault and the stop
+# 2.5 s (the default limit) after it; a frozen state is stale 0.25 s after the last fresh one
+# (up to one 0.08 s sample before the fault); a self-disarm's heartbeat and a malformed frame
+# are seen at once.
+FAULTS = [
+    ("heartbeat-stop", "heartbeat_lost", (1.5, 2.6), "thrusters"),
+    ("state-freeze", "stale_state", (0.25 - DT, 0.25 + DT), "manual"),
+    ("self-disarm", "disarmed", (0.0, DT), "thrusters"),
+    ("malformed", "malformed", (0.0, DT), "manual"),
+]
+
+
+@pytest.mark.parametrize("fault,key,window,way", FAULTS, ids=[f[0] for f in FAULTS])
+def test_each_fault_stops_with_the_neutral_command_within_one_sample(fake_factory, tmp_path, fault, key, window,
+                                                                       way):
+    log = tmp_path / "commands.jsonl"
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--commands", str(log),
+                        "--fault", fault, "--fault-after", "1.0")
+    r, out = excite(fake, tmp_path, excitation(tmp_path, 10), "--command", way)
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert f"safety stop [{key}]" in r.stderr, r.stderr
+    fake.stop()
+    cmds = commands(log)
+    fault_at = next(c["t"] for c in cmds if c["kind"] == "FAULT")
+    # The stop's /log line, at the trigger's autopilot time.
+    stops = [(t * 1e-9, m["message"]) for t, m in read_mcap(out)["/log"] if f"safety stop [{key}]" in m["message"]]
+    assert len(stops) == 1, stops
+    trigger_at = stops[0][0]
+    lo, hi = window
+    # The two clocks (the fake's wall clock, pinc's autopilot time) agree within a few ms.
+    assert lo - 0.005 <= trigger_at - fault_at <= hi, (fault_at, trigger_at)
+    # Commands went on until the fault (the run was under way), and the first neutral command
+    # after the fault reached the autopilot within one sample of the trigger.
+    pilot = [c for c in cmds if c["kind"] in ("RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL")]
+    assert sum(1 for c in pilot if c["t"] < fault_at and not is_neutral(c)) >= 10
+    neutral = next(c for c in pilot if c["t"] >= fault_at and is_neutral(c))
+    latency = neutral["t"] - trigger_at
+    print(f"{fault}: trigger {trigger_at - fault_at:.3f} s after the fault, neutral {latency * 1e3:.1f} ms after")
+    assert -0.005 <= latency <= DT, latency
+    # Nothing but neutral after it, and pinc, which armed, disarmed.
+    assert all(is_neutral(c) for c in pilot if c["t"] >= neutral["t"])
+    assert any(c["kind"] == "DISARM" and c["t"] >= neutral["t"] for c in cmds)
+
+
+def test_dropped_and_reordered_packets_do_not_stop_a_run(fake_factory, tmp_path):
+    log = tmp_path / "commands.jsonl"
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--commands", str(log),
+                        "--fault", "drop-reorder", "--fault-after", "0.5", "--seed", "3")
+    r, out = excite(fake, tmp_path, excitation(tmp_path, 6))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "75 of 75 inputs played" in r.stdout
+    fake.stop()
+    topics = read_mcap(out)
+    times = [t for t, _ in topics["/vehicle/state"]]
+    assert times == sorted(times) and len(set(times)) == len(times), "a state went back in time"
+    # About a tenth of the state messages is lost or late; the rest are all there.
+    assert 0.75 * 75 <= len(times) <= 78
+    lines = [m["message"] for _, m in topics["/log"]]
+    found = [re.search(r"(\d+) messages arrived out of order", m) for m in lines]
+    dropped = [int(f.group(1)) for f in found if f]
+    assert dropped and dropped[0] > 0, lines
+    assert not any("safety stop" in m for m in lines)
+
+
+def test_a_refused_link_commands_nothing_and_leaves_no_file(tmp_path):
+    out = tmp_path / "run.mcap"
+    inputs = excitation(tmp_path, 1)
+    port = free_udp_port()  # nothing listens on it, over TCP either
+    r = run_pinc("vehicle", "excite", "--connect", f"tcp:127.0.0.1:{port}", "--inputs", str(inputs),
+                 "--vehicle", str(SITL), "--out", str(out), "--arm", "--timeout", "2")
+    assert r.returncode == 1
+    assert "refused" in r.stderr.lower(), r.stderr
+    assert list(tmp_path.iterdir()) == [inputs]
+
+
+def rms(summary):
+    return summary["rms_depth_m"], summary["rms_heading_deg"]
+
+
+def test_mpc_track_connected_tracks_like_the_in_process_run(fake_factory, tmp_path):
+    # 20 s of the default scenario: the depth steps to 1 m at 2 s and the heading to 45 deg at
+    # 10 s. The in-process plant is pinc's BlueROV2 from rest at the surface; so is the fake
+    # (held until armed), moved by the simulator's thrusters that the vehicle file describes.
+    common = ["--duration", "20", "--json", "--vehicle", str(SITL)]
+    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "sim")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    sim = json.loads(r.stdout)
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--x0", *["0"] * 8)
+    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "live"),
+                        "--connect", fake.url, "--arm", "--timeout", "5"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    live = json.loads(r.stdout)
+    print("in-process", rms(sim), "connected", rms(live))
+    assert live["samples"] >= 245 and live["stopped"] is None
+    for got, want in zip(rms(live), rms(sim)):
+        assert abs(got - want) <= 0.1 * want, (rms(live), rms(sim))
+    # Each cycle's timing is logged: the state's age when its command left, and the time from
+    # the state's arrival to the send, both well inside one sample.
+    topics = read_mcap(Path(live["log"]))
+    cycles = [m for _, m in topics["/link/cycle"]]
+    assert len(cycles) == live["samples"]
+    ages = sorted(c["state_age_s"] for c in cycles)
+    latencies = sorted(c["latency_s"] for c in cycles)
+    print(f"state age median {ages[len(ages) // 2] * 1e3:.1f} ms, max {ages[-1] * 1e3:.1f} ms; "
+          f"latency median {latencies[len(latencies) // 2] * 1e3:.2f} ms, max {latencies[-1] * 1e3:.2f} ms")
+    assert ages[len(ages) // 2] < DT / 2 and latencies[len(latencies) // 2] < DT / 2
+
+
+def test_mpc_track_refuses_without_body_velocities(fake_factory, tmp_path):
+    # No position source (no DVL): the MPC needs u v w; pinc says so instead of inventing them.
+    log = tmp_path / "commands.jsonl"
+    fake = fake_factory("--position-delay", "inf", "--commands", str(log))
+    r = subprocess.run([str(mpc_track_binary()), "--duration", "5", "--json", "--vehicle", str(SITL),
+                        "--out-dir", str(tmp_path / "live"), "--connect", fake.url, "--arm", "--timeout", "5",
+                        "--wait-position", "1"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert "no body velocities" in r.stderr and "does not invent them" in r.stderr, r.stderr
+    fake.stop()
+    pilot = [c for c in commands(log) if c["kind"] == "RC_CHANNELS_OVERRIDE"]
+    assert pilot and all(is_neutral(c) for c in pilot)
+
+
+def test_excite_without_arm_never_arms(fake_factory, tmp_path):
+    log = tmp_path / "commands.jsonl"
+    fake = fake_factory("--position-delay", "0", "--commands", str(log))
+    out = tmp_path / "run.mcap"
+    r = run_pinc("vehicle", "excite", "--connect", fake.url, "--timeout", "5", "--inputs",
+                 str(excitation(tmp_path, 1)), "--vehicle", str(SITL), "--out", str(out))
+    assert r.returncode == 1 and "pass --arm" in r.stderr, r.stderr
+    fake.stop()
+    assert not any(c["kind"] == "ARM" for c in commands(log))
+
+
+def test_excite_then_import_then_identify_recovers_the_fakes_drag(fake_factory, tmp_path):
+    # The fake's vehicle is the BlueROV2 with its damping 30 % stronger and its added masses
+    # 20 % smaller; identification starts from the plain BlueROV2 (the SITL vehicle file's).
+    base = tomllib.loads(SITL.read_text())
+    names = ["x_uu", "y_vv", "z_ww", "n_r", "n_rr"]
+    bluerov2 = tomllib.loads((ROOT / "models" / "bluerov2.toml").read_text())
+    truth = {k: 1.3 * bluerov2[k] for k in names}
+    truth.update({k: 0.8 * bluerov2[k] for k in ["x_ud", "y_vd", "z_wd", "n_rd"]})
+    params = tmp_path / "truth.toml"
+    params.write_text("".join(f"{k} = {v}\n" for k, v in truth.items()))
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--vehicle-params", str(params))
+    r, out = excite(fake, tmp_path, excitation(tmp_path, 30), "--command", "thrusters")
+    assert r.returncode == 0, r.stderr
+    fake.stop()
+    r = run_pinc("dataset", "import", "--split", "1,0,0", "--out", str(tmp_path / "ds"), str(out))
+    assert r.returncode == 0, r.stderr
+    identified = tmp_path / "identified.toml"
+    r = run_pinc("identify", "--data", str(tmp_path / "ds"), "--vehicle", str(SITL), "--out", str(identified),
+                 timeout=120)
+    assert r.returncode == 0, r.stderr
+    got = tomllib.loads(identified.read_text())
+    for k in names:
+        base_k = base.get(k, bluerov2[k])
+        error = abs(got[k] - truth[k]) / abs(truth[k])
+        print(f"{k}: identified {got[k]:.4f}, fake {truth[k]:.4f} ({error * 100:.2f} %), base {base_k:.4f}")
+        assert error <= 0.05, (k, got[k], truth[k])
+
+
+def test_record_with_a_vehicle_file_rebuilds_the_fakes_input(fake_factory, tmp_path):
+    # The fake's own pilot drives it (MANUAL_CONTROL steps through the mixer); pinc only
+    # listens. Each state's input must be the fake's true wrench averaged over the 80 ms after
+    # the state's time (four 20 ms physics steps), through the vehicle file's curves.
+    truth_path = tmp_path / "truth.jsonl"
+    fake = fake_factory("--armed", "--pilot", "--position-delay", "0", "--truth", str(truth_path))
+    out = tmp_path / "run.mcap"
+    r = run_pinc("vehicle", "record", "--connect", fake.url, "--out", str(out), "--duration", "4", "--timeout", "5",
+                 "--vehicle", str(SITL))
+    assert r.returncode == 0, r.stderr
+    fake.stop()
+    truth = {}
+    for line in truth_path.read_text().splitlines():
+        row = json.loads(line)
+        truth[row["boot_ms"]] = row["wrench"]
+    compared = 0
+    moving = 0
+    for log_time, c in read_mcap(out)["/mpc/command"]:
+        ms = round(log_time / 1e6)
+        u = c["input"]
+        steps = [truth.get(ms + 20 * i) for i in range(4)]
+        if u["X"] is None or any(s is None for s in steps):
+            continue
+        want = [sum(s[j] for s in steps) / 4 for j in range(4)]
+        got = [u["X"], u["Y"], u["Z"], u["Mz"]]
+        # The file's curve samples the simulator's quadratic every 10 us: within 0.06 N per
+        # thruster, 0.25 N on a force from four of them, 0.015 N m on the moment.
+        for j, tol in enumerate([0.25, 0.25, 0.15, 0.015]):
+            assert abs(got[j] - want[j]) <= tol, (ms, got, want)
+        compared += 1
+        moving += any(abs(w) > 5 for w in want)
+    assert compared >= 30 and moving >= 10, (compared, moving)

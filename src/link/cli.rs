@@ -1,0 +1,168 @@
+//! The command-line options every program that talks to a vehicle shares (`pinc vehicle`,
+//! `mpc_track --connect`), and the opening of a link from them.
+
+use super::command::{CommandWay, Commander};
+use super::link::{Autopilot, LinkConfig, Received, VehicleLink};
+use super::safety::SafetyLimits;
+use super::state::{StateConfig, StateEstimator};
+use super::url::LinkAddress;
+use crate::vehicle::Thrusters;
+use std::path::Path;
+use std::time::Duration;
+
+/// Where the autopilot is, and how to talk to it.
+#[derive(clap::Args, Debug, Clone)]
+pub struct LinkArgs {
+    /// Connection: udpin:HOST:PORT (or udp:), udpout:HOST:PORT, tcp:HOST:PORT (or tcpout:),
+    /// tcpin:HOST:PORT, serial:DEVICE:BAUD or DEVICE:BAUD.
+    #[arg(long)]
+    pub connect: String,
+    #[command(flatten)]
+    /// The rest.
+    pub options: LinkOptions,
+}
+
+impl std::ops::Deref for LinkArgs {
+    type Target = LinkOptions;
+    fn deref(&self) -> &LinkOptions {
+        &self.options
+    }
+}
+
+/// How to talk to the autopilot and rebuild its state.
+#[derive(clap::Args, Debug, Clone)]
+pub struct LinkOptions {
+    /// Seconds to wait for the autopilot's heartbeat.
+    #[arg(long, default_value_t = 10.0)]
+    pub timeout: f64,
+    /// Rate (Hz) requested for the state messages (default: pinc's control rate, 1 / 0.08 s).
+    #[arg(long, default_value_t = 1.0 / crate::DEFAULT_DT)]
+    pub rate: f64,
+    /// System id pinc sends from: the autopilot's SYSID_MYGCS.
+    #[arg(long, default_value_t = 255)]
+    pub gcs_sysid: u8,
+    /// A state part older than this (s) is reported missing.
+    #[arg(long, default_value_t = 0.5)]
+    pub max_age: f64,
+    /// Surface pressure (hPa) for depth from pressure.
+    #[arg(long, default_value_t = 1013.25)]
+    pub surface_pressure: f64,
+    /// Water density (kg/m^3) for depth from pressure: 1000 x ArduSub's BARO_SPEC_GRAV.
+    #[arg(long, default_value_t = 1000.0)]
+    pub water_density: f64,
+}
+
+/// How to command the vehicle, and the safety limits.
+#[derive(clap::Args, Debug, Clone)]
+pub struct DriveArgs {
+    /// manual: MANUAL_CONTROL pilot axes in MANUAL mode (through ArduSub's mixer and
+    /// JS_GAIN); thrusters: one PWM per thruster in RC_CHANNELS_OVERRIDE (outputs set to
+    /// SERVOn_FUNCTION = RCINn).
+    #[arg(long = "command", value_parser = ["manual", "thrusters"], default_value = "thrusters")]
+    pub command_way: String,
+    /// ArduSub's JS_GAIN_DEFAULT (the gain on MANUAL_CONTROL).
+    #[arg(long, default_value_t = 1.0)]
+    pub js_gain: f64,
+    /// Arm the vehicle (pinc never arms without it; it disarms on a stop if it armed).
+    #[arg(long)]
+    pub arm: bool,
+    /// Stop when deeper than this (m).
+    #[arg(long)]
+    pub max_depth: Option<f64>,
+    /// Stop when no fresh state came for this long (s).
+    #[arg(long, default_value_t = 0.25)]
+    pub max_state_age: f64,
+    /// Stop when no autopilot heartbeat came for this long (s).
+    #[arg(long, default_value_t = 2.5)]
+    pub heartbeat_timeout: f64,
+    /// Stop when turning faster than this (deg/s).
+    #[arg(long, default_value_t = 180.0)]
+    pub max_yaw_rate: f64,
+    /// Stop after more than this many malformed frames.
+    #[arg(long, default_value_t = 0)]
+    pub max_malformed: u64,
+    /// Seconds to wait (neutral commands) for a position and velocity after arming.
+    #[arg(long, default_value_t = 30.0)]
+    pub wait_position: f64,
+    /// Rate (Hz) requested for SERVO_OUTPUT_RAW, whose outputs give the recorded input.
+    #[arg(long, default_value_t = 50.0)]
+    pub outputs_rate: f64,
+}
+
+/// A positive number of seconds, or an error naming `name`.
+///
+/// # Errors
+/// Not finite or not positive.
+pub fn positive(name: &str, v: f64) -> Result<Duration, String> {
+    if v.is_finite() && v > 0.0 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(format!("{name} must be a positive number of seconds, got {v}"))
+    }
+}
+
+impl DriveArgs {
+    /// The way commands go.
+    pub fn way(&self) -> CommandWay {
+        if self.command_way == "manual" { CommandWay::Manual } else { CommandWay::Thrusters }
+    }
+
+    /// The commander of `vehicle_file`'s thrusters.
+    ///
+    /// # Errors
+    /// The file cannot be read or cannot command this way.
+    pub fn commander(&self, vehicle_file: &Path) -> Result<Commander, String> {
+        let thrusters = Thrusters::load(vehicle_file).map_err(|e| e.to_string())?;
+        Commander::new(thrusters, self.way(), self.js_gain).map_err(|e| format!("{}: {e}", vehicle_file.display()))
+    }
+
+    /// The safety limits.
+    ///
+    /// # Errors
+    /// A limit that is not positive.
+    pub fn limits(&self) -> Result<SafetyLimits, String> {
+        if !(self.max_yaw_rate.is_finite() && self.max_yaw_rate > 0.0) {
+            return Err(format!("--max-yaw-rate must be positive, got {}", self.max_yaw_rate));
+        }
+        if let Some(d) = self.max_depth
+            && !d.is_finite()
+        {
+            return Err(format!("--max-depth must be a number of metres, got {d}"));
+        }
+        Ok(SafetyLimits {
+            max_state_age: positive("--max-state-age", self.max_state_age)?,
+            heartbeat_timeout: positive("--heartbeat-timeout", self.heartbeat_timeout)?,
+            max_depth: self.max_depth,
+            max_yaw_rate: self.max_yaw_rate.to_radians(),
+            max_malformed: self.max_malformed,
+        })
+    }
+}
+
+/// Opens the link, waits for the autopilot (every message meanwhile goes to `seen`) and asks
+/// for the state streams at `--rate`.
+///
+/// # Errors
+/// A bad option, the link cannot be opened, or no autopilot answers.
+pub fn open(
+    connect: &str,
+    a: &LinkOptions,
+    seen: impl FnMut(&Received),
+) -> Result<(VehicleLink, Autopilot, StateEstimator), String> {
+    let address: LinkAddress = connect.parse().map_err(|e| format!("--connect: {e}"))?;
+    let timeout = positive("--timeout", a.timeout)?;
+    if !(a.rate.is_finite() && a.rate > 0.0) {
+        return Err(format!("--rate must be a positive number of Hz, got {}", a.rate));
+    }
+    positive("--max-age", a.max_age)?;
+    let config = LinkConfig { gcs_system_id: a.gcs_sysid, ..LinkConfig::default() };
+    let mut link = VehicleLink::connect(&address, config).map_err(|e| e.to_string())?;
+    let autopilot = link.wait_for_autopilot(timeout, seen).map_err(|e| e.to_string())?;
+    link.request_state_streams(a.rate).map_err(|e| e.to_string())?;
+    let estimator = StateEstimator::new(StateConfig {
+        max_age: a.max_age,
+        surface_pressure_hpa: a.surface_pressure,
+        water_density: a.water_density,
+    });
+    Ok((link, autopilot, estimator))
+}
