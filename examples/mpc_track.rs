@@ -174,22 +174,29 @@ fn try_main(a: Args) -> Result<(), String> {
     let info =
         RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
-    // On a live vehicle (--connect) the plant is the vehicle; otherwise the simulator.
+    // On a live vehicle (--connect) the plant is the vehicle; otherwise the simulator. A run
+    // that cannot start (no link, no autopilot, a bad option) commanded nothing and leaves no log.
     #[cfg(feature = "vehicle")]
     let live_run = match &a.connect {
         Some(link) if a.oracle => {
             let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
-            Some(live::run(Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?, scenario, link, &a, &mut log)?)
+            Some(
+                Mpc::new(oracle, cfg.clone())
+                    .map_err(|e| e.to_string())
+                    .and_then(|mpc| live::run(mpc, scenario, link, &a, &mut log)),
+            )
         }
-        Some(link) => Some(live::run(
-            Mpc::new(predictor.clone(), cfg.clone()).map_err(|e| e.to_string())?,
-            scenario,
-            link,
-            &a,
-            &mut log,
-        )?),
+        Some(link) => Some(
+            Mpc::new(predictor.clone(), cfg.clone())
+                .map_err(|e| e.to_string())
+                .and_then(|mpc| live::run(mpc, scenario, link, &a, &mut log)),
+        ),
         None => None,
-    };
+    }
+    .transpose()
+    .inspect_err(|_| {
+        let _ = std::fs::remove_file(&mcap);
+    })?;
     #[cfg(not(feature = "vehicle"))]
     let live_run: Option<LiveRun> = None;
     let (samples, log_error, stopped) = match live_run {
