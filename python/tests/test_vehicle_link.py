@@ -287,6 +287,7 @@ def test_fake_mixes_manual_control_like_ardusub_and_disarms_on_pilot_silence(fak
         if msg is not None:
             text = msg.text
     assert text is not None and "pilot input failsafe" in text
+    time.sleep(0.3)  # a few more physics ticks, so the truth file has the outputs after the disarm
     fake.stop()
     rows = [json.loads(line) for line in truth.read_text().splitlines()]
     armed = [r for r in rows if r["armed"]]
