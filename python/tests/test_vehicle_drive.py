@@ -219,6 +219,14 @@ def test_excite_then_import_then_identify_recovers_the_fakes_drag(fake_factory, 
         error = abs(got[k] - truth[k]) / abs(truth[k])
         print(f"{k}: identified {got[k]:.4f}, fake {truth[k]:.4f} ({error * 100:.2f} %), base {base_k:.4f}")
         assert error <= 0.05, (k, got[k], truth[k])
+    # Added masses: what the dynamics see is the effective mass m - X_ud (the rigid body's 11.4
+    # kg dominates it in surge): within 5 % in surge, sway and heave (measured 0.9, 0.4, 0.8 %).
+    # The yaw inertia izz - N_rd is not asserted: its time constant (0.47 / 6.0 = 78 ms) is
+    # one sample period, so input timing within the 80 ms sample decides it (measured 10 %).
+    for k in ["x_ud", "y_vd", "z_wd"]:
+        want, have = bluerov2["m"] - truth[k], bluerov2["m"] - got[k]
+        print(f"m - {k}: identified {have:.4f}, fake {want:.4f} ({abs(have / want - 1) * 100:.2f} %)")
+        assert abs(have / want - 1) <= 0.05, (k, got[k], truth[k])
 
 
 def test_record_with_a_vehicle_file_rebuilds_the_fakes_input(fake_factory, tmp_path):
