@@ -236,16 +236,7 @@ impl Recorder {
     /// # Errors
     /// Writing fails.
     pub fn outputs(&mut self, t: f64, o: &SERVO_OUTPUT_RAW_DATA) -> Result<(), RecordError> {
-        let pwm = [
-            o.servo1_raw,
-            o.servo2_raw,
-            o.servo3_raw,
-            o.servo4_raw,
-            o.servo5_raw,
-            o.servo6_raw,
-            o.servo7_raw,
-            o.servo8_raw,
-        ];
+        let pwm = servo_pwm(o);
         // Port n carries channels 8n+1 ..= 8n+8.
         let first = 8 * u32::from(o.port) + 1;
         let channels: Map<String, Value> =
@@ -339,17 +330,7 @@ impl InputsFromOutputs {
         if self.outputs.back().is_some_and(|(last, _)| t <= *last) {
             return;
         }
-        let pwm = [
-            o.servo1_raw,
-            o.servo2_raw,
-            o.servo3_raw,
-            o.servo4_raw,
-            o.servo5_raw,
-            o.servo6_raw,
-            o.servo7_raw,
-            o.servo8_raw,
-        ]
-        .map(f64::from);
+        let pwm = servo_pwm(o).map(f64::from);
         self.outputs.push_back((t, self.thrusters.input_from_commands(&pwm)));
     }
 
@@ -406,6 +387,11 @@ impl InputsFromOutputs {
         }
         (covered >= self.period - 2.0 * eps && sum.iter().all(|v| v.is_finite())).then(|| sum / covered)
     }
+}
+
+/// The eight PWM outputs (us) of one `SERVO_OUTPUT_RAW` message, in channel order.
+fn servo_pwm(o: &SERVO_OUTPUT_RAW_DATA) -> [u16; 8] {
+    [o.servo1_raw, o.servo2_raw, o.servo3_raw, o.servo4_raw, o.servo5_raw, o.servo6_raw, o.servo7_raw, o.servo8_raw]
 }
 
 #[cfg(test)]
