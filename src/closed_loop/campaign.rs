@@ -239,20 +239,13 @@ pub fn table(n: usize, seed: u64, scenario: &Scenario, rp: &Robustness, ro: &Rob
     let _ = writeln!(out, "{:<28} {:>26} {:>26}", "", "PINC", "oracle");
     let _ =
         writeln!(out, "{:<28} {:>25.1}% {:>25.1}%", "success rate", 100.0 * rp.success_rate, 100.0 * ro.success_rate);
-    let _ = writeln!(
-        out,
-        "{:<28} {:>26} {:>26}",
-        "RMS depth, cm (med/p95/max)",
-        spread(&rp.rms_depth_m, 100.0),
-        spread(&ro.rms_depth_m, 100.0)
-    );
-    let _ = writeln!(
-        out,
-        "{:<28} {:>26} {:>26}",
-        "RMS heading, deg",
-        spread(&rp.rms_heading_deg, 1.0),
-        spread(&ro.rms_heading_deg, 1.0)
-    );
+    let rows = [
+        ("RMS depth, cm (med/p95/max)", &rp.rms_depth_m, &ro.rms_depth_m, 100.0),
+        ("RMS heading, deg", &rp.rms_heading_deg, &ro.rms_heading_deg, 1.0),
+    ];
+    for (label, p, o, f) in rows {
+        let _ = writeln!(out, "{label:<28} {:>26} {:>26}", spread(p, f), spread(o, f));
+    }
     let _ = writeln!(out, "{:<28} {:>26.3} {:>26.3}", "solve time p99, ms", rp.solve_ms_p99, ro.solve_ms_p99);
     for (name, r) in [("PINC", rp), ("oracle", ro)] {
         for (seed, why) in r.failures.iter().take(10) {
