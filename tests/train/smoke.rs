@@ -5,7 +5,7 @@
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::model::PincModel;
 use pinc::runtime::Predictor;
-use pinc::train::{Backend, LossKind, LrSchedule, StopReason, TrainConfig, train};
+use pinc::train::{Backend, LossKind, LrSchedule, StopReason, TrainConfig, member_seed, train, train_members};
 use pinc::{Input, State};
 use std::sync::atomic::AtomicBool;
 
@@ -131,4 +131,29 @@ fn the_cosine_schedule_falls_to_the_floor_and_the_curriculum_holds_the_physics_b
     // Only weights trained with every loss may be kept.
     assert!(out.best_epoch == 0 || out.best_epoch >= 4, "best epoch {}", out.best_epoch);
     assert!(out.history.iter().take(3).all(|r| !r.best));
+}
+
+#[test]
+fn members_train_side_by_side_and_the_best_dev_vpt_is_kept() {
+    let (train_set, dev) = (set("train", 8), set("dev", 6));
+    let cfg = tiny_config(3);
+    let seen = std::sync::Mutex::new([0usize; 3]);
+    let out = train_members(&cfg, 3, &train_set, &dev, "test", &AtomicBool::new(false), &|i, _| {
+        seen.lock().unwrap()[i] += 1;
+    })
+    .unwrap();
+    assert_eq!(*seen.lock().unwrap(), [3, 3, 3]);
+    // Member 0 is the plain run with the same seed, weight for weight (each member is a
+    // training of its own, not disturbed by the others beside it).
+    let plain = train(&cfg, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).unwrap();
+    assert_eq!(out.members[0].model.weights, plain.model.weights);
+    // Member 1 is the plain run with its own seed.
+    let cfg1 = TrainConfig { seed: member_seed(cfg.seed, 1), ..cfg.clone() };
+    let one = train(&cfg1, &train_set, &dev, "test", &AtomicBool::new(false), |_| {}).unwrap();
+    assert_eq!(out.members[1].model.weights, one.model.weights);
+    assert_ne!(out.members[0].model.weights, out.members[1].model.weights);
+    let vpt = |i: usize| out.members[i].model.provenance.metrics["dev_vpt_s"];
+    assert!((0..3).all(|i| vpt(out.chosen) >= vpt(i)), "kept member {} is not the best on dev", out.chosen);
+    assert_eq!(out.best().model.weights, out.members[out.chosen].model.weights);
+    assert!(train_members(&cfg, 0, &train_set, &dev, "test", &AtomicBool::new(false), &|_, _| {}).is_err());
 }

@@ -3,13 +3,14 @@
 
 use crate::eval_cmd::{eval_sets, print_metrics};
 use crate::{PresetName, load_vehicle};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::eval::{Metrics, evaluate};
 use pinc::model::Activation;
 use pinc::plot::{Panel, Series, figure};
 use pinc::train::{
-    Backend, EpochRecord, GradCombine, LossKind, LrSchedule, StopReason, TrainConfig, TrainOutcome, train,
+    Backend, EpochRecord, GradCombine, LossKind, LrSchedule, MembersOutcome, StopReason, TrainConfig, TrainOutcome,
+    train_members,
 };
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -113,6 +114,11 @@ pub struct TrainArgs {
     /// Trajectories per set for the final evaluation [default: 1000].
     #[arg(long)]
     pub eval_count: Option<usize>,
+    /// Train N members side by side (one thread each, each with the whole --time-limit and
+    /// its own initialisation and shuffling on the same data) and keep the one with the best
+    /// dev VPT; each member's curves go to OUT.memberI.csv [default: 1].
+    #[arg(long, default_value_t = 1)]
+    pub members: usize,
     /// Print the summary as JSON (no progress bar).
     #[arg(long)]
     pub json: bool,
@@ -230,35 +236,16 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
     }
     let csv_path = sibling(&a.out, "csv");
-    let mut csv = EpochCsv::create(&csv_path, &cfg)?;
-    let bar = if a.json { ProgressBar::hidden() } else { ProgressBar::new(cfg.epochs as u64) };
-    bar.set_style(
-        ProgressStyle::with_template("epoch {pos}/{len} [{bar:30}] {elapsed} (ETA {eta}) {msg}")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
     let source = match &a.data {
         Some(d) => format!("pinc train --data {}", d.display()),
         None => format!("pinc train --preset {}", preset.name),
     };
-    let outcome = train(&cfg, &train_set, &dev, &source, &interrupt, |r: &EpochRecord| {
-        let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
-        bar.set_message(format!(
-            "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
-            losses.join(" "),
-            r.dev_rollout10,
-            r.dev_vpt,
-            r.lr
-        ));
-        bar.inc(1);
-        csv.row(r);
-    })
-    .map_err(|e| e.to_string())?;
-    bar.finish_and_clear();
-    if let Some(e) = csv.error {
-        eprintln!("warning: {}: {e}", csv_path.display());
+    let all = train_with_progress(&a, &cfg, &train_set, &dev, &source, &interrupt, &csv_path)?;
+    let outcome = all.best();
+    report_stop(outcome);
+    if a.members > 1 {
+        report_members(&all, a.json);
     }
-    report_stop(&outcome);
     let final_metrics = match &folder {
         Some(data) => FinalMetrics::Test(
             data.set("test")
@@ -272,7 +259,7 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             FinalMetrics::Paper(evaluate(&outcome.model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?)
         }
     };
-    save_with_metrics(&a.out, &outcome, &final_metrics)?;
+    save_with_metrics(&a.out, &all, &final_metrics)?;
     let png = sibling(&a.out, "png");
     plot_history(&png, &outcome.history).map_err(|e| format!("plot {}: {e}", png.display()))?;
     if a.json {
@@ -284,6 +271,8 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             "step_ms": outcome.step_ms,
             "backend": cfg.backend,
             "stop": outcome.stop,
+            "members": all.members.iter().map(|m| m.model.provenance.metrics["dev_vpt_s"]).collect::<Vec<_>>(),
+            "member_kept": all.chosen,
             "csv": csv_path.display().to_string(),
             "plot": png.display().to_string(),
         });
@@ -310,6 +299,84 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         println!("metrics per epoch: {}  curves: {}", csv_path.display(), png.display());
     }
     Ok(())
+}
+
+/// Runs the training (its members side by side when there are several) with one progress
+/// bar and one per-epoch CSV per member, and writes the kept member's curves to `csv_path`.
+fn train_with_progress(
+    a: &TrainArgs,
+    cfg: &TrainConfig,
+    train_set: &TrajectorySet,
+    dev: &TrajectorySet,
+    source: &str,
+    interrupt: &AtomicBool,
+    csv_path: &Path,
+) -> Result<MembersOutcome, String> {
+    let paths: Vec<PathBuf> = if a.members == 1 {
+        vec![csv_path.to_path_buf()]
+    } else {
+        (0..a.members).map(|i| sibling(&a.out, &format!("member{i}.csv"))).collect()
+    };
+    let csvs =
+        paths.iter().map(|p| EpochCsv::create(p, cfg).map(std::sync::Mutex::new)).collect::<Result<Vec<_>, _>>()?;
+    let multi = MultiProgress::new();
+    let style = ProgressStyle::with_template("{prefix}epoch {pos}/{len} [{bar:30}] {elapsed} (ETA {eta}) {msg}")
+        .expect("static template")
+        .progress_chars("=> ");
+    let bars: Vec<ProgressBar> = (0..a.members)
+        .map(|i| {
+            let bar = if a.json { ProgressBar::hidden() } else { multi.add(ProgressBar::new(cfg.epochs as u64)) };
+            bar.set_style(style.clone());
+            if a.members > 1 {
+                bar.set_prefix(format!("member {i} "));
+            }
+            bar
+        })
+        .collect();
+    let on_epoch = |i: usize, r: &EpochRecord| {
+        let losses: Vec<String> = r.train.iter().map(|(k, v)| format!("{}={v:.2e}", k.name())).collect();
+        bars[i].set_message(format!(
+            "{} | dev roll10 {:.2e} VPT {:.2} s | lr {:.1e}",
+            losses.join(" "),
+            r.dev_rollout10,
+            r.dev_vpt,
+            r.lr
+        ));
+        bars[i].inc(1);
+        csvs[i].lock().expect("csv lock").row(r);
+    };
+    let all = train_members(cfg, a.members, train_set, dev, source, interrupt, &on_epoch).map_err(|e| e.to_string())?;
+    bars.iter().for_each(ProgressBar::finish_and_clear);
+    for (csv, path) in csvs.into_iter().zip(&paths) {
+        if let Some(e) = csv.into_inner().expect("csv lock").error {
+            eprintln!("warning: {}: {e}", path.display());
+        }
+    }
+    if a.members > 1 {
+        let mut kept = EpochCsv::create(csv_path, cfg)?;
+        all.best().history.iter().for_each(|r| kept.row(r));
+        if let Some(e) = kept.error {
+            eprintln!("warning: {}: {e}", csv_path.display());
+        }
+    }
+    Ok(all)
+}
+
+/// Says which member was kept and every member's dev VPT.
+fn report_members(all: &MembersOutcome, json: bool) {
+    if json {
+        return;
+    }
+    for (i, m) in all.members.iter().enumerate() {
+        eprintln!(
+            "member {i} (seed {}): dev VPT {:.3} s at epoch {} of {}{}",
+            m.model.provenance.seed,
+            m.model.provenance.metrics["dev_vpt_s"],
+            m.best_epoch,
+            m.history.len(),
+            if i == all.chosen { "  <- kept" } else { "" }
+        );
+    }
 }
 
 /// The preset's training and dev sets, generated from the seed, with the counts and
@@ -428,8 +495,10 @@ enum FinalMetrics {
     Test(Option<pinc::eval::SetMetrics>),
 }
 
-/// The model written to `out` with its final metrics and the run's timing.
-fn save_with_metrics(out: &Path, outcome: &TrainOutcome, metrics: &FinalMetrics) -> Result<(), String> {
+/// The kept model written to `out` with its final metrics, the run's timing and, for
+/// several members, how many there were and which was kept.
+fn save_with_metrics(out: &Path, all: &MembersOutcome, metrics: &FinalMetrics) -> Result<(), String> {
+    let outcome = all.best();
     let mut model = outcome.model.clone();
     let m = &mut model.provenance.metrics;
     match metrics {
@@ -446,6 +515,10 @@ fn save_with_metrics(out: &Path, outcome: &TrainOutcome, metrics: &FinalMetrics)
     m.insert("step_ms".into(), outcome.step_ms);
     m.insert("best_epoch".into(), outcome.best_epoch as f64);
     m.insert("epochs_run".into(), outcome.history.len() as f64);
+    if all.members.len() > 1 {
+        m.insert("members".into(), all.members.len() as f64);
+        m.insert("member_kept".into(), all.chosen as f64);
+    }
     model.save(out).map_err(|e| e.to_string())
 }
 
