@@ -379,7 +379,11 @@ def train_sweep(grid_or_list, out_dir="sweep", address=None, pinc_bin=None, resu
             ray = connect(address)
             task = ray.remote(max_retries=max_retries, num_cpus=1)(_train_one)
             bar = _Progress(len(configs), len(configs) - len(todo), "training sweep", progress)
-            refs = {task.remote(pinc_bin, c): f"configuration {c['name']!r}" for c in todo}
+            # A configuration with members trains one thread per member: reserve that many CPUs.
+            refs = {
+                task.options(num_cpus=int(c.get("members", 1))).remote(pinc_bin, c): f"configuration {c['name']!r}"
+                for c in todo
+            }
 
             def done(_tag, item):
                 with open(os.path.join(out_dir, item["name"] + ".pinc"), "wb") as f:
