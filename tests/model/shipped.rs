@@ -43,25 +43,29 @@ fn shipped_paper_models_carry_their_provenance_and_envelope() {
 }
 
 #[test]
-fn shipped_pinc_matches_the_data_only_network_at_its_period_and_far_outdoes_it_elsewhere() {
-    // Seed 7, 200 trajectories per set (measured: PINC 3.84 / 3.39 / 3.47 s, data-only
-    // 3.57 / 0.78 / 1.17 s). On 1000-trajectory sets of seeds 20 and 21 the two are within
-    // 0.07 s at T = 0.08 s, either way (docs/RESULTS.md).
+fn shipped_pinc_outdoes_the_data_only_network_at_its_period_and_far_outdoes_it_elsewhere() {
+    // Seed 7, 200 trajectories per set (measured: PINC 4.17 / 3.50 / 4.21 s, data-only
+    // 3.57 / 0.78 / 1.17 s). On 1000-trajectory sets of seeds 20 and 21 the PINC is 0.15 and
+    // 0.30 s above the data-only network at T = 0.08 s (docs/RESULTS.md).
     let (pinc, dnn) = (shipped("paper_pinc.pinc"), shipped("paper_dnn.pinc"));
     let dev = fresh("dev_eval", 7);
     let (a, b) = (mean_vpt(&pinc, &dev), mean_vpt(&dnn, &dev));
-    assert!(a > 3.5 && b > 3.3, "dev VPT: PINC {a:.3} s, data-only {b:.3} s");
-    assert!(a > b - 0.1, "dev: PINC VPT {a:.3} s is more than 0.1 s below the data-only {b:.3} s");
+    assert!(a > 3.9 && b > 3.3, "dev VPT: PINC {a:.3} s, data-only {b:.3} s");
+    assert!(a > b + 0.3, "dev: PINC VPT {a:.3} s is not 0.3 s above the data-only {b:.3} s");
     // The data-only network only ever sees t = T; the physics and initial-condition losses,
     // with collocation times inside the period, teach the PINC what its time input means.
     for set in ["interp", "extrap"] {
         let s = fresh(set, 7);
         let (a, b) = (mean_vpt(&pinc, &s), mean_vpt(&dnn, &s));
-        assert!(a > 3.0 && a > 2.5 * b, "{set}: PINC VPT {a:.3} s against the data-only {b:.3} s");
+        assert!(a > 3.2 && a > 2.5 * b, "{set}: PINC VPT {a:.3} s against the data-only {b:.3} s");
     }
-    // The recipe that made it (docs/RESULTS.md): the curriculum and the cosine schedule.
+    // The recipe that made it (README, docs/RESULTS.md): the curriculum, the cosine
+    // schedule, the physics terms at weight 0.25, and the better of two members on dev.
     let cfg = config(&pinc);
     assert_eq!((cfg["physics_after"].as_f64(), cfg["lr_schedule"].as_str()), (Some(0.5), Some("Cosine")));
+    let weights: Vec<f64> = serde_json::from_value(cfg["weights"].clone()).unwrap();
+    assert_eq!(weights, [1.0, 0.25, 0.25, 1.0, 0.25]);
+    assert_eq!(pinc.provenance.metrics["members"], 2.0);
 }
 
 #[test]
