@@ -241,6 +241,55 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     assert_eq!(pinc(&["train", "--out", m, "--grad", "nope"]).status.code(), Some(2));
 }
 
+/// `--members 2`: both members' curves, the kept one's as the run's CSV, and the kept
+/// member's index and count in the JSON and the frozen file.
+#[cfg(feature = "train")]
+#[test]
+fn train_with_two_members_keeps_the_better_on_dev_and_writes_both_curves() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("two.pinc");
+    let m = model.to_str().unwrap();
+    let out = pinc(&[
+        "train",
+        "--epochs",
+        "2",
+        "--batch",
+        "4",
+        "--train-count",
+        "8",
+        "--dev-count",
+        "4",
+        "--eval-count",
+        "5",
+        "--rollout-steps",
+        "5",
+        "--rollout-stride",
+        "8",
+        "--backend",
+        "flex",
+        "--members",
+        "2",
+        "--json",
+        "--out",
+        m,
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let dev: Vec<f64> = serde_json::from_value(v["members"].clone()).unwrap();
+    let kept = v["member_kept"].as_u64().unwrap() as usize;
+    assert!(dev.len() == 2 && dev[kept] >= dev[1 - kept], "{v}");
+    let frozen = pinc::model::PincModel::load(&model).unwrap();
+    assert_eq!((frozen.provenance.metrics["members"], frozen.provenance.metrics["member_kept"]), (2.0, kept as f64));
+    assert_eq!(frozen.provenance.metrics["dev_vpt_s"], dev[kept]);
+    let read = |name: &str| std::fs::read_to_string(dir.path().join(name)).unwrap();
+    assert_eq!(read("two.csv"), read(&format!("two.member{kept}.csv")), "the run's CSV is the kept member's");
+    assert_eq!(read("two.member0.csv").lines().count(), 3);
+    assert_eq!(read("two.member1.csv").lines().count(), 3);
+    let out = pinc(&["train", "--epochs", "1", "--members", "0", "--out", m]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("members: need at least one"));
+}
+
 #[test]
 fn predict_warns_of_every_component_outside_the_envelope_farthest_first() {
     let dir = tempfile::tempdir().unwrap();
