@@ -362,6 +362,18 @@ def _train_one(pinc_bin, config):
     }
 
 
+def _check_members_fit(ray, configs):
+    """A configuration with `members` trains one thread per member on one node: refuse one
+    that no node of the cluster has the CPUs for, which Ray would otherwise wait on forever."""
+    most = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
+    for c in configs:
+        m = int(c.get("members", 1))
+        if m < 1 or m > most:
+            raise DistributedError(
+                f"configuration {c['name']!r}: members {m} needs {m} CPUs on one node; the largest node has {most:g}"
+            )
+
+
 def train_sweep(grid_or_list, out_dir="sweep", address=None, pinc_bin=None, results=None, progress=True, max_retries=1):
     """Trains every configuration (see `configurations`) as a Ray task running `pinc train`
     on the worker, collects each model as out_dir/<name>.pinc (and .csv), and returns the
@@ -377,6 +389,7 @@ def train_sweep(grid_or_list, out_dir="sweep", address=None, pinc_bin=None, resu
     try:
         if todo:
             ray = connect(address)
+            _check_members_fit(ray, todo)
             task = ray.remote(max_retries=max_retries, num_cpus=1)(_train_one)
             bar = _Progress(len(configs), len(configs) - len(todo), "training sweep", progress)
             # A configuration with members trains one thread per member: reserve that many CPUs.

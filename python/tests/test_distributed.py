@@ -182,6 +182,13 @@ def test_training_sweep_gives_two_models_ranked_by_dev_vpt(cluster, tmp_path):
         assert kept and float(kept[0][head.index("dev_vpt_s")]) == r["dev_vpt_s"]
 
 
+def test_configuration_with_more_members_than_a_node_has_cpus_is_refused(cluster, tmp_path):
+    address, _ = cluster  # two nodes of one CPU each
+    bad = [{"epochs": 1, "members": 2, "name": "wide"}]
+    with pytest.raises(distributed.DistributedError, match=r"configuration 'wide': members 2 needs 2 CPUs on one node; the largest node has 1"):
+        distributed.train_sweep(bad, out_dir=tmp_path, address=address, pinc_bin=PINC_BIN, progress=False)
+
+
 def test_unreachable_cluster_is_one_clear_error(tmp_path):
     port = free_port()  # nothing listens there
     with pytest.raises(distributed.DistributedError, match=f"127.0.0.1:{port}.*unreachable"):
