@@ -368,7 +368,7 @@ def _check_members_fit(ray, configs):
     most = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
     for c in configs:
         m = int(c.get("members", 1))
-        if m < 1 or m > most:
+        if m > most:  # zero or negative: `pinc train` refuses it with its own message
             raise DistributedError(
                 f"configuration {c['name']!r}: members {m} needs {m} CPUs on one node; the largest node has {most:g}"
             )

@@ -167,6 +167,27 @@ fn bad_model_files_give_one_line_errors() {
     }
 }
 
+/// Flags of a training run of seconds: two epochs on eight trajectories.
+#[cfg(feature = "train")]
+const TINY_TRAINING: &[&str] = &[
+    "--epochs",
+    "2",
+    "--batch",
+    "4",
+    "--train-count",
+    "8",
+    "--dev-count",
+    "4",
+    "--eval-count",
+    "5",
+    "--rollout-steps",
+    "5",
+    "--rollout-stride",
+    "8",
+    "--backend",
+    "flex",
+];
+
 /// A tiny end-to-end `train` + `eval`: every output file exists, the JSON carries the
 /// contract's keys, and the architecture switches reach the frozen file.
 #[cfg(feature = "train")]
@@ -176,34 +197,8 @@ fn train_then_eval_writes_model_metrics_and_plots() {
     let model = dir.path().join("tiny.pinc");
     let m = model.to_str().unwrap();
     let vehicle = write(dir.path(), "v.toml", "y_vd = -15.5\n");
-    let args = [
-        "train",
-        "--preset",
-        "paper",
-        "--epochs",
-        "2",
-        "--batch",
-        "4",
-        "--train-count",
-        "8",
-        "--dev-count",
-        "4",
-        "--eval-count",
-        "5",
-        "--rollout-steps",
-        "5",
-        "--rollout-stride",
-        "8",
-        "--position-free",
-        "--backend",
-        "flex",
-        "--json",
-        "--vehicle",
-        &vehicle,
-        "--out",
-        m,
-    ];
-    let out = pinc(&args);
+    let args = ["--preset", "paper", "--position-free", "--json", "--vehicle", &vehicle, "--out", m];
+    let out = pinc(&[&["train"], TINY_TRAINING, &args[..]].concat());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["epochs_run"], 2);
@@ -249,30 +244,7 @@ fn train_with_two_members_keeps_the_better_on_dev_and_writes_both_curves() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("two.pinc");
     let m = model.to_str().unwrap();
-    let out = pinc(&[
-        "train",
-        "--epochs",
-        "2",
-        "--batch",
-        "4",
-        "--train-count",
-        "8",
-        "--dev-count",
-        "4",
-        "--eval-count",
-        "5",
-        "--rollout-steps",
-        "5",
-        "--rollout-stride",
-        "8",
-        "--backend",
-        "flex",
-        "--members",
-        "2",
-        "--json",
-        "--out",
-        m,
-    ]);
+    let out = pinc(&[&["train"], TINY_TRAINING, &["--members", "2", "--json", "--out", m]].concat());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let dev: Vec<f64> = serde_json::from_value(v["members"].clone()).unwrap();
