@@ -113,6 +113,9 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[command(flatten)]
     drive: pinc::link::cli::DriveArgs,
+    #[cfg(feature = "vehicle")]
+    #[command(flatten)]
+    estimator: pinc::link::cli::EstimatorArgs,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -199,7 +202,7 @@ fn try_main(a: Args) -> Result<(), String> {
     })?;
     #[cfg(not(feature = "vehicle"))]
     let live_run: Option<LiveRun> = None;
-    let (samples, log_error, stopped) = match live_run {
+    let (samples, log_error, stopped, live) = match live_run {
         Some(run) => run,
         None => {
             let (samples, log_error) = if a.oracle {
@@ -220,7 +223,7 @@ fn try_main(a: Args) -> Result<(), String> {
                     &mut log,
                 )
             };
-            (samples, log_error, None)
+            (samples, log_error, None, None)
         }
     };
     let summary = summarise(&samples, scenario, a.horizon as f64 * model.dt);
@@ -252,9 +255,13 @@ fn try_main(a: Args) -> Result<(), String> {
         o.insert("log_bytes".into(), log_bytes.into());
         o.insert("log_messages".into(), stats.messages.into());
         o.insert("stopped".into(), stopped.clone().into());
+        o.insert("live".into(), live.clone().unwrap_or(serde_json::Value::Null));
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
         print_summary(&summary);
+        if let Some(l) = &live {
+            print_live(l);
+        }
         println!("plot: {}", png.display());
         println!("log:  {} ({log_bytes} bytes, {} messages; open it in Foxglove)", mcap.display(), stats.messages);
     }
@@ -262,6 +269,28 @@ fn try_main(a: Args) -> Result<(), String> {
         Some(reason) => Err(reason),
         None => Ok(()),
     }
+}
+
+/// The live figures in the summary table's style.
+fn print_live(l: &serde_json::Value) {
+    let ms = |k: &str| {
+        let v = &l[k];
+        match (v["median"].as_f64(), v["p99"].as_f64(), v["max"].as_f64()) {
+            (Some(a), Some(b), Some(c)) => format!("median {a:.1} ms, p99 {b:.1} ms, max {c:.1} ms"),
+            _ => "none (no cycle ran)".into(),
+        }
+    };
+    println!("state age at command    {}", ms("state_age_ms"));
+    println!("arrival to command      {}", ms("latency_ms"));
+    let e = &l["estimate_rms_error"];
+    if l["truth_samples"].as_u64().unwrap_or(0) > 0 {
+        let f = |k: &str| e[k].as_f64().map_or("-".into(), |v| format!("{v:.3}"));
+        println!(
+            "estimate vs truth RMS   u {} v {} w {} m/s, r {} rad/s, z {} m, psi {} rad ({} samples)",
+            f("u"), f("v"), f("w"), f("r"), f("z"), f("psi"), l["truth_samples"]
+        );
+    }
+    println!("estimator               {} fused, {} rejected, {} late, {} restarts", l["fused"], l["rejected"], l["late"], l["restarts"]);
 }
 
 /// Runs the loop with a progress bar, logging every sample; Ctrl-C ends it early with the
@@ -455,32 +484,97 @@ fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) 
     figure(path, 1400, 1200, 2, &panels)
 }
 
-/// A run on a live vehicle: its samples, a log write error, and why it stopped early.
-type LiveRun = (Vec<Sample>, Option<LogError>, Option<String>);
+/// A run on a live vehicle: its samples, a log write error, why it stopped early, and the
+/// live figures (latencies, the estimator's, its errors against a simulator's truth).
+type LiveRun = (Vec<Sample>, Option<LogError>, Option<String>, Option<serde_json::Value>);
 
 /// The closed loop on a live vehicle over MAVLink (`--connect`).
 #[cfg(feature = "vehicle")]
 mod live {
     use super::Args;
+    use mavlink::dialects::ardupilotmega::{MavMessage, SIM_STATE_DATA};
     use pinc::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
-    use pinc::link::cli::{open, positive};
-    use pinc::link::{Capability, Drive, Trigger};
+    use pinc::estimation::mavlink::Observation;
+    use pinc::estimation::{Estimate, Measurement, Tracker};
+    use pinc::link::cli::{non_negative, open};
+    use pinc::link::{Capability, Drive, Note, Received, Trigger};
     use pinc::mpc::Mpc;
     use pinc::traits::DiscreteModel;
     use pinc::types::{NU, SimState};
-    use pinc::vehicle::to_network;
+    use pinc::vehicle::{Rk4Vehicle, VehicleParams, to_network, wrap_angle};
+    use serde_json::{Value, json};
+    use std::cell::RefCell;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::Instant;
 
-    /// Runs `scenario` on the vehicle: waits (neutral commands) for a full state, then one MPC
-    /// cycle per fresh state sample, its wrench sent as commands, until the scenario ends or a
-    /// safety trigger stops it. The scenario's time 0 is the first full state. Returns the
-    /// samples, a log write error, and the stop's reason.
+    /// `SERVO_OUTPUT_RAW`, whose outputs are the input the estimator is driven by.
+    const SERVO_OUTPUT_RAW_ID: u32 = 36;
+    /// `SIM_STATE`: the simulator's truth.
+    const SIM_STATE_ID: u32 = 108;
+
+    /// The simulator's truth at an autopilot time: depth, heading, body velocities, yaw rate.
+    #[derive(Debug, Clone, Copy)]
+    struct Truth {
+        t: f64,
+        z: f64,
+        psi: f64,
+        uvw: [f64; 3],
+        r: f64,
+    }
+
+    fn truth_of(t: f64, s: &SIM_STATE_DATA) -> Truth {
+        // NED velocity into the body frame by the whole attitude (Z-Y-X Euler angles).
+        let (roll, pitch, yaw) = (f64::from(s.roll), f64::from(s.pitch), f64::from(s.yaw));
+        let r = nalgebra::Rotation3::from_euler_angles(roll, pitch, yaw);
+        let body = r.inverse() * nalgebra::Vector3::new(f64::from(s.vn), f64::from(s.ve), f64::from(s.vd));
+        Truth { t, z: -f64::from(s.alt), psi: yaw, uvw: [body.x, body.y, body.z], r: f64::from(s.zgyro) }
+    }
+
+    /// The process model of the estimator.
+    enum EstimatorModel<M> {
+        Controller(M),
+        Vehicle(Rk4Vehicle),
+    }
+
+    /// Either model behind one tracker type.
+    enum AnyTracker<M: DiscreteModel> {
+        Controller(Tracker<M>),
+        Vehicle(Tracker<Rk4Vehicle>),
+    }
+
+    macro_rules! each {
+        ($t:expr, $x:ident => $body:expr) => {
+            match $t {
+                AnyTracker::Controller($x) => $body,
+                AnyTracker::Vehicle($x) => $body,
+            }
+        };
+    }
+
+    fn rms(v: &[f64]) -> Option<f64> {
+        (!v.is_empty()).then(|| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt())
+    }
+
+    fn percentiles_ms(v: &mut [f64]) -> Value {
+        if v.is_empty() {
+            return json!({"median": null, "p99": null, "max": null});
+        }
+        v.sort_by(f64::total_cmp);
+        let at = |p: f64| v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] * 1e3;
+        json!({"median": at(0.5), "p99": at(0.99), "max": v[v.len() - 1] * 1e3})
+    }
+
+    /// Runs `scenario` on the vehicle: arms (retrying while the autopilot refuses), waits
+    /// (neutral commands) until the state estimate runs (or, with `--wait-position`, for a
+    /// position source), then one MPC cycle per fresh state sample on the estimate, its wrench
+    /// sent as commands, until the scenario ends or a safety trigger stops it. The scenario's
+    /// time 0 is the first cycle. Returns the samples, a log write error, the stop's reason
+    /// and the live figures.
     ///
     /// # Errors
     /// Set-up: no vehicle file, a bad option, the link, no autopilot; these command nothing.
-    pub fn run<M: DiscreteModel>(
+    pub fn run<M: DiscreteModel + Clone>(
         mut mpc: Mpc<M>,
         scenario: &Scenario,
         connect: &str,
@@ -490,28 +584,65 @@ mod live {
         let vehicle_file =
             a.vehicle.as_ref().ok_or("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables")?;
         let commander = a.drive.commander(vehicle_file)?;
-        let limits = a.drive.limits()?;
-        let wait_position = positive("--wait-position", a.drive.wait_position)?;
+        let settings = a.drive.settings()?;
+        let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
+        let noise = a.estimator.noise()?;
+        let position_free = mpc.model().position_free();
+        let model = match a.estimator.estimator_model.as_str() {
+            "vehicle" => {
+                let params = VehicleParams::load(vehicle_file).map_err(|e| e.to_string())?;
+                EstimatorModel::Vehicle(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(mpc.model().dt()) })
+            }
+            _ => EstimatorModel::Controller(mpc.model().clone()),
+        };
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
             .map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
         let (link, autopilot, estimator) = open(connect, &a.link, |_| {})?;
+        link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.drive.outputs_rate).map_err(|e| e.to_string())?;
+        if a.estimator.sim_truth {
+            link.set_message_rate(SIM_STATE_ID, a.link.rate).map_err(|e| e.to_string())?;
+        }
         let mut log_error: Option<LogError> = None;
+        let estimator_line = if a.estimator.no_estimator {
+            "no state estimator (the raw state; body velocities from the autopilot's EKF)".to_string()
+        } else {
+            format!(
+                "state estimator on the {} model (depth std {} m, heading std {} rad)",
+                a.estimator.estimator_model, noise.depth_std, noise.heading_std
+            )
+        };
         let line = format!(
-            "live vehicle on {} (system {}), commands by {}, limits {:?}",
-            connect, autopilot.system_id, a.drive.command_way, limits
+            "live vehicle on {connect} (system {}), commands by {}; {estimator_line}; {}",
+            autopilot.system_id,
+            a.drive.command_way,
+            settings.limits.describe()
         );
         log_error = log_error.or(log.log(0.0, Level::Info, &line).err());
-        let started = Drive::start(link, autopilot, estimator, commander, limits, a.drive.arm, stop, |_, _| {});
+        let truths: RefCell<Vec<Truth>> = RefCell::new(Vec::new());
+        let seen = |r: &Received, t: f64| {
+            if let MavMessage::SIM_STATE(s) = &r.message {
+                truths.borrow_mut().push(truth_of(t, s));
+            }
+        };
+        let mut notes: Vec<Note> = Vec::new();
+        let started = Drive::start(link, autopilot, estimator, commander.clone(), settings, stop, seen);
         let mut drive = match started {
             Ok(d) => d,
-            Err(stopped) => {
+            Err(mut stopped) => {
+                for n in std::mem::take(&mut stopped.notes) {
+                    log_error = log_error.or(log.log(0.0, n.level, &n.text).err());
+                }
                 let reason = stopped.trigger.map_or_else(|| "stopped".to_string(), |t| t.to_string());
                 log_error = log_error.or(log.log(0.0, Level::Error, &reason).err());
                 eprintln!("{reason}");
-                return Ok((Vec::new(), log_error, Some(reason)));
+                return Ok((Vec::new(), log_error, Some(reason), None));
             }
+        };
+        let mut tracker = match model {
+            EstimatorModel::Controller(m) => AnyTracker::Controller(Tracker::new(m, noise)),
+            EstimatorModel::Vehicle(v) => AnyTracker::<M>::Vehicle(Tracker::new(v, noise)),
         };
         let dt = mpc.model().dt();
         let n = mpc.config().horizon;
@@ -520,29 +651,117 @@ mod live {
         let waited = Instant::now();
         let mut t0: Option<f64> = None;
         let mut refs = vec![scenario.reference(0.0); n];
+        let mut horizontal_before: Option<bool> = None;
+        let (mut ages, mut latencies) = (Vec::new(), Vec::new());
+        let mut errors: [Vec<f64>; 6] = Default::default();
+        let mut control_after: Option<f64> = None;
+        let (mut last_depth, mut last_heading): (Option<f64>, Option<f64>) = (None, None);
+        let t_log = |at: f64, t0: Option<f64>| t0.map_or(0.0, |s| (at - s).max(0.0));
         let outcome: Result<(), Trigger> = loop {
-            let fresh = match drive.next_state(|_, _| {}) {
+            let fresh = match drive.next_state(seen) {
                 Ok(f) => f,
                 Err(t) => break Err(t),
             };
+            notes.extend(drive.take_notes());
+            for o in drive.drain_observations() {
+                match o {
+                    Observation::Measured(Measurement::Depth { t, .. }) => last_depth = Some(t),
+                    Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => last_depth = Some(t),
+                    Observation::Measured(Measurement::Heading { t, .. }) => last_heading = Some(t),
+                    _ => {}
+                }
+                each!(&mut tracker, tr => match o {
+                    Observation::Measured(m) => tr.measure(m),
+                    Observation::Applied(t, u) => tr.applied(t, u),
+                });
+            }
+            let estimate: Option<Estimate> = if a.estimator.no_estimator {
+                None
+            } else {
+                match each!(&mut tracker, tr => tr.advance(fresh.state.t)) {
+                    Ok(e) => e,
+                    Err(e) => break Err(Trigger::Error(format!("state estimator: {e}"))),
+                }
+            };
+            let horizontal = each!(&tracker, tr => tr.horizontal_observed(fresh.state.t));
+            if horizontal_before.is_some_and(|b| b != horizontal) || (horizontal && horizontal_before.is_none()) {
+                let text = if horizontal {
+                    "position source present: position and velocity fused into the estimate"
+                } else {
+                    "position source lost: running on the estimate (depth, heading, yaw rate and the model)"
+                };
+                notes.push(Note {
+                    t: fresh.state.t,
+                    level: if horizontal { Level::Info } else { Level::Warning },
+                    text: text.into(),
+                    from_autopilot: false,
+                });
+            }
+            horizontal_before = Some(horizontal);
+            // What the controller runs on: the estimate, or without one the raw full state.
+            let state: Option<SimState> = match (&estimate, a.estimator.no_estimator) {
+                (Some(e), _) if horizontal || position_free => Some(e.sim),
+                (None, true) if fresh.state.capability == Capability::Full => Some(SimState::from(fresh.state.sim)),
+                _ => None,
+            };
             let start = match t0 {
                 Some(s) => s,
-                None if fresh.state.capability == Capability::Full => *t0.insert(fresh.state.t),
-                None if waited.elapsed() > wait_position => {
-                    break Err(Trigger::Error(format!(
-                        "no full state after {:.0} s: {}; the MPC needs the body velocities (a DVL or another \
-                         position source for ArduSub's EKF) and pinc does not invent them",
-                        wait_position.as_secs_f64(),
-                        fresh.state.capability
-                    )));
+                None => {
+                    let waiting_for_position = !horizontal && waited.elapsed() < wait_position;
+                    if state.is_none() || waiting_for_position {
+                        if state.is_none() && waited.elapsed() > wait_position.max(std::time::Duration::from_secs(30)) {
+                            let why = if a.estimator.no_estimator {
+                                format!("no full state: {}; the estimator (on by default) needs only depth and heading", fresh.state.capability)
+                            } else if !position_free {
+                                "the model needs x, y (it is not position-free) and no position source came".to_string()
+                            } else {
+                                format!("the state estimate did not start: {}", fresh.state.capability)
+                            };
+                            break Err(Trigger::Error(format!("no state to control on after {:.0} s: {why}", waited.elapsed().as_secs_f64())));
+                        }
+                        match drive.send_neutral(&fresh) {
+                            Ok(_) => {
+                                each!(&mut tracker, tr => tr.commanded(pinc::Input::zeros()));
+                                continue;
+                            }
+                            Err(t) => break Err(t),
+                        }
+                    }
+                    notes.push(Note {
+                        t: fresh.state.t,
+                        level: Level::Info,
+                        text: format!(
+                            "control starts {:.1} s after arming, on the {}{}",
+                            waited.elapsed().as_secs_f64(),
+                            if estimate.is_some() { "state estimate" } else { "raw state" },
+                            if horizontal { " with a position source" } else { " without a position source (depth and heading)" }
+                        ),
+                        from_autopilot: false,
+                    });
+                    control_after = Some(waited.elapsed().as_secs_f64());
+                    *t0.insert(fresh.state.t)
                 }
-                None => match drive.send_neutral(&fresh) {
-                    Ok(_) => continue,
-                    Err(t) => break Err(t),
-                },
             };
-            if fresh.state.capability != Capability::Full {
-                break Err(Trigger::Error(format!("the state lost a part: {}", fresh.state.capability)));
+            for n in notes.drain(..) {
+                log_error = log_error.or(log.log(t_log(n.t, t0), n.level, &n.text).err());
+            }
+            let Some(state) = state else {
+                let why = if a.estimator.no_estimator {
+                    format!("the raw state lost a part: {}", fresh.state.capability)
+                } else {
+                    "the state estimate stopped (a gap in the measurements longer than 2 s)".to_string()
+                };
+                break Err(Trigger::Error(why));
+            };
+            // Depth and heading are what the controller cannot do without: their silence stops it
+            // (the state sample's own clock goes on while either message keeps coming).
+            let sensor_limit = a.link.max_age;
+            let silent = [("depth", last_depth), ("heading", last_heading)]
+                .into_iter()
+                .map(|(sensor, last)| (sensor, last.map_or(f64::INFINITY, |l| fresh.state.t - l)))
+                .find(|(_, age)| *age > sensor_limit);
+            if let Some((sensor, age)) = silent {
+                break Err(Trigger::SensorLost { sensor, age, limit: sensor_limit });
             }
             let t = fresh.state.t - start;
             if t >= scenario.duration() - 1e-9 {
@@ -551,14 +770,43 @@ mod live {
             for (j, r) in refs.iter_mut().enumerate() {
                 *r = scenario.reference(t + (j + 1) as f64 * dt);
             }
-            let state = SimState::from(fresh.state.sim);
             let cycle = mpc.step(&to_network(&state), &refs);
             let sent = match drive.send(&fresh, &cycle.input) {
                 Ok(s) => s,
                 Err(t) => break Err(t),
             };
+            each!(&mut tracker, tr => tr.commanded(commander.input_of(&sent.command)));
             let u = cycle.input;
             let bound_violation = (0..NU).any(|j| !(u[j] >= lo[j] - 1e-9 && u[j] <= hi[j] + 1e-9));
+            // The state's age when its command went out, and the arrival-to-send latency.
+            let state_age = sent.autopilot_t - fresh.state.t;
+            let latency = sent.at.saturating_duration_since(fresh.arrived).as_secs_f64();
+            ages.push(state_age);
+            latencies.push(latency);
+            if log_error.is_none() {
+                log_error = log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
+            }
+            if let Some(e) = &estimate {
+                // The newest truth at or before the estimate's time (SIM_STATE comes at the same rate).
+                let truth = truths.borrow().iter().rev().find(|tr| tr.t <= e.t + 1e-3 && e.t - tr.t < 0.1).copied();
+                if let Some(tr) = truth {
+                    let d = [e.sim[4] - tr.uvw[0], e.sim[5] - tr.uvw[1], e.sim[6] - tr.uvw[2], e.sim[7] - tr.r, e.sim[2] - tr.z, wrap_angle(e.sim[3] - tr.psi)];
+                    for (v, x) in errors.iter_mut().zip(d) {
+                        v.push(x);
+                    }
+                }
+                let raw: Vec<Option<f64>> = fresh.state.named().map(|(_, v)| v).collect();
+                let m = json!({
+                    "estimate": e.sim.as_slice(), "std": e.std, "disturbance": e.disturbance.as_slice(),
+                    "disturbance_std": e.disturbance_std, "raw": raw, "position_source": horizontal,
+                    "truth": truth.map(|tr| json!({"z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r})),
+                });
+                if log_error.is_none() {
+                    log_error = log.live("/estimate", "pinc.Estimate", t, m).err();
+                }
+                let keep = truths.borrow().len().saturating_sub(16);
+                truths.borrow_mut().drain(..keep);
+            }
             let sample = Sample {
                 t,
                 state,
@@ -567,14 +815,8 @@ mod live {
                 prediction: mpc.prediction().to_vec(),
                 bound_violation,
             };
-            // The state's age when its command went out, and the arrival-to-send latency.
-            let state_age = sent.autopilot_t - fresh.state.t;
-            let latency = sent.at.saturating_duration_since(fresh.arrived).as_secs_f64();
             if log_error.is_none() {
                 log_error = log.record(&sample).err();
-            }
-            if log_error.is_none() {
-                log_error = log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
             }
             samples.push(sample);
         };
@@ -582,23 +824,40 @@ mod live {
             Ok(()) => drive.finish(),
             Err(trigger) => drive.abort(trigger),
         };
-        // /log times are the scenario's, as in the simulated run.
-        let t_log = |at: f64| t0.map_or(0.0, |s| (at - s).max(0.0));
+        notes.extend(drive.take_notes());
+        for n in notes.drain(..) {
+            log_error = log_error.or(log.log(t_log(n.t, t0), n.level, &n.text).err());
+        }
         let reason = stopped.trigger.as_ref().map(|t| {
             format!(
                 "{t}; neutral command sent{}{}",
-                stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {:.3} s", t_log(n))),
+                stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {:.3} s", t_log(n, t0))),
                 if stopped.disarm_sent { ", disarm sent" } else { "" }
             )
         });
         if let Some(r) = &reason {
-            log_error = log_error.or(log.log(t_log(stopped.t), Level::Error, r).err());
+            log_error = log_error.or(log.log(t_log(stopped.t, t0), Level::Error, r).err());
             eprintln!("{r}");
         }
         if drive.out_of_order() > 0 {
             let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
-            log_error = log_error.or(log.log(t_log(stopped.t), Level::Warning, &line).err());
+            log_error = log_error.or(log.log(t_log(stopped.t, t0), Level::Warning, &line).err());
         }
-        Ok((samples, log_error, reason))
+        let counts = each!(&tracker, tr => (tr.counts(), tr.late(), tr.restarts()));
+        let names = ["u", "v", "w", "r", "z", "psi"];
+        let estimate_rms: serde_json::Map<String, Value> =
+            names.iter().zip(&errors).map(|(n, e)| (n.to_string(), json!(rms(e)))).collect();
+        let live = json!({
+            "estimator": if a.estimator.no_estimator { Value::Null } else { json!(a.estimator.estimator_model) },
+            "control_started_after_arming_s": control_after,
+            "state_age_ms": percentiles_ms(&mut ages),
+            "latency_ms": percentiles_ms(&mut latencies),
+            "estimate_rms_error": estimate_rms,
+            "truth_samples": errors[0].len(),
+            "fused": counts.0.fused, "rejected": counts.0.rejected, "late": counts.1, "restarts": counts.2,
+            "disarm_sent": stopped.disarm_sent,
+            "stop_trigger": stopped.trigger.as_ref().map(|t| t.key()),
+        });
+        Ok((samples, log_error, reason, Some(live)))
     }
 }

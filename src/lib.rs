@@ -11,6 +11,7 @@
 
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
+pub mod estimation;
 pub mod model;
 #[cfg(feature = "mpc")]
 pub mod mpc;

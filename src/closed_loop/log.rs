@@ -52,7 +52,7 @@ pub enum LogError {
 }
 
 /// Severity of a `/log` message (Foxglove's levels).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Level {
     /// Start and end of the run.
     Info = 2,
@@ -124,8 +124,8 @@ pub struct McapLog<W: Write + Seek = BufWriter<File>> {
     was_inside: bool,
     /// The same for the predicted heading vector staying on the unit circle.
     was_on_circle: bool,
-    /// `/link/cycle`, created by the first [`McapLog::link_cycle`] (runs on a live vehicle).
-    link_channel: Option<u16>,
+    /// The channels of a live run (`/link/cycle`, `/estimate`), each created on first use.
+    live_channels: BTreeMap<&'static str, u16>,
 }
 
 /// Foxglove's `time` type.
@@ -187,7 +187,7 @@ impl<W: Write + Seek> McapLog<W> {
             dt: info.dt,
             was_inside: true,
             was_on_circle: true,
-            link_channel: None,
+            live_channels: BTreeMap::new(),
         };
         // NED seen from a z-up world: a half turn about x.
         log.write(
@@ -223,22 +223,39 @@ impl<W: Write + Seek> McapLog<W> {
         latency_s: f64,
         sent_autopilot_s: f64,
     ) -> Result<(), LogError> {
-        let channel_id = match self.link_channel {
-            Some(id) => id,
+        let m = json!({"state_age_s": state_age_s, "latency_s": latency_s, "sent_autopilot_s": sent_autopilot_s});
+        self.live("/link/cycle", "pinc.LinkCycle", t, m)
+    }
+
+    /// A message of a live run on `topic` (created on first use, schema `schema`): the JSON
+    /// object `fields` with the `timestamp` of `t` added.
+    ///
+    /// # Errors
+    /// Writing fails.
+    pub fn live(&mut self, topic: &'static str, schema: &'static str, t: f64, fields: Value) -> Result<(), LogError> {
+        let channel_id = match self.live_channels.get(topic) {
+            Some(id) => *id,
             None => {
-                let schema = object(json!({
+                // The fields vary by vehicle (a truth where a simulator gives one): the schema
+                // names the time stamp only and lets the rest be.
+                let schema_json = object(json!({
                     "timestamp": object(json!({"sec": {"type": "integer"}, "nsec": {"type": "integer"}})),
-                    "state_age_s": num(), "latency_s": num(), "sent_autopilot_s": num(),
                 }));
-                let schema_id =
-                    self.writer.add_schema("pinc.LinkCycle", "jsonschema", &serde_json::to_vec(&schema)?)?;
-                let id = self.writer.add_channel(schema_id, "/link/cycle", "json", &BTreeMap::new())?;
-                self.link_channel = Some(id);
+                let schema_id = self.writer.add_schema(schema, "jsonschema", &serde_json::to_vec(&schema_json)?)?;
+                let id = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
+                self.live_channels.insert(topic, id);
                 id
             }
         };
-        let m = json!({"timestamp": stamp(t), "state_age_s": state_age_s, "latency_s": latency_s,
-                       "sent_autopilot_s": sent_autopilot_s});
+        let mut m = match fields {
+            Value::Object(m) => m,
+            other => {
+                let mut m = serde_json::Map::new();
+                m.insert("value".into(), other);
+                m
+            }
+        };
+        m.insert("timestamp".into(), serde_json::to_value(stamp(t))?);
         self.write_on(channel_id, t, &m)
     }
 

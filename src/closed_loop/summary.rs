@@ -130,7 +130,8 @@ fn step_response(t: &[f64], y: &[f64], steps: &[(f64, f64)], end: f64, preview: 
 pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summary {
     let t: Vec<f64> = samples.iter().map(|s| s.t).collect();
     let depth: Vec<f64> = samples.iter().map(|s| s.state[2]).collect();
-    let n = samples.len().max(1) as f64;
+    // No sample, no figure: NaN (null in JSON), never a number such as -0.0.
+    let n = if samples.is_empty() { f64::NAN } else { samples.len() as f64 };
     let rms_depth = (samples.iter().map(|s| (s.state[2] - s.reference.depth).powi(2)).sum::<f64>() / n).sqrt();
     let heading_err = |s: &Sample| wrap_angle(s.state[3] - s.reference.heading).to_degrees();
     let rms_heading = (samples.iter().map(|s| heading_err(s).powi(2)).sum::<f64>() / n).sqrt();

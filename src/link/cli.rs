@@ -2,10 +2,13 @@
 //! `mpc_track --connect`), and the opening of a link from them.
 
 use super::command::{CommandWay, Commander};
+use super::drive::DriveSettings;
 use super::link::{Autopilot, LinkConfig, Received, VehicleLink};
 use super::safety::SafetyLimits;
+use super::signing::SigningKey;
 use super::state::{StateConfig, StateEstimator};
 use super::url::LinkAddress;
+use crate::estimation::NoiseSettings;
 use crate::vehicle::Thrusters;
 use std::path::Path;
 use std::time::Duration;
@@ -50,6 +53,11 @@ pub struct LinkOptions {
     /// Water density (kg/m^3) for depth from pressure: 1000 x ArduSub's BARO_SPEC_GRAV.
     #[arg(long, default_value_t = 1000.0)]
     pub water_density: f64,
+    /// MAVLink 2 signing key file (64 hex digits, or a passphrase whose SHA-256 is the key):
+    /// pinc signs what it sends and drops every frame not signed with it. Give the autopilot
+    /// the key first with `pinc vehicle setup-signing`.
+    #[arg(long, value_name = "FILE")]
+    pub signing_key: Option<std::path::PathBuf>,
 }
 
 /// How to command the vehicle, and the safety limits.
@@ -81,12 +89,30 @@ pub struct DriveArgs {
     /// Stop after more than this many malformed frames.
     #[arg(long, default_value_t = 0)]
     pub max_malformed: u64,
-    /// Seconds to wait (neutral commands) for a position and velocity after arming.
-    #[arg(long, default_value_t = 30.0)]
+    /// Seconds to wait (neutral commands) after arming for a position source (GPS, a DVL) to
+    /// give the full state; 0: start at once on depth and heading (the state estimate gives
+    /// the body velocities), and take a position source whenever it comes.
+    #[arg(long, default_value_t = 0.0)]
     pub wait_position: f64,
+    /// Seconds to keep asking while the autopilot refuses to arm (ArduSub does for its first
+    /// seconds, until its EKF has aligned); each refusal's reason is printed.
+    #[arg(long, default_value_t = 30.0)]
+    pub arm_timeout: f64,
     /// Rate (Hz) requested for SERVO_OUTPUT_RAW, whose outputs give the recorded input.
     #[arg(long, default_value_t = 50.0)]
     pub outputs_rate: f64,
+}
+
+/// A number of seconds that is zero or more, or an error naming `name`.
+///
+/// # Errors
+/// Not finite or negative.
+pub fn non_negative(name: &str, v: f64) -> Result<Duration, String> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(format!("{name} must be a number of seconds, zero or more, got {v}"))
+    }
 }
 
 /// A positive number of seconds, or an error naming `name`.
@@ -114,6 +140,19 @@ impl DriveArgs {
     pub fn commander(&self, vehicle_file: &Path) -> Result<Commander, String> {
         let thrusters = Thrusters::load(vehicle_file).map_err(|e| e.to_string())?;
         Commander::new(thrusters, self.way(), self.js_gain).map_err(|e| format!("{}: {e}", vehicle_file.display()))
+    }
+
+    /// The session's settings: limits, arming, notes echoed on stderr.
+    ///
+    /// # Errors
+    /// A limit or the arm timeout that is not positive.
+    pub fn settings(&self) -> Result<DriveSettings, String> {
+        Ok(DriveSettings {
+            limits: self.limits()?,
+            arm: self.arm,
+            arm_timeout: positive("--arm-timeout", self.arm_timeout)?,
+            echo_notes: true,
+        })
     }
 
     /// The safety limits.
@@ -155,7 +194,8 @@ pub fn open(
         return Err(format!("--rate must be a positive number of Hz, got {}", a.rate));
     }
     positive("--max-age", a.max_age)?;
-    let config = LinkConfig { gcs_system_id: a.gcs_sysid, ..LinkConfig::default() };
+    let signing = a.signing_key.as_deref().map(SigningKey::load).transpose().map_err(|e| e.to_string())?;
+    let config = LinkConfig { gcs_system_id: a.gcs_sysid, signing, ..LinkConfig::default() };
     let mut link = VehicleLink::connect(&address, config).map_err(|e| e.to_string())?;
     let autopilot = link.wait_for_autopilot(timeout, seen).map_err(|e| e.to_string())?;
     link.request_state_streams(a.rate).map_err(|e| e.to_string())?;
@@ -165,4 +205,44 @@ pub fn open(
         water_density: a.water_density,
     });
     Ok((link, autopilot, estimator))
+}
+
+/// The state estimator of a live session.
+#[derive(clap::Args, Debug, Clone)]
+pub struct EstimatorArgs {
+    /// Control on the raw state instead of the estimate (needs a position source: the body
+    /// velocities then come from the autopilot's EKF).
+    #[arg(long)]
+    pub no_estimator: bool,
+    /// The estimator's process model: the controller's own model, or the analytic vehicle of
+    /// --vehicle.
+    #[arg(long, value_parser = ["controller", "vehicle"], default_value = "controller")]
+    pub estimator_model: String,
+    /// Standard deviation of the depth sensor (m) the estimator assumes.
+    #[arg(long, default_value_t = NoiseSettings::default().depth_std)]
+    pub depth_std: f64,
+    /// Standard deviation of heading (rad) and yaw rate (rad/s) the estimator assumes.
+    #[arg(long, default_value_t = NoiseSettings::default().heading_std)]
+    pub attitude_std: f64,
+    /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
+    /// report the estimate's errors against it.
+    #[arg(long)]
+    pub sim_truth: bool,
+}
+
+impl EstimatorArgs {
+    /// The noise settings.
+    ///
+    /// # Errors
+    /// A value that is not a positive number.
+    pub fn noise(&self) -> Result<NoiseSettings, String> {
+        let noise = NoiseSettings {
+            depth_std: self.depth_std,
+            heading_std: self.attitude_std,
+            yaw_rate_std: self.attitude_std,
+            ..NoiseSettings::default()
+        };
+        noise.validate()?;
+        Ok(noise)
+    }
 }

@@ -8,8 +8,10 @@ use super::command::{Command, CommandWay, Commander};
 use super::link::{Autopilot, LinkError, Received, SubMode, VehicleLink, is_ground_station};
 use super::safety::{Safety, SafetyLimits, Trigger};
 use super::state::{StateEstimate, StateEstimator, message_time};
+use crate::closed_loop::Level;
+use crate::estimation::mavlink::{MavlinkMeasurements, Observation};
 use crate::types::Input;
-use mavlink::dialects::ardupilotmega::MavMessage;
+use mavlink::dialects::ardupilotmega::{MavCmd, MavMessage, MavResult, MavSeverity, STATUSTEXT_DATA};
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -46,6 +48,9 @@ pub struct Stopped {
     pub neutral_t: Option<f64>,
     /// Whether a disarm was sent (the session had armed).
     pub disarm_sent: bool,
+    /// Notes not yet taken with [`Drive::take_notes`] (for a session that could not start,
+    /// the arming refusals).
+    pub notes: Vec<Note>,
 }
 
 /// A command session.
@@ -62,35 +67,102 @@ pub struct Drive {
     /// Messages older than the newest of their type (dropped or reordered on the way).
     out_of_order: u64,
     last_sent: Option<f64>,
+    notes: Vec<Note>,
+    echo_notes: bool,
+    /// The last `COMMAND_ACK` of an arm command, and the last `PreArm:`/`Arm:` text.
+    arm_ack: Option<MavResult>,
+    arm_text: Option<String>,
+    measurements: MavlinkMeasurements,
+    observations: Vec<Observation>,
 }
 
-/// How long arming may take to show in a heartbeat.
-const ARM_TIMEOUT: Duration = Duration::from_secs(5);
+/// How often an arm command is repeated while the autopilot refuses it (ground stations
+/// retry about once a second too).
+const ARM_RETRY: Duration = Duration::from_secs(1);
 /// The longest one wait for a message lasts, so that a trigger is seen within it.
 const POLL: Duration = Duration::from_millis(5);
 
+/// How a session starts and what it runs under.
+#[derive(Debug, Clone)]
+pub struct DriveSettings {
+    /// The watchdog's limits.
+    pub limits: SafetyLimits,
+    /// Arm the vehicle if it is disarmed (pinc never arms otherwise).
+    pub arm: bool,
+    /// How long to keep asking while the autopilot refuses to arm (it does for its first
+    /// seconds, until its EKF has aligned).
+    pub arm_timeout: Duration,
+    /// Print each note of level warning or above on stderr as it comes.
+    pub echo_notes: bool,
+}
+
+impl Default for DriveSettings {
+    fn default() -> Self {
+        Self { limits: SafetyLimits::default(), arm: false, arm_timeout: Duration::from_secs(30), echo_notes: false }
+    }
+}
+
+/// Something the autopilot said (`STATUSTEXT`) or the session noticed, for the log.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Note {
+    /// Autopilot time (s).
+    pub t: f64,
+    /// Its level.
+    pub level: Level,
+    /// A sentence.
+    pub text: String,
+    /// Whether it is the autopilot's own `STATUSTEXT`.
+    pub from_autopilot: bool,
+}
+
+/// The log level of a `STATUSTEXT` severity, and its name.
+pub fn severity_level(s: MavSeverity) -> (Level, &'static str) {
+    match s {
+        MavSeverity::MAV_SEVERITY_EMERGENCY => (Level::Error, "EMERGENCY"),
+        MavSeverity::MAV_SEVERITY_ALERT => (Level::Error, "ALERT"),
+        MavSeverity::MAV_SEVERITY_CRITICAL => (Level::Error, "CRITICAL"),
+        MavSeverity::MAV_SEVERITY_ERROR => (Level::Error, "ERROR"),
+        MavSeverity::MAV_SEVERITY_WARNING => (Level::Warning, "WARNING"),
+        MavSeverity::MAV_SEVERITY_NOTICE => (Level::Warning, "NOTICE"),
+        MavSeverity::MAV_SEVERITY_INFO => (Level::Info, "INFO"),
+        MavSeverity::MAV_SEVERITY_DEBUG => (Level::Info, "DEBUG"),
+    }
+}
+
+/// The text of a `STATUSTEXT` (up to its first NUL).
+pub fn statustext(s: &STATUSTEXT_DATA) -> String {
+    s.text.to_str().map_or_else(|_| String::from_utf8_lossy(s.text.as_slice()).into_owned(), str::to_string)
+}
+
 impl Drive {
     /// Starts a session on an open link whose autopilot was found: MANUAL mode, then, with
-    /// `arm`, arming (waiting for the heartbeat to say so). Every message received meanwhile
-    /// goes to `seen` with its autopilot time.
+    /// `settings.arm`, arming: the arm command is repeated every second while the autopilot
+    /// refuses (each refusal's `COMMAND_ACK` result and `PreArm:`/`Arm:` text becomes a
+    /// note), until a heartbeat says armed or `arm_timeout` passes. Every message received
+    /// meanwhile goes to `seen` with its autopilot time.
     ///
     /// # Errors
-    /// The vehicle is disarmed and `arm` is false; arming is not confirmed in 5 s; a trigger
-    /// fires meanwhile (Ctrl-C, the link).
+    /// The vehicle is disarmed and `arm` is false; the autopilot did not arm within the
+    /// timeout (the error names its last reason); a trigger fires meanwhile (Ctrl-C, the
+    /// link).
     #[allow(clippy::too_many_arguments)]
     pub fn start(
         link: VehicleLink,
         autopilot: Autopilot,
         estimator: StateEstimator,
         commander: Commander,
-        limits: SafetyLimits,
-        arm: bool,
+        settings: DriveSettings,
         stop: Arc<AtomicBool>,
         mut seen: impl FnMut(&Received, f64),
     ) -> Result<Self, Stopped> {
         let now = Instant::now();
-        let mut safety = Safety::new(limits, now);
+        let mut safety = Safety::new(settings.limits.clone(), now);
         safety.heartbeat(now, Autopilot::armed(&autopilot.heartbeat));
+        let measurements = MavlinkMeasurements::new(
+            estimator.config().surface_pressure_hpa,
+            estimator.config().water_density,
+            Some(commander.thrusters().clone()),
+        );
         let mut d = Self {
             link,
             autopilot,
@@ -102,33 +174,100 @@ impl Drive {
             newest: HashMap::new(),
             out_of_order: 0,
             last_sent: None,
+            notes: Vec::new(),
+            echo_notes: settings.echo_notes,
+            arm_ack: None,
+            arm_text: None,
+            measurements,
+            observations: Vec::with_capacity(64),
         };
         if let Err(e) = d.link.set_mode(SubMode::Manual) {
             return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
         }
         if !d.safety.armed() {
-            if !arm {
+            if !settings.arm {
                 return Err(d.stop_with_trigger(Trigger::Error(
                     "the vehicle is disarmed: arm it from the ground station, or pass --arm to let pinc arm it".into(),
                 )));
             }
-            if let Err(e) = d.link.arm(true) {
-                return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
-            }
-            d.armed_by_us = true;
-            let until = Instant::now() + ARM_TIMEOUT;
-            while !d.safety.armed() {
-                if Instant::now() > until {
-                    return Err(d.stop_with_trigger(Trigger::Error(
-                        "arming was not confirmed by a heartbeat within 5 s".into(),
-                    )));
-                }
-                if let Err(t) = d.poll(&mut seen) {
-                    return Err(d.stop_with_trigger(t));
-                }
+            if let Err(t) = d.arm(settings.arm_timeout, &mut seen) {
+                return Err(d.stop_with_trigger(t));
             }
         }
         Ok(d)
+    }
+
+    /// Asks the autopilot to arm until a heartbeat says armed, repeating while it refuses.
+    fn arm(&mut self, timeout: Duration, seen: &mut impl FnMut(&Received, f64)) -> Result<(), Trigger> {
+        let start = Instant::now();
+        let mut attempts = 0u32;
+        let mut next_try = start;
+        let mut last_reason: Option<String> = None;
+        while !self.safety.armed() {
+            let now = Instant::now();
+            if now >= start + timeout {
+                return Err(Trigger::Error(format!(
+                    "the autopilot did not arm within {:.0} s ({attempts} arm command(s)); last reason: {}",
+                    timeout.as_secs_f64(),
+                    last_reason.as_deref().unwrap_or("none given (no COMMAND_ACK or Arm/PreArm text arrived)")
+                )));
+            }
+            if now >= next_try {
+                self.arm_ack = None;
+                self.arm_text = None;
+                self.link.arm(true).map_err(|e| Trigger::Link(e.to_string()))?;
+                self.armed_by_us = true;
+                attempts += 1;
+                next_try = now + ARM_RETRY;
+            }
+            self.poll(seen)?;
+            if let Some(result) = self.arm_ack.take()
+                && result != MavResult::MAV_RESULT_ACCEPTED
+                && result != MavResult::MAV_RESULT_IN_PROGRESS
+            {
+                // The autopilot's text comes just before its answer; wait a moment for a late one.
+                let until = Instant::now() + Duration::from_millis(50);
+                while self.arm_text.is_none() && Instant::now() < until {
+                    self.poll(seen)?;
+                }
+                let result_name = format!("{result:?}");
+                let result_name = result_name.strip_prefix("MAV_RESULT_").unwrap_or(&result_name).to_string();
+                let reason = match &self.arm_text {
+                    Some(text) => format!("{text} (COMMAND_ACK {result_name})"),
+                    None => format!("COMMAND_ACK {result_name}"),
+                };
+                let t = self.now_t();
+                self.note(t, Level::Warning, format!("arming refused: {reason}; asking again in 1 s"));
+                last_reason = Some(reason);
+            }
+        }
+        let t = self.now_t();
+        let waited = start.elapsed().as_secs_f64();
+        self.note(t, Level::Info, format!("armed after {waited:.1} s ({attempts} arm command(s))"));
+        Ok(())
+    }
+
+    fn note(&mut self, t: f64, level: Level, text: String) {
+        self.push_note(Note { t, level, text, from_autopilot: false });
+    }
+
+    fn push_note(&mut self, note: Note) {
+        if self.echo_notes && note.level >= Level::Warning {
+            eprintln!("{}", note.text);
+        }
+        self.notes.push(note);
+    }
+
+    /// The notes since the last call: the autopilot's `STATUSTEXT`s and what the session
+    /// noticed (arming refusals).
+    pub fn take_notes(&mut self) -> Vec<Note> {
+        std::mem::take(&mut self.notes)
+    }
+
+    /// The measurements and applied inputs of every message since the last call, in arrival
+    /// order (for a state estimator).
+    pub fn drain_observations(&mut self) -> std::vec::Drain<'_, Observation> {
+        self.observations.drain(..)
     }
 
     /// The link.
@@ -188,6 +327,22 @@ impl Drive {
             let t = self.estimator.autopilot_time(r.at).unwrap_or(0.0);
             seen(&r, t);
             if from_autopilot {
+                let observations = &mut self.observations;
+                self.measurements.observe(t, &r.message, |o| observations.push(o));
+                match &r.message {
+                    MavMessage::STATUSTEXT(s) => {
+                        let text = statustext(s);
+                        if text.starts_with("PreArm") || text.starts_with("Arm") {
+                            self.arm_text = Some(text.clone());
+                        }
+                        let (level, name) = severity_level(s.severity);
+                        self.push_note(Note { t, level, text: format!("autopilot {name}: {text}"), from_autopilot: true });
+                    }
+                    MavMessage::COMMAND_ACK(a) if a.command == MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => {
+                        self.arm_ack = Some(a.result);
+                    }
+                    _ => {}
+                }
                 if let MavMessage::HEARTBEAT(h) = &r.message
                     && !is_ground_station(h)
                     && let Some(trigger) = self.safety.heartbeat(r.at, Autopilot::armed(h))
@@ -273,7 +428,7 @@ impl Drive {
         if self.armed_by_us {
             let _ = self.link.arm(false);
         }
-        Stopped { trigger, t, neutral_t, disarm_sent }
+        Stopped { trigger, t, neutral_t, disarm_sent, notes: std::mem::take(&mut self.notes) }
     }
 
     /// Waits `duration` while passing messages on (after a stop: the last messages into the

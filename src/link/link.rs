@@ -4,6 +4,7 @@
 //! axes, per-output overrides), all from the configured ground-station system id (ArduSub
 //! takes commands only from `SYSID_MYGCS`, 255 by default).
 
+use super::signing::SigningKey;
 use super::url::LinkAddress;
 use mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavState,
@@ -75,6 +76,8 @@ pub struct LinkConfig {
     pub heartbeat_period: Duration,
     /// How long one blocking read waits before the receive thread checks for a stop.
     pub read_timeout: Duration,
+    /// MAVLink 2 signing: sign what is sent, drop what is not signed with this key.
+    pub signing: Option<SigningKey>,
 }
 
 impl Default for LinkConfig {
@@ -84,6 +87,7 @@ impl Default for LinkConfig {
             gcs_component_id: 190,
             heartbeat_period: Duration::from_secs(1),
             read_timeout: Duration::from_millis(100),
+            signing: None,
         }
     }
 }
@@ -241,6 +245,10 @@ impl VehicleLink {
         let mut connection = connection;
         connection.set_protocol_version(mavlink::MavlinkVersion::V2);
         connection.set_allow_recv_any_version(true);
+        if let Some(key) = &config.signing {
+            // Link id 0: one link per ground station, as ArduPilot numbers its own.
+            connection.setup_signing(Some(key.config(0)));
+        }
         let connection = Arc::new(connection);
         let stop = Arc::new(AtomicBool::new(false));
         let malformed = Arc::new(std::sync::atomic::AtomicU64::new(0));
@@ -355,12 +363,19 @@ impl VehicleLink {
         loop {
             let left = timeout.saturating_sub(start.elapsed());
             if left.is_zero() {
-                let others = if others.is_empty() {
+                let mut others = if others.is_empty() {
                     String::new()
                 } else {
                     let list: Vec<String> = others.iter().map(|(s, c)| format!("{s}/{c}")).collect();
                     format!(", none an autopilot's heartbeat; heard system/component {}", list.join(", "))
                 };
+                if let Some(key) = &self.config.signing {
+                    others.push_str(&format!(
+                        "; signing is on (key {}): frames not signed with that key are dropped, so an autopilot \
+                         without signing or set up with another key is not heard",
+                        key.source()
+                    ));
+                }
                 return Err(LinkError::NoAutopilot {
                     address: self.address.to_string(),
                     timeout_s: timeout.as_secs_f64(),

@@ -12,13 +12,15 @@ pub mod drive;
 pub mod link;
 pub mod record;
 pub mod safety;
+pub mod signing;
 pub mod state;
 pub mod url;
 
 pub use command::{Command, CommandError, CommandWay, Commander};
-pub use drive::{Drive, Fresh, Sent, Stopped};
+pub use drive::{Drive, DriveSettings, Fresh, Note, Sent, Stopped};
 pub use link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
 pub use record::{InputsFromOutputs, RecordError, RecordStats, Recorder};
 pub use safety::{Safety, SafetyLimits, Trigger};
+pub use signing::{SigningError, SigningKey};
 pub use state::{Capability, Part, PartStatus, StateConfig, StateEstimate, StateEstimator};
 pub use url::{LinkAddress, UrlError};

@@ -21,6 +21,7 @@ use crate::closed_loop::Level;
 use crate::types::INPUT_NAMES;
 use crate::types::Input;
 use crate::vehicle::Thrusters;
+use crate::estimation::mavlink::{outputs_time, servo_pwm};
 use mavlink::dialects::ardupilotmega::SERVO_OUTPUT_RAW_DATA;
 use mcap::records::{MessageHeader, Metadata};
 use serde_json::{Map, Value, json};
@@ -309,9 +310,6 @@ pub struct InputsFromOutputs {
     pending: VecDeque<StateEstimate>,
 }
 
-/// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
-const USEC_WRAP_S: f64 = 4294.967296;
-
 impl InputsFromOutputs {
     /// Inputs through `thrusters` over samples of `period` s; an output older than `max_gap`
     /// s at a state's time (outputs stopped) leaves that state's input unknown.
@@ -325,8 +323,7 @@ impl InputsFromOutputs {
         if o.port != 0 {
             return; // channels 9-16: no thruster of a vehicle file pinc commands is there
         }
-        let raw = f64::from(o.time_usec) * 1e-6;
-        let t = raw + ((now - raw) / USEC_WRAP_S).round() * USEC_WRAP_S;
+        let t = outputs_time(now, o);
         if self.outputs.back().is_some_and(|(last, _)| t <= *last) {
             return;
         }
@@ -390,10 +387,6 @@ impl InputsFromOutputs {
 }
 
 /// The eight PWM outputs (us) of one `SERVO_OUTPUT_RAW` message, in channel order.
-fn servo_pwm(o: &SERVO_OUTPUT_RAW_DATA) -> [u16; 8] {
-    [o.servo1_raw, o.servo2_raw, o.servo3_raw, o.servo4_raw, o.servo5_raw, o.servo6_raw, o.servo7_raw, o.servo8_raw]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -38,6 +38,21 @@ impl Default for SafetyLimits {
     }
 }
 
+impl SafetyLimits {
+    /// The limits as a sentence, for logs.
+    pub fn describe(&self) -> String {
+        let depth = self.max_depth.map_or_else(|| "no depth limit".to_string(), |d| format!("depth below {d:.2} m"));
+        format!(
+            "stop on a state older than {:.3} s, no autopilot heartbeat for {:.2} s, {depth}, yaw rate above {:.0} deg/s, \
+             more than {} malformed frame(s)",
+            self.max_state_age.as_secs_f64(),
+            self.heartbeat_timeout.as_secs_f64(),
+            self.max_yaw_rate.to_degrees(),
+            self.max_malformed
+        )
+    }
+}
+
 /// Why a session stopped.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Trigger {
@@ -71,6 +86,15 @@ pub enum Trigger {
         /// The limit (rad/s).
         limit: f64,
     },
+    /// A sensor the controller needs went silent (its measurements stopped coming).
+    SensorLost {
+        /// Which (`depth`, `heading`).
+        sensor: &'static str,
+        /// Seconds since its last measurement.
+        age: f64,
+        /// The limit (s).
+        limit: f64,
+    },
     /// The autopilot disarmed on its own (a failsafe, the pilot).
     Disarmed,
     /// Frames that could not be parsed arrived.
@@ -86,7 +110,7 @@ pub enum Trigger {
 
 impl Trigger {
     /// A short key for logs and tests: `interrupted`, `stale_state`, `heartbeat_lost`, `depth`,
-    /// `yaw_rate`, `disarmed`, `malformed`, `link`, `error`.
+    /// `yaw_rate`, `sensor_lost`, `disarmed`, `malformed`, `link`, `error`.
     pub fn key(&self) -> &'static str {
         match self {
             Trigger::Interrupted => "interrupted",
@@ -94,6 +118,7 @@ impl Trigger {
             Trigger::HeartbeatLost { .. } => "heartbeat_lost",
             Trigger::Depth { .. } => "depth",
             Trigger::YawRate { .. } => "yaw_rate",
+            Trigger::SensorLost { .. } => "sensor_lost",
             Trigger::Disarmed => "disarmed",
             Trigger::Malformed { .. } => "malformed",
             Trigger::Link(_) => "link",
@@ -114,6 +139,9 @@ impl fmt::Display for Trigger {
             Trigger::Depth { depth, limit } => write!(f, "depth {depth:.2} m beyond the limit {limit:.2} m"),
             Trigger::YawRate { rate, limit } => {
                 write!(f, "yaw rate {:.1} deg/s beyond the limit {:.1} deg/s", rate.to_degrees(), limit.to_degrees())
+            }
+            Trigger::SensorLost { sensor, age, limit } => {
+                write!(f, "no {sensor} measurement for {age:.3} s (limit {limit:.3} s)")
             }
             Trigger::Disarmed => write!(f, "the autopilot disarmed on its own"),
             Trigger::Malformed { count } => write!(f, "{count} malformed MAVLink frame(s) received"),

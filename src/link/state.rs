@@ -175,6 +175,8 @@ pub struct StateEstimator {
     external_pressure_seen: bool,
     /// The newest autopilot time seen and when it was received.
     clock: Option<(f64, Instant)>,
+    /// Time of the last sample returned by [`StateEstimator::update`]: samples never go back.
+    last_sample: Option<f64>,
 }
 
 fn wrap(a: f64) -> f64 {
@@ -221,6 +223,18 @@ impl StateEstimator {
     /// `LOCAL_POSITION_NED` while the position is fresh, `ATTITUDE` otherwise (so a sample
     /// never pairs a new position with an old one or the other way round).
     pub fn update(&mut self, r: &Received) -> Option<StateEstimate> {
+        let sample = self.take(r)?;
+        // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants: when
+        // the clock passes from one to the other, the first position can be older than the
+        // last attitude sample. It is kept (it is the newest position) but makes no sample.
+        if self.last_sample.is_some_and(|last| sample.t <= last) {
+            return None;
+        }
+        self.last_sample = Some(sample.t);
+        Some(sample)
+    }
+
+    fn take(&mut self, r: &Received) -> Option<StateEstimate> {
         let t = message_time(&r.message)?;
         match self.clock {
             Some((newest, _)) if t < newest - REBOOT_STEP => {

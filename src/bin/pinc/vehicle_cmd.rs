@@ -3,12 +3,14 @@
 
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
-use pinc::link::cli::{DriveArgs, LinkArgs, open, positive};
+use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
+use pinc::link::drive::{severity_level, statustext};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
 use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
+use pinc::link::SigningKey;
 use pinc::vehicle::Thrusters;
 use serde_json::{Value, json};
 use std::cell::RefCell;
@@ -30,6 +32,21 @@ pub enum VehicleAction {
     /// Play an excitation file (`pinc excitation`) open loop on the vehicle and record it as
     /// `record` does, with every safety stop (docs/VEHICLE.md).
     Excite(ExciteArgs),
+    /// Give the autopilot a MAVLink 2 signing key (SETUP_SIGNING), then check that it answers
+    /// signed; from then on connect with --signing-key FILE.
+    SetupSigning(SetupSigningArgs),
+}
+
+/// Arguments of `pinc vehicle setup-signing`.
+#[derive(clap::Args)]
+pub struct SetupSigningArgs {
+    /// Connection, as for the other actions (the link must not be signed yet, or signed with
+    /// --signing-key, the key in force).
+    #[command(flatten)]
+    link: LinkArgs,
+    /// The new key file: 64 hex digits, or a passphrase whose SHA-256 is the key.
+    #[arg(long, value_name = "FILE")]
+    key: PathBuf,
 }
 
 /// Arguments of `pinc vehicle status`.
@@ -92,6 +109,36 @@ pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
         VehicleAction::Status(a) => run_status(a),
         VehicleAction::Record(a) => run_record(a),
         VehicleAction::Excite(a) => run_excite(a),
+        VehicleAction::SetupSigning(a) => run_setup_signing(a),
+    }
+}
+
+/// `pinc vehicle setup-signing`: SETUP_SIGNING three times (it has no acknowledgement), then a
+/// second link that signs with the new key must hear the autopilot's signed heartbeat.
+fn run_setup_signing(a: SetupSigningArgs) -> Result<(), String> {
+    let key = SigningKey::load(&a.key).map_err(|e| e.to_string())?;
+    let (link, autopilot, _) = open(&a.link.connect, &a.link, |_| {})?;
+    let message = MavMessage::SETUP_SIGNING(key.setup_message(autopilot.system_id, autopilot.component_id));
+    for _ in 0..3 {
+        link.send(&message).map_err(|e| e.to_string())?;
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    drop(link);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut options = a.link.options.clone();
+    options.signing_key = Some(a.key.clone());
+    let checked = open(&a.link.connect, &options, |_| {});
+    match checked {
+        Ok((_, ap, _)) => {
+            println!(
+                "signing set up: system {} answers signed with the key of {}; connect with --signing-key {}",
+                ap.system_id,
+                a.key.display(),
+                a.key.display()
+            );
+            Ok(())
+        }
+        Err(e) => Err(format!("SETUP_SIGNING was sent but the autopilot did not answer signed with the new key: {e}")),
     }
 }
 
@@ -430,8 +477,9 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
         return Err(format!("{}: no input rows", a.inputs.display()));
     }
     let commander = a.drive.commander(&a.vehicle)?;
-    let limits = a.drive.limits()?;
-    let wait_position = positive("--wait-position", a.drive.wait_position)?;
+    let settings = a.drive.settings()?;
+    let limits = settings.limits.clone();
+    let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
     let stop = ctrl_c_flag()?;
     let recorded = Some(InputsFromOutputs::new(commander.thrusters().clone(), 1.0 / a.link.rate, a.link.max_age));
     let mut pending: Vec<Received> = Vec::new();
@@ -441,7 +489,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     session.insert("vehicle_file".to_string(), a.vehicle.display().to_string());
     session.insert("inputs_file".to_string(), a.inputs.display().to_string());
     session.insert("command".to_string(), a.drive.command_way.clone());
-    session.insert("limits".to_string(), format!("{limits:?}"));
+    session.insert("limits".to_string(), limits.describe());
     let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
     let w = RefCell::new(Writer::new(rec, autopilot.clone(), recorded, pending));
     let write_error: RefCell<Option<String>> = RefCell::new(None);
@@ -451,10 +499,15 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
         }
     };
     let seen = |r: &Received, t: f64| keep(w.borrow_mut().message(r, t));
-    let started = Drive::start(link, autopilot, estimator, commander, limits, a.drive.arm, stop, seen);
+    let started = Drive::start(link, autopilot, estimator, commander, settings, stop, seen);
     let mut drive = match started {
         Ok(d) => d,
-        Err(stopped) => return end_excite(w.into_inner(), &stopped, write_error.into_inner(), 0, inputs.len()),
+        Err(mut stopped) => {
+            for n in std::mem::take(&mut stopped.notes).into_iter().filter(|n| !n.from_autopilot) {
+                keep(w.borrow_mut().log(n.t, n.level, &n.text));
+            }
+            return end_excite(w.into_inner(), &stopped, write_error.into_inner(), 0, inputs.len());
+        }
     };
     let line =
         format!("excitation: {} inputs at {dt} s from {} by {}", inputs.len(), a.inputs.display(), a.drive.command_way);
@@ -465,6 +518,11 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let mut cycle = || -> Result<(), Trigger> {
         loop {
             let fresh: Fresh = drive.next_state(seen)?;
+            drive.drain_observations().for_each(drop);
+            // The autopilot's own texts are in the recording already (the writer logs them).
+            for n in drive.take_notes().into_iter().filter(|n| !n.from_autopilot) {
+                keep(w.borrow_mut().log(n.t, n.level, &n.text));
+            }
             if let Some(e) = write_error.borrow().as_ref() {
                 return Err(Trigger::Error(e.clone()));
             }
@@ -593,8 +651,8 @@ fn write_one(
             MavMessage::SERVO_OUTPUT_RAW(o) => rec.outputs(t, o).map_err(|e| e.to_string())?,
             MavMessage::HEARTBEAT(h) => session.note_heartbeat(t, h),
             MavMessage::STATUSTEXT(s) => {
-                let text = s.text.to_str().unwrap_or("(not UTF-8)");
-                session.log.push((t, Level::Info, format!("autopilot: {text}")));
+                let (level, name) = severity_level(s.severity);
+                session.log.push((t, level, format!("autopilot {name}: {}", statustext(s))));
             }
             _ => {}
         }

@@ -1,0 +1,396 @@
+//! The extended Kalman filter: the controller's own discrete model as the process (its exact
+//! Jacobians from `linearise_horizon`), an input-equivalent disturbance as four extra
+//! states, and scalar measurement updates in Joseph form. Fixed-size matrices: nothing is
+//! allocated after [`Ekf::new`].
+
+use super::measurement::{Measurement, NoiseSettings};
+use crate::runtime::{HorizonLinearisation, RuntimeError};
+use crate::traits::DiscreteModel;
+use crate::types::{Input, NS, NU, SimState};
+use crate::vehicle::{to_network, wrap_angle};
+use nalgebra::{SMatrix, SVector};
+
+/// Filter state size: the simulator state `x y z psi u v w r` and the disturbance
+/// `dX dY dZ dMz` added to the applied input.
+pub const NE: usize = NS + NU;
+
+/// The filter's state vector.
+pub type FilterState = SVector<f64, NE>;
+/// Its covariance.
+pub type FilterCovariance = SMatrix<f64, NE, NE>;
+
+/// What the filter knows at one time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Autopilot time (s) of the estimate.
+    pub t: f64,
+    /// `x y z psi u v w r` (m, rad, m/s, rad/s); `psi` is continuous (not wrapped).
+    pub sim: SimState,
+    /// One standard deviation of each part of `sim`.
+    pub std: [f64; NS],
+    /// The input-equivalent disturbance `X Y Z Mz` (N, N m): what the applied input misses
+    /// (a current, a buoyancy error, a thrust curve that is off).
+    pub disturbance: Input,
+    /// Its standard deviations.
+    pub disturbance_std: [f64; NU],
+}
+
+/// How one measurement was taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Update {
+    /// Every component was fused.
+    Fused,
+    /// At least one component lay beyond the gate and was left out.
+    Rejected,
+}
+
+/// Counters of a filter's life, for logs and summaries.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FilterCounts {
+    /// Prediction steps.
+    pub predictions: u64,
+    /// Scalar components fused.
+    pub fused: u64,
+    /// Scalar components beyond the gate, left out.
+    pub rejected: u64,
+}
+
+/// An extended Kalman filter on a [`DiscreteModel`].
+pub struct Ekf<M: DiscreteModel> {
+    model: M,
+    ws: M::Workspace,
+    lin: HorizonLinearisation,
+    noise: NoiseSettings,
+    x: FilterState,
+    p: FilterCovariance,
+    q: FilterCovariance,
+    /// Disturbance decay per step (first-order Gauss-Markov): bounded covariance where the
+    /// disturbance is unobservable.
+    decay: f64,
+    t: f64,
+    counts: FilterCounts,
+}
+
+/// The simulator state's `psi` into the network's `(cos, sin)`: `d net / d sim` (9 x 8).
+fn sim_to_net_jacobian(psi: f64) -> SMatrix<f64, 9, NS> {
+    let mut j = SMatrix::<f64, 9, NS>::zeros();
+    for (net, sim) in [(0, 0), (1, 1), (2, 2), (5, 4), (6, 5), (7, 6), (8, 7)] {
+        j[(net, sim)] = 1.0;
+    }
+    let (s, c) = psi.sin_cos();
+    j[(3, 3)] = -s;
+    j[(4, 3)] = c;
+    j
+}
+
+/// The network state's `(cos, sin)` into `psi = atan2(sin, cos)`: `d sim / d net` (8 x 9).
+fn net_to_sim_jacobian(c: f64, s: f64) -> SMatrix<f64, NS, 9> {
+    let mut j = SMatrix::<f64, NS, 9>::zeros();
+    for (net, sim) in [(0, 0), (1, 1), (2, 2), (5, 4), (6, 5), (7, 6), (8, 7)] {
+        j[(sim, net)] = 1.0;
+    }
+    let r2 = c * c + s * s;
+    j[(3, 3)] = -s / r2;
+    j[(3, 4)] = c / r2;
+    j
+}
+
+impl<M: DiscreteModel> Ekf<M> {
+    /// A filter on `model` with `noise`, at rest at the origin until [`Ekf::reset`].
+    pub fn new(model: M, noise: NoiseSettings) -> Self {
+        let ws = model.workspace();
+        let dt = model.dt();
+        let mut q = FilterCovariance::zeros();
+        for (i, s) in noise.process_std().iter().enumerate() {
+            q[(i, i)] = s * s;
+        }
+        let decay = (-dt / noise.disturbance_time_constant).exp();
+        // The stationary variance of a Gauss-Markov state is q / (1 - decay^2): scale q so the
+        // stated disturbance std is that stationary spread.
+        for i in 0..NU {
+            let s = noise.disturbance_std[i];
+            q[(NS + i, NS + i)] = s * s * (1.0 - decay * decay);
+        }
+        Self {
+            model,
+            ws,
+            lin: HorizonLinearisation::new(1),
+            noise,
+            x: FilterState::zeros(),
+            p: FilterCovariance::identity(),
+            q,
+            decay,
+            t: 0.0,
+            counts: FilterCounts::default(),
+        }
+    }
+
+    /// The process model.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+
+    /// The noise settings.
+    pub fn noise(&self) -> &NoiseSettings {
+        &self.noise
+    }
+
+    /// Restarts at time `t` from `sim` with standard deviations `std`, the disturbance zero
+    /// with its stationary spread.
+    pub fn reset(&mut self, t: f64, sim: &SimState, std: &[f64; NS]) {
+        self.t = t;
+        self.x = FilterState::zeros();
+        self.x.fixed_rows_mut::<NS>(0).copy_from(sim);
+        self.p = FilterCovariance::zeros();
+        for i in 0..NS {
+            self.p[(i, i)] = std[i] * std[i];
+        }
+        for i in 0..NU {
+            let s = self.noise.disturbance_std[i];
+            self.p[(NS + i, NS + i)] = s * s;
+        }
+        self.counts = FilterCounts::default();
+    }
+
+    /// Time of the estimate (s).
+    pub fn t(&self) -> f64 {
+        self.t
+    }
+
+    /// The whole state vector.
+    pub fn state(&self) -> &FilterState {
+        &self.x
+    }
+
+    /// Its covariance.
+    pub fn covariance(&self) -> &FilterCovariance {
+        &self.p
+    }
+
+    /// The counters.
+    pub fn counts(&self) -> FilterCounts {
+        self.counts
+    }
+
+    /// The estimate now.
+    pub fn estimate(&self) -> Estimate {
+        let sim = SimState::from_fn(|i, _| self.x[i]);
+        let std = std::array::from_fn(|i| self.p[(i, i)].max(0.0).sqrt());
+        let disturbance = Input::from_fn(|i, _| self.x[NS + i]);
+        let disturbance_std = std::array::from_fn(|i| self.p[(NS + i, NS + i)].max(0.0).sqrt());
+        Estimate { t: self.t, sim, std, disturbance, disturbance_std }
+    }
+
+    /// One step of the model's sample period under the applied input `u` (plus the
+    /// estimated disturbance).
+    ///
+    /// # Errors
+    /// The model fails (non-finite state or input).
+    pub fn predict(&mut self, u: &Input) -> Result<(), RuntimeError> {
+        let sim = SimState::from_fn(|i, _| self.x[i]);
+        let d = Input::from_fn(|i, _| self.x[NS + i]);
+        let total = u + d;
+        let x0 = to_network(&sim);
+        self.model.linearise_horizon(&mut self.ws, &x0, std::slice::from_ref(&total), &mut self.lin)?;
+        let next = self.lin.trajectory()[1];
+        let (a, b) = (self.lin.a()[0], self.lin.b()[0]);
+        let (c, s) = (next[3], next[4]);
+        let t_in = sim_to_net_jacobian(sim[3]);
+        let t_out = net_to_sim_jacobian(c, s);
+        let a_sim = t_out * a * t_in;
+        let b_sim = t_out * b;
+        // The state: the network form back to the simulator's, psi kept continuous.
+        for (sim_i, net_i) in [(0, 0), (1, 1), (2, 2), (4, 5), (5, 6), (6, 7), (7, 8)] {
+            self.x[sim_i] = next[net_i];
+        }
+        self.x[3] = sim[3] + wrap_angle(s.atan2(c) - sim[3]);
+        for i in 0..NU {
+            self.x[NS + i] *= self.decay;
+        }
+        let mut f = FilterCovariance::zeros();
+        f.fixed_view_mut::<NS, NS>(0, 0).copy_from(&a_sim);
+        f.fixed_view_mut::<NS, NU>(0, NS).copy_from(&b_sim);
+        for i in 0..NU {
+            f[(NS + i, NS + i)] = self.decay;
+        }
+        self.p = f * self.p * f.transpose() + self.q;
+        self.p = (self.p + self.p.transpose()) * 0.5;
+        self.t += self.model.dt();
+        self.counts.predictions += 1;
+        Ok(())
+    }
+
+    /// Fuses one scalar: measurement `z` of `h(x)` with row `h` of `dh/dx`, innovation
+    /// `y = z - h(x)` already formed (wrapped where it is an angle), variance `r`. Left out
+    /// beyond the gate.
+    fn scalar(&mut self, y: f64, h: &SMatrix<f64, 1, NE>, r: f64) -> bool {
+        let ph = self.p * h.transpose();
+        let s = (h * ph)[(0, 0)] + r;
+        if !(s > 0.0 && y.is_finite()) || y * y > self.noise.gate * self.noise.gate * s {
+            self.counts.rejected += 1;
+            return false;
+        }
+        let k = ph / s;
+        self.x += k * y;
+        // Joseph form keeps P symmetric and positive under rounding.
+        let ikh = FilterCovariance::identity() - k * h;
+        self.p = ikh * self.p * ikh.transpose() + k * k.transpose() * r;
+        self.counts.fused += 1;
+        true
+    }
+
+    fn row(entries: &[(usize, f64)]) -> SMatrix<f64, 1, NE> {
+        let mut h = SMatrix::<f64, 1, NE>::zeros();
+        for &(i, v) in entries {
+            h[(0, i)] = v;
+        }
+        h
+    }
+
+    /// Fuses `m` into the estimate now (its stamp is not used: the caller fuses measurements
+    /// at the sample they belong to).
+    pub fn update(&mut self, m: &Measurement) -> Update {
+        let n = &self.noise;
+        let (sd, sh, sr, sp, sv, sb) =
+            (n.depth_std, n.heading_std, n.yaw_rate_std, n.position_std, n.velocity_ned_std, n.velocity_body_std);
+        let all = match *m {
+            Measurement::Depth { z, .. } => self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sd * sd),
+            Measurement::Heading { psi, .. } => {
+                self.scalar(wrap_angle(psi - self.x[3]), &Self::row(&[(3, 1.0)]), sh * sh)
+            }
+            Measurement::YawRate { r, .. } => self.scalar(r - self.x[7], &Self::row(&[(7, 1.0)]), sr * sr),
+            Measurement::Position { x, y, z, .. } => {
+                let a = self.scalar(x - self.x[0], &Self::row(&[(0, 1.0)]), sp * sp);
+                let b = self.scalar(y - self.x[1], &Self::row(&[(1, 1.0)]), sp * sp);
+                // A NaN depth: the position source's depth is left to the depth sensor.
+                let c = !z.is_finite() || self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sp * sp);
+                a && b && c
+            }
+            Measurement::VelocityNed { vn, ve, vd, .. } => {
+                // vn = c u - s v, ve = s u + c v, vd = w (roll and pitch taken as zero).
+                let mut ok = true;
+                for axis in 0..2 {
+                    let (s, c) = self.x[3].sin_cos();
+                    let (u, v) = (self.x[4], self.x[5]);
+                    let (pred, z, h) = if axis == 0 {
+                        (c * u - s * v, vn, Self::row(&[(4, c), (5, -s), (3, -s * u - c * v)]))
+                    } else {
+                        (s * u + c * v, ve, Self::row(&[(4, s), (5, c), (3, c * u - s * v)]))
+                    };
+                    ok &= self.scalar(z - pred, &h, sv * sv);
+                }
+                ok & self.scalar(vd - self.x[6], &Self::row(&[(6, 1.0)]), sv * sv)
+            }
+            Measurement::VelocityBody { u, v, w, .. } => {
+                let a = self.scalar(u - self.x[4], &Self::row(&[(4, 1.0)]), sb * sb);
+                let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb);
+                let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb);
+                a && b && c
+            }
+        };
+        self.p = (self.p + self.p.transpose()) * 0.5;
+        if all { Update::Fused } else { Update::Rejected }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vehicle::{Rk4Vehicle, VehicleParams};
+
+    #[test]
+    fn the_sim_and_network_jacobians_match_finite_differences() {
+        let psi = 2.7;
+        let j = sim_to_net_jacobian(psi);
+        let h = 1e-6;
+        assert!((j[(3, 3)] - ((psi + h).cos() - (psi - h).cos()) / (2.0 * h)).abs() < 1e-8);
+        assert!((j[(4, 3)] - ((psi + h).sin() - (psi - h).sin()) / (2.0 * h)).abs() < 1e-8);
+        let (c, s) = (0.8 * psi.cos(), 0.8 * psi.sin()); // off the unit circle on purpose
+        let k = net_to_sim_jacobian(c, s);
+        let fd_c = ((s).atan2(c + h) - (s).atan2(c - h)) / (2.0 * h);
+        let fd_s = ((s + h).atan2(c) - (s - h).atan2(c)) / (2.0 * h);
+        assert!((k[(3, 3)] - fd_c).abs() < 1e-7 && (k[(3, 4)] - fd_s).abs() < 1e-7);
+    }
+
+    /// The filter's transition Jacobian (through the network form) against finite
+    /// differences of its own state update.
+    #[test]
+    fn the_transition_jacobian_matches_finite_differences_of_the_step() {
+        let model = Rk4Vehicle::with_dt(0.08);
+        let noise = NoiseSettings::default();
+        let x0 = SimState::from([1.0, -2.0, 3.0, 3.1, 0.4, -0.2, 0.1, 0.3]);
+        let u = Input::new(10.0, -5.0, 8.0, 1.5);
+        let step = |x: &FilterState| {
+            let mut e = Ekf::new(model, noise.clone());
+            e.reset(0.0, &SimState::from_fn(|i, _| x[i]), &[1.0; NS]);
+            for i in 0..NU {
+                e.x[NS + i] = x[NS + i];
+            }
+            e.predict(&u).unwrap();
+            (e.x, e.p)
+        };
+        let mut base = FilterState::zeros();
+        base.fixed_rows_mut::<NS>(0).copy_from(&x0);
+        base[NS + 2] = 2.0;
+        // P after one step from P0 = I (the disturbance's prior too) minus Q is F F'.
+        let mut e = Ekf::new(model, noise.clone());
+        e.reset(0.0, &x0, &[1.0; NS]);
+        for i in 0..NU {
+            e.p[(NS + i, NS + i)] = 1.0;
+        }
+        e.x[NS + 2] = 2.0;
+        e.predict(&u).unwrap();
+        let ff = e.p - e.q;
+        let h = 1e-6;
+        let mut f = FilterCovariance::zeros();
+        for j in 0..NE {
+            let (mut xp, mut xm) = (base, base);
+            xp[j] += h;
+            xm[j] -= h;
+            let col = (step(&xp).0 - step(&xm).0) / (2.0 * h);
+            f.set_column(j, &col);
+        }
+        let want = f * f.transpose();
+        let err = (ff - want).abs().max();
+        assert!(err < 1e-5 * want.abs().max(), "F F' differs by {err}");
+        let _ = VehicleParams::default();
+    }
+
+    /// A filter on the true model, fed depth, heading and yaw rate only (a stock BlueROV2),
+    /// recovers the body velocities of a simulated run within a few cm/s.
+    #[test]
+    fn depth_and_heading_alone_recover_the_velocities_of_a_known_motion() {
+        let model = Rk4Vehicle::with_dt(0.08);
+        let mut truth = SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
+        let mut e = Ekf::new(model, NoiseSettings::default());
+        e.reset(0.0, &SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]), &[10.0, 10.0, 0.1, 0.05, 0.3, 0.3, 0.3, 0.1]);
+        let mut ws = ();
+        let mut err = [0.0f64; 4];
+        let n = 500;
+        let mut seed = 1u64;
+        let mut noise = || {
+            // Small deterministic pseudo-noise, uniform in +-1.
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        for k in 0..n {
+            let t = k as f64 * 0.08;
+            let u = Input::new(20.0 * (0.3 * t).sin(), 10.0 * (0.2 * t).cos(), 15.0 * (0.5 * t).sin(), 2.0 * (0.4 * t).sin());
+            let mut next = crate::types::State::zeros();
+            model.step(&mut ws, &to_network(&truth), &u, &mut next).unwrap();
+            truth = crate::vehicle::to_simulator(&next);
+            e.predict(&u).unwrap();
+            e.update(&Measurement::Depth { t, z: truth[2] + 0.05 * noise() });
+            e.update(&Measurement::Heading { t, psi: truth[3] + 0.01 * noise() });
+            e.update(&Measurement::YawRate { t, r: truth[7] + 0.01 * noise() });
+            if k >= 100 {
+                for (j, i) in [4, 5, 6, 7].into_iter().enumerate() {
+                    err[j] += (e.x[i] - truth[i]).powi(2);
+                }
+            }
+        }
+        let rms = err.map(|s| (s / (n - 100) as f64).sqrt());
+        assert!(rms[0] < 0.02 && rms[1] < 0.02 && rms[2] < 0.02 && rms[3] < 0.02, "u v w r RMS {rms:?}");
+        assert_eq!(e.counts().rejected, 0);
+    }
+}

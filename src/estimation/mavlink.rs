@@ -1,0 +1,173 @@
+//! Measurements from ArduSub's standard MAVLink messages, for the live link and for recorded
+//! `.tlog`s alike:
+//!
+//! - `ATTITUDE`: heading (`yaw`) and yaw rate (`yawspeed`);
+//! - `SCALED_PRESSURE2` (the external depth sensor), or `SCALED_PRESSURE` until one is seen:
+//!   depth `(p - p_surface) / (rho g)`;
+//! - `LOCAL_POSITION_NED` (only while the autopilot's EKF has a position source): position
+//!   (its depth left to the pressure sensor where there is one) and NED velocity;
+//! - `SERVO_OUTPUT_RAW` through a vehicle file's thrusters: the input actually applied.
+//!
+//! Messages older than the newest of their kind are dropped (and counted).
+
+use super::measurement::Measurement;
+use crate::types::Input;
+use crate::vehicle::Thrusters;
+use mavlink::dialects::ardupilotmega::{MavMessage, SERVO_OUTPUT_RAW_DATA};
+
+/// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
+pub const GRAVITY: f64 = 9.80665;
+/// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
+pub const USEC_WRAP_S: f64 = 4294.967296;
+
+/// The eight outputs of a `SERVO_OUTPUT_RAW` (us).
+pub fn servo_pwm(o: &SERVO_OUTPUT_RAW_DATA) -> [u16; 8] {
+    [o.servo1_raw, o.servo2_raw, o.servo3_raw, o.servo4_raw, o.servo5_raw, o.servo6_raw, o.servo7_raw, o.servo8_raw]
+}
+
+/// A `SERVO_OUTPUT_RAW`'s own time (`time_usec`, wrapping) put on the autopilot's time line
+/// near `now` (s).
+pub fn outputs_time(now: f64, o: &SERVO_OUTPUT_RAW_DATA) -> f64 {
+    let raw = f64::from(o.time_usec) * 1e-6;
+    raw + ((now - raw) / USEC_WRAP_S).round() * USEC_WRAP_S
+}
+
+/// What one message gave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Observation {
+    /// A measurement.
+    Measured(Measurement),
+    /// The input applied at a time (s).
+    Applied(f64, Input),
+}
+
+/// Turns messages into [`Observation`]s.
+#[derive(Debug, Clone)]
+pub struct MavlinkMeasurements {
+    surface_pressure_hpa: f64,
+    water_density: f64,
+    thrusters: Option<Thrusters>,
+    external_pressure: bool,
+    /// Newest stamp of attitude, pressure, local position, outputs.
+    newest: [f64; 4],
+    dropped: u64,
+}
+
+impl MavlinkMeasurements {
+    /// Depth from pressure with `surface_pressure_hpa` and `water_density` (kg/m^3); the
+    /// applied input from outputs through `thrusters`, if given.
+    pub fn new(surface_pressure_hpa: f64, water_density: f64, thrusters: Option<Thrusters>) -> Self {
+        Self {
+            surface_pressure_hpa,
+            water_density,
+            thrusters,
+            external_pressure: false,
+            newest: [f64::NEG_INFINITY; 4],
+            dropped: 0,
+        }
+    }
+
+    /// Messages dropped as older than the newest of their kind.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Whether an external depth sensor (`SCALED_PRESSURE2`) was seen.
+    pub fn external_pressure(&self) -> bool {
+        self.external_pressure
+    }
+
+    fn in_order(&mut self, kind: usize, t: f64) -> bool {
+        if t <= self.newest[kind] {
+            self.dropped += 1;
+            return false;
+        }
+        self.newest[kind] = t;
+        true
+    }
+
+    fn depth(&self, hpa: f32) -> f64 {
+        (f64::from(hpa) - self.surface_pressure_hpa) * 100.0 / (self.water_density * GRAVITY)
+    }
+
+    /// The observations in `message` (autopilot time `now` s where the message has no stamp
+    /// of its own on the boot time line), passed to `out`.
+    pub fn observe(&mut self, now: f64, message: &MavMessage, mut out: impl FnMut(Observation)) {
+        let ms = |v: u32| f64::from(v) * 1e-3;
+        let f = f64::from;
+        match message {
+            MavMessage::ATTITUDE(m) if self.in_order(0, ms(m.time_boot_ms)) => {
+                let t = ms(m.time_boot_ms);
+                out(Observation::Measured(Measurement::Heading { t, psi: f(m.yaw) }));
+                out(Observation::Measured(Measurement::YawRate { t, r: f(m.yawspeed) }));
+            }
+            MavMessage::SCALED_PRESSURE2(m) => {
+                self.external_pressure = true;
+                if self.in_order(1, ms(m.time_boot_ms)) {
+                    let z = self.depth(m.press_abs);
+                    out(Observation::Measured(Measurement::Depth { t: ms(m.time_boot_ms), z }));
+                }
+            }
+            MavMessage::SCALED_PRESSURE(m) if !self.external_pressure && self.in_order(1, ms(m.time_boot_ms)) => {
+                let z = self.depth(m.press_abs);
+                out(Observation::Measured(Measurement::Depth { t: ms(m.time_boot_ms), z }));
+            }
+            MavMessage::LOCAL_POSITION_NED(m) if self.in_order(2, ms(m.time_boot_ms)) => {
+                let t = ms(m.time_boot_ms);
+                let z = if self.external_pressure { f64::NAN } else { f(m.z) };
+                out(Observation::Measured(Measurement::Position { t, x: f(m.x), y: f(m.y), z }));
+                out(Observation::Measured(Measurement::VelocityNed { t, vn: f(m.vx), ve: f(m.vy), vd: f(m.vz) }));
+            }
+            MavMessage::SERVO_OUTPUT_RAW(o) if o.port == 0 => {
+                let t = outputs_time(now, o);
+                if self.thrusters.is_some() && self.in_order(3, t) {
+                    let pwm = servo_pwm(o).map(f64::from);
+                    let th = self.thrusters.as_ref().expect("checked");
+                    out(Observation::Applied(t, th.input_from_commands(&pwm)));
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::ardupilotmega::{ATTITUDE_DATA, LOCAL_POSITION_NED_DATA, SCALED_PRESSURE2_DATA};
+
+    #[test]
+    fn messages_become_measurements_and_late_ones_are_dropped() {
+        let mut m = MavlinkMeasurements::new(1013.25, 1000.0, None);
+        let mut got = Vec::new();
+        let attitude = |ms, yaw| MavMessage::ATTITUDE(ATTITUDE_DATA { time_boot_ms: ms, yaw, yawspeed: 0.1, ..Default::default() });
+        m.observe(0.0, &attitude(1000, 0.5), |o| got.push(o));
+        m.observe(0.0, &attitude(960, 0.4), |o| got.push(o));
+        assert_eq!(got.len(), 2, "the late attitude is dropped");
+        assert_eq!(m.dropped(), 1);
+        // 2 m of fresh water is 196.133 hPa above the surface.
+        let p = MavMessage::SCALED_PRESSURE2(SCALED_PRESSURE2_DATA {
+            time_boot_ms: 1010,
+            press_abs: 1013.25 + 196.133,
+            ..Default::default()
+        });
+        m.observe(0.0, &p, |o| got.push(o));
+        let Observation::Measured(Measurement::Depth { z, .. }) = got[2] else { panic!("{:?}", got[2]) };
+        assert!((z - 2.0).abs() < 1e-4, "{z}");
+        let lp = MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+            time_boot_ms: 990,
+            x: 1.0,
+            y: 2.0,
+            z: 2.1,
+            vx: 0.1,
+            vy: 0.2,
+            vz: 0.3,
+        });
+        m.observe(0.0, &lp, |o| got.push(o));
+        // An older stamp than the newest attitude is fine: each kind keeps its own order. With a
+        // depth sensor, the position's depth is left to it.
+        let Observation::Measured(Measurement::Position { x, z, .. }) = got[3] else { panic!("{:?}", got[3]) };
+        assert!(x == 1.0 && z.is_nan());
+        assert!(matches!(got[4], Observation::Measured(Measurement::VelocityNed { vd, .. }) if (vd - 0.3).abs() < 1e-6));
+    }
+}

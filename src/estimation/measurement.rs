@@ -1,0 +1,173 @@
+//! What a vehicle measures, each with its autopilot time, and the noise the filter assumes
+//! for each.
+
+use crate::types::{NS, NU};
+use serde::Serialize;
+
+/// One measurement (autopilot time `t`, s).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Measurement {
+    /// Depth `z` (m, down): a pressure sensor, or the position source's `z`.
+    Depth {
+        /// Time (s).
+        t: f64,
+        /// Depth (m).
+        z: f64,
+    },
+    /// Heading `psi` (rad, from north, clockwise seen from above).
+    Heading {
+        /// Time (s).
+        t: f64,
+        /// Heading (rad; wrapped or not).
+        psi: f64,
+    },
+    /// Yaw rate `r` (rad/s).
+    YawRate {
+        /// Time (s).
+        t: f64,
+        /// Yaw rate (rad/s).
+        r: f64,
+    },
+    /// NED position (m): GPS, an underwater positioning system, a DVL's dead reckoning.
+    Position {
+        /// Time (s).
+        t: f64,
+        /// North (m).
+        x: f64,
+        /// East (m).
+        y: f64,
+        /// Down (m); NaN to leave depth to a depth sensor.
+        z: f64,
+    },
+    /// NED velocity (m/s), as the autopilot's EKF reports it.
+    VelocityNed {
+        /// Time (s).
+        t: f64,
+        /// North (m/s).
+        vn: f64,
+        /// East (m/s).
+        ve: f64,
+        /// Down (m/s).
+        vd: f64,
+    },
+    /// Body velocity (m/s): a DVL.
+    VelocityBody {
+        /// Time (s).
+        t: f64,
+        /// Surge (m/s).
+        u: f64,
+        /// Sway (m/s).
+        v: f64,
+        /// Heave (m/s).
+        w: f64,
+    },
+}
+
+impl Measurement {
+    /// Its time (s).
+    pub fn t(&self) -> f64 {
+        match *self {
+            Measurement::Depth { t, .. }
+            | Measurement::Heading { t, .. }
+            | Measurement::YawRate { t, .. }
+            | Measurement::Position { t, .. }
+            | Measurement::VelocityNed { t, .. }
+            | Measurement::VelocityBody { t, .. } => t,
+        }
+    }
+
+    /// Its kind's name (`depth`, `heading`, `yaw_rate`, `position`, `velocity_ned`,
+    /// `velocity_body`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Measurement::Depth { .. } => "depth",
+            Measurement::Heading { .. } => "heading",
+            Measurement::YawRate { .. } => "yaw_rate",
+            Measurement::Position { .. } => "position",
+            Measurement::VelocityNed { .. } => "velocity_ned",
+            Measurement::VelocityBody { .. } => "velocity_body",
+        }
+    }
+
+    /// Whether it observes the horizontal motion (a position or a velocity).
+    pub fn observes_horizontal(&self) -> bool {
+        matches!(self, Measurement::Position { .. } | Measurement::VelocityNed { .. } | Measurement::VelocityBody { .. })
+    }
+}
+
+/// Standard deviations the filter assumes: of each sensor, of the model's error per step,
+/// and of the disturbance.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NoiseSettings {
+    /// Depth sensor (m). A Bar30 resolves 2 mm but waves, a tether's pull and the sensor's
+    /// offset from the centre of the vehicle add more; ArduSub's simulator has 0.12 m.
+    pub depth_std: f64,
+    /// Heading (rad): the autopilot's attitude estimate.
+    pub heading_std: f64,
+    /// Yaw rate (rad/s): the gyro.
+    pub yaw_rate_std: f64,
+    /// Position (m): GPS at the surface, an underwater positioning system.
+    pub position_std: f64,
+    /// NED velocity (m/s) from the autopilot's EKF.
+    pub velocity_ned_std: f64,
+    /// Body velocity (m/s) of a DVL.
+    pub velocity_body_std: f64,
+    /// The model's error per sample period on `x y z psi u v w r`.
+    pub process_std: [f64; NS],
+    /// Spread of the disturbance `X Y Z Mz` (N, N m) over time.
+    pub disturbance_std: [f64; NU],
+    /// How long the disturbance stays correlated (s).
+    pub disturbance_time_constant: f64,
+    /// Innovations beyond this many standard deviations are left out.
+    pub gate: f64,
+}
+
+impl Default for NoiseSettings {
+    fn default() -> Self {
+        Self {
+            depth_std: 0.1,
+            heading_std: 0.02,
+            yaw_rate_std: 0.02,
+            position_std: 0.3,
+            velocity_ned_std: 0.1,
+            velocity_body_std: 0.03,
+            process_std: [0.005, 0.005, 0.005, 0.002, 0.02, 0.02, 0.02, 0.02],
+            disturbance_std: [10.0, 10.0, 10.0, 2.0],
+            disturbance_time_constant: 30.0,
+            gate: 5.0,
+        }
+    }
+}
+
+impl NoiseSettings {
+    /// The model's error per step on the whole filter state (the disturbance's is set by
+    /// the filter from its spread and time constant).
+    pub fn process_std(&self) -> [f64; NS] {
+        self.process_std
+    }
+
+    /// Checks that every value is finite and positive.
+    ///
+    /// # Errors
+    /// The first that is not, by name.
+    pub fn validate(&self) -> Result<(), String> {
+        let named = [
+            ("depth_std", self.depth_std),
+            ("heading_std", self.heading_std),
+            ("yaw_rate_std", self.yaw_rate_std),
+            ("position_std", self.position_std),
+            ("velocity_ned_std", self.velocity_ned_std),
+            ("velocity_body_std", self.velocity_body_std),
+            ("disturbance_time_constant", self.disturbance_time_constant),
+            ("gate", self.gate),
+        ];
+        let lists = self.process_std.iter().map(|v| ("process_std", *v)).chain(self.disturbance_std.iter().map(|v| ("disturbance_std", *v)));
+        for (name, v) in named.into_iter().chain(lists) {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("estimator noise {name} must be a positive number, got {v}"));
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,18 @@
+//! State estimation on the model: an extended Kalman filter whose process model is the
+//! controller's own ([`ekf`]), the measurements a vehicle gives and their noise
+//! ([`measurement`]), the filter fed in time as a controller or a log replay feeds it
+//! ([`tracker`]), and ArduSub's MAVLink messages turned into measurements ([`mavlink`]).
+//!
+//! A stock BlueROV2 measures depth (pressure), heading and yaw rate, and knows the thrust it
+//! commands; with the model that is enough to estimate its body velocities, which the MPC
+//! needs. `docs/MODEL.md` (section "State estimation") gives the equations.
+
+pub mod ekf;
+#[cfg(feature = "tools")]
+pub mod mavlink;
+pub mod measurement;
+pub mod tracker;
+
+pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
+pub use measurement::{Measurement, NoiseSettings};
+pub use tracker::Tracker;
