@@ -7,8 +7,13 @@
 //! - `mpc_iteration_h20_paper`: the paper's network (`models/paper_pinc.pinc`);
 //! - the same at `_h80`; `.../sparse` is the formulation before.
 //!
+//! - `estimator_update`: one sample of the state estimator beside it (`pinc::estimation`: one
+//!   prediction through the model's exact Jacobians, then depth, heading and yaw rate fused),
+//!   on the same models.
+//!
 //! Run with `cargo bench --bench mpc`; criterion reports the medians, and the end of the
-//! run prints default / sparse for each pair (both measured in this one run).
+//! run prints default / sparse for each pair and the estimator's cost as a fraction of the
+//! MPC iteration (all measured in this one run).
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group};
@@ -17,7 +22,8 @@ use pinc::mpc::{Mpc, MpcConfig, Reference};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::{Rk4Vehicle, to_network};
-use pinc::{SimState, State};
+use pinc::estimation::{Measurement, NoiseSettings, Tracker};
+use pinc::{Input, SimState, State};
 use std::hint::black_box;
 
 const HORIZONS: [usize; 2] = [20, 80];
@@ -67,7 +73,37 @@ fn median_ns(id: &str) -> Option<f64> {
     v["median"]["point_estimate"].as_f64()
 }
 
-criterion_group!(benches, mpc_iteration);
+/// One estimator sample: the model step with its Jacobians and three scalar updates.
+fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M) {
+    let mut tracker = Tracker::new(model, NoiseSettings::default());
+    let x0 = SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]);
+    let u = Input::new(10.0, 0.0, 20.0, 1.0);
+    let mut t = 0.0;
+    let mut feed = |tracker: &mut Tracker<M>, t: f64| {
+        tracker.measure(Measurement::Depth { t, z: x0[2] });
+        tracker.measure(Measurement::Heading { t, psi: x0[3] });
+        tracker.measure(Measurement::YawRate { t, r: x0[7] });
+    };
+    feed(&mut tracker, t);
+    tracker.advance(t).unwrap().expect("the filter starts");
+    tracker.commanded(u);
+    c.bench_function(id, |b| {
+        b.iter(|| {
+            t += 0.08;
+            feed(&mut tracker, t);
+            black_box(tracker.advance(black_box(t)).unwrap())
+        })
+    });
+}
+
+fn estimator_update(c: &mut Criterion) {
+    let shipped = load("mpc_pinc_thrust.pinc");
+    bench_estimator(c, "estimator_update", Predictor::reference(&shipped));
+    bench_estimator(c, "estimator_update_oracle", Rk4Vehicle::with_dt(shipped.dt));
+    bench_estimator(c, "estimator_update_paper", Predictor::reference(&load("paper_pinc.pinc")));
+}
+
+criterion_group!(benches, mpc_iteration, estimator_update);
 
 /// Clarabel's own timers for one solve of the default formulation (after 50 cycles from the
 /// bench's state), where the time of a cycle goes.
@@ -112,6 +148,16 @@ fn main() {
                 }
                 _ => println!("{id:28} (not measured in this run)"),
             }
+        }
+    }
+    println!("\nestimator sample / MPC iteration at N = 20 (medians of this run):");
+    for model in ["", "_oracle", "_paper"] {
+        let (e, m) = (format!("estimator_update{model}"), format!("mpc_iteration_h20{model}/default"));
+        match (median_ns(&e), median_ns(&m)) {
+            (Some(e_ns), Some(m_ns)) => {
+                println!("{e:28} {:8.1} us / {:8.1} us = {:.3}", e_ns / 1e3, m_ns / 1e3, e_ns / m_ns)
+            }
+            _ => println!("{e:28} (not measured in this run)"),
         }
     }
 }

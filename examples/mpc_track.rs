@@ -286,11 +286,14 @@ fn print_live(l: &serde_json::Value) {
     if l["truth_samples"].as_u64().unwrap_or(0) > 0 {
         let f = |k: &str| e[k].as_f64().map_or("-".into(), |v| format!("{v:.3}"));
         println!(
-            "estimate vs truth RMS   u {} v {} w {} m/s, r {} rad/s, z {} m, psi {} rad ({} samples)",
-            f("u"), f("v"), f("w"), f("r"), f("z"), f("psi"), l["truth_samples"]
+            "estimate vs truth RMS   u {} v {} w {} m/s, r {} rad/s, z {} m ({} samples)",
+            f("u"), f("v"), f("w"), f("r"), f("z"), l["truth_samples"]
         );
     }
-    println!("estimator               {} fused, {} rejected, {} late, {} restarts", l["fused"], l["rejected"], l["late"], l["restarts"]);
+    println!(
+        "estimator               {} fused, {} rejected, {} reacquired, {} late, {} restarts",
+        l["fused"], l["rejected"], l["reacquired"], l["late"], l["restarts"]
+    );
 }
 
 /// Runs the loop with a progress bar, logging every sample; Ctrl-C ends it early with the
@@ -501,7 +504,7 @@ mod live {
     use pinc::mpc::Mpc;
     use pinc::traits::DiscreteModel;
     use pinc::types::{NU, SimState};
-    use pinc::vehicle::{Rk4Vehicle, VehicleParams, to_network, wrap_angle};
+    use pinc::vehicle::{Rk4Vehicle, VehicleParams, to_network};
     use serde_json::{Value, json};
     use std::cell::RefCell;
     use std::sync::Arc;
@@ -552,6 +555,31 @@ mod live {
         };
     }
 
+    /// The estimate's errors `u v w r z` against the truth interpolated at each estimate's time
+    /// (SIM_STATE has no time stamp of its own: its arrival's autopilot time is used, and an
+    /// estimate is compared only between two truths at most 0.2 s apart). Heading is left out:
+    /// ATTITUDE's is magnetic where the autopilot knows no declination (no GPS), the truth's true.
+    fn errors_against_truth(estimates: &[Estimate], truths: &[Truth]) -> [Vec<f64>; 5] {
+        let mut errors: [Vec<f64>; 5] = Default::default();
+        for e in estimates {
+            let k = truths.partition_point(|tr| tr.t <= e.t);
+            if k == 0 || k == truths.len() {
+                continue;
+            }
+            let (a, b) = (&truths[k - 1], &truths[k]);
+            if b.t - a.t > 0.2 || b.t <= a.t {
+                continue;
+            }
+            let f = (e.t - a.t) / (b.t - a.t);
+            let lerp = |x: f64, y: f64| x + f * (y - x);
+            let truth = [lerp(a.uvw[0], b.uvw[0]), lerp(a.uvw[1], b.uvw[1]), lerp(a.uvw[2], b.uvw[2]), lerp(a.r, b.r), lerp(a.z, b.z)];
+            for (i, idx) in [4, 5, 6, 7, 2].into_iter().enumerate() {
+                errors[i].push(e.sim[idx] - truth[i]);
+            }
+        }
+        errors
+    }
+
     fn rms(v: &[f64]) -> Option<f64> {
         (!v.is_empty()).then(|| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt())
     }
@@ -586,6 +614,8 @@ mod live {
         let commander = a.drive.commander(vehicle_file)?;
         let settings = a.drive.settings()?;
         let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
+        // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
+        let give_up = if wait_position.is_zero() { std::time::Duration::from_secs(30) } else { wait_position };
         let noise = a.estimator.noise()?;
         let position_free = mpc.model().position_free();
         let model = match a.estimator.estimator_model.as_str() {
@@ -653,7 +683,7 @@ mod live {
         let mut refs = vec![scenario.reference(0.0); n];
         let mut horizontal_before: Option<bool> = None;
         let (mut ages, mut latencies) = (Vec::new(), Vec::new());
-        let mut errors: [Vec<f64>; 6] = Default::default();
+        let (mut estimates, mut all_truths): (Vec<Estimate>, Vec<Truth>) = (Vec::new(), Vec::new());
         let mut control_after: Option<f64> = None;
         let (mut last_depth, mut last_heading): (Option<f64>, Option<f64>) = (None, None);
         let t_log = |at: f64, t0: Option<f64>| t0.map_or(0.0, |s| (at - s).max(0.0));
@@ -709,7 +739,7 @@ mod live {
                 None => {
                     let waiting_for_position = !horizontal && waited.elapsed() < wait_position;
                     if state.is_none() || waiting_for_position {
-                        if state.is_none() && waited.elapsed() > wait_position.max(std::time::Duration::from_secs(30)) {
+                        if state.is_none() && waited.elapsed() > give_up {
                             let why = if a.estimator.no_estimator {
                                 format!("no full state: {}; the estimator (on by default) needs only depth and heading", fresh.state.capability)
                             } else if !position_free {
@@ -786,26 +816,24 @@ mod live {
             if log_error.is_none() {
                 log_error = log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
             }
-            if let Some(e) = &estimate {
-                // The newest truth at or before the estimate's time (SIM_STATE comes at the same rate).
-                let truth = truths.borrow().iter().rev().find(|tr| tr.t <= e.t + 1e-3 && e.t - tr.t < 0.1).copied();
-                if let Some(tr) = truth {
-                    let d = [e.sim[4] - tr.uvw[0], e.sim[5] - tr.uvw[1], e.sim[6] - tr.uvw[2], e.sim[7] - tr.r, e.sim[2] - tr.z, wrap_angle(e.sim[3] - tr.psi)];
-                    for (v, x) in errors.iter_mut().zip(d) {
-                        v.push(x);
-                    }
+            for tr in truths.borrow_mut().drain(..) {
+                if log_error.is_none() {
+                    let m = json!({"t_autopilot_s": tr.t, "z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r});
+                    log_error = log.live("/truth", "pinc.SimulatorTruth", (tr.t - start).max(0.0), m).err();
                 }
+                all_truths.push(tr);
+            }
+            if let Some(e) = &estimate {
+                estimates.push(*e);
                 let raw: Vec<Option<f64>> = fresh.state.named().map(|(_, v)| v).collect();
                 let m = json!({
-                    "estimate": e.sim.as_slice(), "std": e.std, "disturbance": e.disturbance.as_slice(),
-                    "disturbance_std": e.disturbance_std, "raw": raw, "position_source": horizontal,
-                    "truth": truth.map(|tr| json!({"z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r})),
+                    "t_autopilot_s": e.t, "estimate": e.sim.as_slice(), "std": e.std,
+                    "disturbance": e.disturbance.as_slice(), "disturbance_std": e.disturbance_std, "raw": raw,
+                    "position_source": horizontal,
                 });
                 if log_error.is_none() {
                     log_error = log.live("/estimate", "pinc.Estimate", t, m).err();
                 }
-                let keep = truths.borrow().len().saturating_sub(16);
-                truths.borrow_mut().drain(..keep);
             }
             let sample = Sample {
                 t,
@@ -844,7 +872,8 @@ mod live {
             log_error = log_error.or(log.log(t_log(stopped.t, t0), Level::Warning, &line).err());
         }
         let counts = each!(&tracker, tr => (tr.counts(), tr.late(), tr.restarts()));
-        let names = ["u", "v", "w", "r", "z", "psi"];
+        let errors = errors_against_truth(&estimates, &all_truths);
+        let names = ["u", "v", "w", "r", "z"];
         let estimate_rms: serde_json::Map<String, Value> =
             names.iter().zip(&errors).map(|(n, e)| (n.to_string(), json!(rms(e)))).collect();
         let live = json!({
@@ -854,9 +883,11 @@ mod live {
             "latency_ms": percentiles_ms(&mut latencies),
             "estimate_rms_error": estimate_rms,
             "truth_samples": errors[0].len(),
-            "fused": counts.0.fused, "rejected": counts.0.rejected, "late": counts.1, "restarts": counts.2,
+            "fused": counts.0.fused, "rejected": counts.0.rejected, "reacquired": counts.0.reacquired, "late": counts.1, "restarts": counts.2,
             "disarm_sent": stopped.disarm_sent,
             "stop_trigger": stopped.trigger.as_ref().map(|t| t.key()),
+            "stop_autopilot_s": stopped.trigger.as_ref().map(|_| stopped.t),
+            "neutral_autopilot_s": stopped.neutral_t,
         });
         Ok((samples, log_error, reason, Some(live)))
     }

@@ -168,18 +168,47 @@ def test_mpc_track_connected_tracks_like_the_in_process_run(fake_factory, tmp_pa
     assert ages[len(ages) // 2] < DT / 2 and latencies[len(latencies) // 2] < DT / 2
 
 
-def test_mpc_track_refuses_without_body_velocities(fake_factory, tmp_path):
-    # No position source (no DVL): the MPC needs u v w; pinc says so instead of inventing them.
+def test_mpc_track_without_the_estimator_refuses_without_body_velocities(fake_factory, tmp_path):
+    # No position source (no DVL) and the estimator off: the MPC needs u v w; pinc says so
+    # instead of inventing them, and commands nothing but neutral.
     log = tmp_path / "commands.jsonl"
     fake = fake_factory("--position-delay", "inf", "--commands", str(log))
     r = subprocess.run([str(mpc_track_binary()), "--duration", "5", "--json", "--vehicle", str(SITL),
                         "--out-dir", str(tmp_path / "live"), "--connect", fake.url, "--arm", "--timeout", "5",
-                        "--wait-position", "1"], capture_output=True, text=True, timeout=60)
+                        "--wait-position", "1", "--no-estimator"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 1
-    assert "no body velocities" in r.stderr and "does not invent them" in r.stderr, r.stderr
+    assert "no state to control on" in r.stderr and "no measured body velocities" in r.stderr, r.stderr
+    summary = json.loads(r.stdout)
+    assert summary["samples"] == 0 and summary["rms_depth_m"] is None and summary["rms_heading_deg"] is None
     fake.stop()
     pilot = [c for c in commands(log) if c["kind"] == "RC_CHANNELS_OVERRIDE"]
     assert pilot and all(is_neutral(c) for c in pilot)
+
+
+def test_mpc_track_without_a_position_source_runs_on_the_estimate(fake_factory, tmp_path):
+    # A stock BlueROV2: depth, heading and yaw rate only. The estimator (on the controller's
+    # model, driven by the thruster outputs) gives u v w and the MPC tracks as it does in
+    # process on the same plant.
+    common = ["--duration", "20", "--json", "--vehicle", str(SITL)]
+    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "sim")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    sim = json.loads(r.stdout)
+    fake = fake_factory("--position-delay", "inf", "--hold-until-armed", "--x0", *["0"] * 8)
+    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "live"),
+                        "--connect", fake.url, "--arm", "--timeout", "5"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    live = json.loads(r.stdout)
+    print("in-process", rms(sim), "on the estimate", rms(live), live["live"])
+    assert live["samples"] >= 245 and live["stopped"] is None
+    assert live["rms_depth_m"] <= 1.25 * sim["rms_depth_m"] and live["rms_heading_deg"] <= 1.25 * sim["rms_heading_deg"]
+    topics = read_mcap(Path(live["log"]))
+    logs = [m["message"] for _, m in topics["/log"]]
+    assert any("without a position source" in line for line in logs), logs
+    estimates = [m for _, m in topics["/estimate"]]
+    assert len(estimates) == live["samples"]
+    # The raw state has no body velocities; the estimate has them, with their spread.
+    assert all(e["raw"][4] is None and e["estimate"][4] is not None and e["std"][4] > 0 for e in estimates)
 
 
 def test_excite_without_arm_never_arms(fake_factory, tmp_path):

@@ -53,6 +53,9 @@ pub struct FilterCounts {
     pub fused: u64,
     /// Scalar components beyond the gate, left out.
     pub rejected: u64,
+    /// Components fused after [`REACQUIRE_AFTER`] rejections in a row, their state's
+    /// variance opened first.
+    pub reacquired: u64,
 }
 
 /// An extended Kalman filter on a [`DiscreteModel`].
@@ -69,7 +72,17 @@ pub struct Ekf<M: DiscreteModel> {
     decay: f64,
     t: f64,
     counts: FilterCounts,
+    /// Consecutive rejections of each measured component (by the state it measures).
+    rejected_run: [u32; NS],
+    /// Whether the horizontal disturbance `dX dY` is estimated (only while something observes
+    /// the horizontal motion: otherwise nothing can tell it from a wrong `u v`).
+    horizontal_disturbance: bool,
 }
+
+/// After this many consecutive rejections of one component, the estimate of what it measures
+/// is taken as lost (a jump: the autopilot's heading realigned, a position source came back
+/// elsewhere): its variance grows by the innovation's square and the measurement is fused.
+pub const REACQUIRE_AFTER: u32 = 3;
 
 /// The simulator state's `psi` into the network's `(cos, sin)`: `d net / d sim` (9 x 8).
 fn sim_to_net_jacobian(psi: f64) -> SMatrix<f64, 9, NS> {
@@ -122,6 +135,31 @@ impl<M: DiscreteModel> Ekf<M> {
             decay,
             t: 0.0,
             counts: FilterCounts::default(),
+            rejected_run: [0; NS],
+            horizontal_disturbance: true,
+        }
+    }
+
+    /// Estimates the horizontal disturbance `dX dY` (on) or holds it at zero (off: nothing
+    /// observes the horizontal motion).
+    pub fn set_horizontal_disturbance(&mut self, on: bool) {
+        if on && !self.horizontal_disturbance {
+            for i in [NS, NS + 1] {
+                let s = self.noise.disturbance_std[i - NS];
+                self.p[(i, i)] = s * s;
+            }
+        }
+        self.horizontal_disturbance = on;
+        if !on {
+            self.clear_horizontal_disturbance();
+        }
+    }
+
+    fn clear_horizontal_disturbance(&mut self) {
+        for i in [NS, NS + 1] {
+            self.x[i] = 0.0;
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
         }
     }
 
@@ -150,6 +188,10 @@ impl<M: DiscreteModel> Ekf<M> {
             self.p[(NS + i, NS + i)] = s * s;
         }
         self.counts = FilterCounts::default();
+        self.rejected_run = [0; NS];
+        if !self.horizontal_disturbance {
+            self.clear_horizontal_disturbance();
+        }
     }
 
     /// Time of the estimate (s).
@@ -215,6 +257,9 @@ impl<M: DiscreteModel> Ekf<M> {
         }
         self.p = f * self.p * f.transpose() + self.q;
         self.p = (self.p + self.p.transpose()) * 0.5;
+        if !self.horizontal_disturbance {
+            self.clear_horizontal_disturbance();
+        }
         self.t += self.model.dt();
         self.counts.predictions += 1;
         Ok(())
@@ -224,12 +269,27 @@ impl<M: DiscreteModel> Ekf<M> {
     /// `y = z - h(x)` already formed (wrapped where it is an angle), variance `r`. Left out
     /// beyond the gate.
     fn scalar(&mut self, y: f64, h: &SMatrix<f64, 1, NE>, r: f64) -> bool {
-        let ph = self.p * h.transpose();
-        let s = (h * ph)[(0, 0)] + r;
-        if !(s > 0.0 && y.is_finite()) || y * y > self.noise.gate * self.noise.gate * s {
+        // The state a row measures most directly, for the count of consecutive rejections.
+        let main = (0..NS).max_by(|&a, &b| h[(0, a)].abs().total_cmp(&h[(0, b)].abs())).unwrap_or(0);
+        let mut s = (h * self.p * h.transpose())[(0, 0)] + r;
+        if !(s > 0.0 && y.is_finite()) {
             self.counts.rejected += 1;
             return false;
         }
+        if y * y > self.noise.gate * self.noise.gate * s {
+            self.rejected_run[main] += 1;
+            if self.rejected_run[main] < REACQUIRE_AFTER {
+                self.counts.rejected += 1;
+                return false;
+            }
+            // Lost: open the variance of what it measures to the innovation, then fuse.
+            let gain = h[(0, main)];
+            self.p[(main, main)] += y * y / (gain * gain);
+            s = (h * self.p * h.transpose())[(0, 0)] + r;
+            self.counts.reacquired += 1;
+        }
+        self.rejected_run[main] = 0;
+        let ph = self.p * h.transpose();
         let k = ph / s;
         self.x += k * y;
         // Joseph form keeps P symmetric and positive under rounding.

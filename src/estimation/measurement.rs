@@ -105,7 +105,7 @@ pub struct NoiseSettings {
     pub depth_std: f64,
     /// Heading (rad): the autopilot's attitude estimate.
     pub heading_std: f64,
-    /// Yaw rate (rad/s): the gyro.
+    /// Yaw rate (rad/s): the gyro (ArduSub's simulator matches its truth within 0.01 rad/s).
     pub yaw_rate_std: f64,
     /// Position (m): GPS at the surface, an underwater positioning system.
     pub position_std: f64,
@@ -128,13 +128,13 @@ impl Default for NoiseSettings {
         Self {
             depth_std: 0.1,
             heading_std: 0.02,
-            yaw_rate_std: 0.02,
+            yaw_rate_std: 0.005,
             position_std: 0.3,
             velocity_ned_std: 0.1,
             velocity_body_std: 0.03,
-            process_std: [0.005, 0.005, 0.005, 0.002, 0.02, 0.02, 0.02, 0.02],
-            disturbance_std: [10.0, 10.0, 10.0, 2.0],
-            disturbance_time_constant: 30.0,
+            process_std: [0.005, 0.005, 0.01, 0.002, 0.02, 0.02, 0.05, 0.02],
+            disturbance_std: [5.0, 5.0, 5.0, 1.0],
+            disturbance_time_constant: 60.0,
             gate: 5.0,
         }
     }

@@ -172,6 +172,7 @@ impl<M: DiscreteModel> Tracker<M> {
             self.ekf.predict(&u)?;
         }
         let now = self.ekf.t();
+        self.ekf.set_horizontal_disturbance(self.horizontal_observed(now));
         for i in 0..self.pending.len() {
             let m = self.pending[i];
             if m.t() < now - 1.5 * dt {

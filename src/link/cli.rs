@@ -3,7 +3,7 @@
 
 use super::command::{CommandWay, Commander};
 use super::drive::DriveSettings;
-use super::link::{Autopilot, LinkConfig, Received, VehicleLink};
+use super::link::{Autopilot, LinkConfig, LinkError, Received, VehicleLink};
 use super::safety::SafetyLimits;
 use super::signing::SigningKey;
 use super::state::{StateConfig, StateEstimator};
@@ -196,7 +196,19 @@ pub fn open(
     positive("--max-age", a.max_age)?;
     let signing = a.signing_key.as_deref().map(SigningKey::load).transpose().map_err(|e| e.to_string())?;
     let config = LinkConfig { gcs_system_id: a.gcs_sysid, signing, ..LinkConfig::default() };
-    let mut link = VehicleLink::connect(&address, config).map_err(|e| e.to_string())?;
+    // A TCP autopilot that is still starting refuses the connection: ask again until the
+    // timeout, as ground stations do.
+    let started = std::time::Instant::now();
+    let mut link = loop {
+        match VehicleLink::connect(&address, config.clone()) {
+            Err(LinkError::Open { source, .. })
+                if source.kind() == std::io::ErrorKind::ConnectionRefused && started.elapsed() < timeout =>
+            {
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            other => break other.map_err(|e| e.to_string())?,
+        }
+    };
     let autopilot = link.wait_for_autopilot(timeout, seen).map_err(|e| e.to_string())?;
     link.request_state_streams(a.rate).map_err(|e| e.to_string())?;
     let estimator = StateEstimator::new(StateConfig {
@@ -221,9 +233,12 @@ pub struct EstimatorArgs {
     /// Standard deviation of the depth sensor (m) the estimator assumes.
     #[arg(long, default_value_t = NoiseSettings::default().depth_std)]
     pub depth_std: f64,
-    /// Standard deviation of heading (rad) and yaw rate (rad/s) the estimator assumes.
+    /// Standard deviation of the heading (rad) the estimator assumes.
     #[arg(long, default_value_t = NoiseSettings::default().heading_std)]
-    pub attitude_std: f64,
+    pub heading_std: f64,
+    /// Standard deviation of the yaw rate (rad/s) the estimator assumes.
+    #[arg(long, default_value_t = NoiseSettings::default().yaw_rate_std)]
+    pub yaw_rate_std: f64,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]
@@ -238,8 +253,8 @@ impl EstimatorArgs {
     pub fn noise(&self) -> Result<NoiseSettings, String> {
         let noise = NoiseSettings {
             depth_std: self.depth_std,
-            heading_std: self.attitude_std,
-            yaw_rate_std: self.attitude_std,
+            heading_std: self.heading_std,
+            yaw_rate_std: self.yaw_rate_std,
             ..NoiseSettings::default()
         };
         noise.validate()?;

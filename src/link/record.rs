@@ -21,6 +21,7 @@ use crate::closed_loop::Level;
 use crate::types::INPUT_NAMES;
 use crate::types::Input;
 use crate::vehicle::Thrusters;
+use crate::estimation::Estimate;
 use crate::estimation::mavlink::{outputs_time, servo_pwm};
 use mavlink::dialects::ardupilotmega::SERVO_OUTPUT_RAW_DATA;
 use mcap::records::{MessageHeader, Metadata};
@@ -229,6 +230,25 @@ impl Recorder {
         let command = json!({"timestamp": stamp(t), "input": input});
         let command_props = json!({"input": {"type": "object", "properties": names(&INPUT_NAMES)}});
         self.write("/mpc/command", "pinc.Command", command_props, t, &command)
+    }
+
+    /// The state estimate on `/estimate` (`crate::estimation`): `x y z psi u v w r`, each
+    /// part's standard deviation, the input-equivalent disturbance and its spread.
+    ///
+    /// # Errors
+    /// Writing fails.
+    pub fn estimate(&mut self, e: &Estimate) -> Result<(), RecordError> {
+        let named = |v: &[f64]| -> Map<String, Value> {
+            crate::types::SIM_STATE_NAMES.iter().zip(v).map(|(k, x)| (k.to_string(), null_if_nan(*x))).collect()
+        };
+        let input = |v: &[f64]| -> Map<String, Value> {
+            INPUT_NAMES.iter().zip(v).map(|(k, x)| (k.to_string(), null_if_nan(*x))).collect()
+        };
+        let m = json!({
+            "timestamp": stamp(e.t), "t_autopilot_s": e.t, "sim": named(e.sim.as_slice()), "std": named(&e.std),
+            "disturbance": input(e.disturbance.as_slice()), "disturbance_std": input(&e.disturbance_std),
+        });
+        self.write("/estimate", "pinc.Estimate", json!({}), e.t, &m)
     }
 
     /// The thruster outputs on `/vehicle/outputs`: channel number -> PWM (us), as the

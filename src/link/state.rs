@@ -90,7 +90,7 @@ pub enum Capability {
     /// Every part: the full-state MPC.
     Full,
     /// Heading, yaw rate and depth but no body velocities (no position source such as a
-    /// DVL): a depth and heading controller only.
+    /// DVL): the MPC runs on the model-based state estimate (`crate::estimation`).
     DepthHeading,
     /// Heading or depth missing: no controller.
     None,
@@ -99,10 +99,14 @@ pub enum Capability {
 impl fmt::Display for Capability {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
-            Capability::Full => "full state: the full-state MPC can run",
+            Capability::Full => {
+                "full state (a position source gives the body velocities): the MPC runs on the state \
+                 estimate with position and velocity fused"
+            }
             Capability::DepthHeading => {
-                "depth and heading only (no position source such as a DVL, so no body velocities u v w): \
-                 a depth and heading controller only"
+                "depth and heading only (no position source such as a DVL or GPS, so no measured body \
+                 velocities u v w): the MPC runs on the state estimate, its body velocities from the model \
+                 and the applied thrust, with a position-free model"
             }
             Capability::None => "no controller: heading or depth missing",
         })

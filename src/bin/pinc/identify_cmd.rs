@@ -23,6 +23,19 @@ pub struct IdentifyArgs {
     pub json: bool,
 }
 
+/// The `[[thruster]]` and `[curve.*]` tables of a vehicle file, as TOML text ("" if none).
+fn thruster_tables(path: &std::path::Path) -> Result<String, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let table: toml::Table = text.parse().map_err(|e| format!("{}: {e}", path.display()))?;
+    let kept: toml::Table =
+        table.into_iter().filter(|(k, _)| k == "thruster" || k == "curve").collect();
+    if kept.is_empty() {
+        return Ok(String::new());
+    }
+    let body = toml::to_string(&kept).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(format!("\n# The thrusters of {}.\n{body}", path.display()))
+}
+
 pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
     let base = load_vehicle(a.vehicle.as_deref())?;
     let mut folders = Vec::new();
@@ -52,9 +65,15 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
                 format!("; not identifiable from these data, kept from the base: {}", id.not_identifiable.join(", "))
             }
         );
+        // The base file's thrusters and their curves carry over: the identified file then
+        // commands the vehicle (`--connect`) as the base did.
+        let thrusters = match a.vehicle.as_deref() {
+            Some(path) => thruster_tables(path)?,
+            None => String::new(),
+        };
         // Written beside and renamed, so a reader never sees half a file.
         let partial = out.with_extension("toml.partial");
-        std::fs::write(&partial, header + &id.vehicle.to_toml())
+        std::fs::write(&partial, header + &id.vehicle.to_toml() + &thrusters)
             .and_then(|_| std::fs::rename(&partial, out))
             .map_err(|e| format!("{}: {e}", out.display()))?;
     }

@@ -11,7 +11,9 @@ use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
 use pinc::link::SigningKey;
-use pinc::vehicle::Thrusters;
+use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
+use pinc::estimation::{NoiseSettings, Tracker};
+use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::{Value, json};
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -74,7 +76,8 @@ pub struct RecordArgs {
     #[arg(long)]
     duration: Option<f64>,
     /// Vehicle file with [[thruster]] tables: the body input X,Y,Z,Mz of each state sample is
-    /// rebuilt from SERVO_OUTPUT_RAW through its thrusters (for `pinc dataset import`).
+    /// rebuilt from SERVO_OUTPUT_RAW through its thrusters (for `pinc dataset import`), and the
+    /// state estimate on its analytic vehicle is recorded on /estimate beside the raw state.
     #[arg(long)]
     vehicle: Option<PathBuf>,
     /// Rate (Hz) requested for SERVO_OUTPUT_RAW with --vehicle.
@@ -314,8 +317,27 @@ fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
 
 /// Writes a session into its recording: every message, the state samples with their body
 /// input (from the thruster outputs when a vehicle file is given), the `/log` lines.
+/// The state estimator of a recording: the analytic vehicle of the vehicle file, fed every
+/// message; its estimate is written beside each raw state sample.
+struct Estimation {
+    measurements: MavlinkMeasurements,
+    tracker: Tracker<Rk4Vehicle>,
+}
+
+impl Estimation {
+    fn new(vehicle: &std::path::Path, dt: f64, link: &pinc::link::cli::LinkOptions) -> Result<Self, String> {
+        let params = VehicleParams::load(vehicle).map_err(|e| e.to_string())?;
+        let thrusters = Thrusters::load(vehicle).ok();
+        Ok(Self {
+            measurements: MavlinkMeasurements::new(link.surface_pressure, link.water_density, thrusters),
+            tracker: Tracker::new(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) }, NoiseSettings::default()),
+        })
+    }
+}
+
 struct Writer {
     rec: Recorder,
+    estimation: Option<Estimation>,
     notes: Session,
     autopilot: Autopilot,
     inputs: Option<InputsFromOutputs>,
@@ -327,7 +349,7 @@ struct Writer {
 impl Writer {
     fn new(rec: Recorder, autopilot: Autopilot, inputs: Option<InputsFromOutputs>, pending: Vec<Received>) -> Self {
         let notes = Session { last_heartbeat: None, capability: None, log: Vec::new() };
-        Self { rec, notes, autopilot, inputs, pending, clock: None }
+        Self { rec, estimation: None, notes, autopilot, inputs, pending, clock: None }
     }
 
     /// One message received, at autopilot time `t` (meaningless until a stamped message came).
@@ -350,6 +372,15 @@ impl Writer {
     fn one(&mut self, r: &Received, t: f64) -> Result<(), String> {
         // A write error ends the session: the unfinished file is removed (`Recorder`'s drop).
         write_one(&mut self.rec, &mut self.notes, &self.autopilot, t, r)?;
+        if let Some(e) = &mut self.estimation
+            && from_autopilot(r, &self.autopilot)
+        {
+            let tracker = &mut e.tracker;
+            e.measurements.observe(t, &r.message, |o| match o {
+                Observation::Measured(m) => tracker.measure(m),
+                Observation::Applied(t, u) => tracker.applied(t, u),
+            });
+        }
         if let (Some(p), MavMessage::SERVO_OUTPUT_RAW(o)) = (&mut self.inputs, &r.message)
             && from_autopilot(r, &self.autopilot)
         {
@@ -364,6 +395,13 @@ impl Writer {
     /// A fresh state sample.
     fn state(&mut self, s: &pinc::link::StateEstimate) -> Result<(), String> {
         self.notes.note_capability(s.t, s.capability);
+        if let Some(e) = &mut self.estimation {
+            match e.tracker.advance(s.t) {
+                Ok(Some(estimate)) => self.rec.estimate(&estimate).map_err(|e| e.to_string())?,
+                Ok(None) => {}
+                Err(err) => self.notes.log.push((s.t, Level::Warning, format!("state estimator: {err}"))),
+            }
+        }
         match &mut self.inputs {
             None => self.rec.state(s, None).map_err(|e| e.to_string())?,
             Some(p) => {
@@ -428,6 +466,9 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
     }
     let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
     let mut w = Writer::new(rec, autopilot.clone(), inputs, pending);
+    if let Some(v) = &a.vehicle {
+        w.estimation = Some(Estimation::new(v, 1.0 / a.link.rate, &a.link.options)?);
+    }
     let start = Instant::now();
     let result = loop {
         if stop.load(Ordering::Relaxed) {
@@ -491,7 +532,9 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     session.insert("command".to_string(), a.drive.command_way.clone());
     session.insert("limits".to_string(), limits.describe());
     let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
-    let w = RefCell::new(Writer::new(rec, autopilot.clone(), recorded, pending));
+    let mut writer = Writer::new(rec, autopilot.clone(), recorded, pending);
+    writer.estimation = Some(Estimation::new(&a.vehicle, dt, &a.link.options)?);
+    let w = RefCell::new(writer);
     let write_error: RefCell<Option<String>> = RefCell::new(None);
     let keep = |result: Result<(), String>| {
         if let Err(e) = result {

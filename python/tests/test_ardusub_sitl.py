@@ -1,0 +1,177 @@
+"""Against ArduSub itself: the real autopilot firmware (4.8.0-dev) in ArduPilot's simulator,
+run by ../shared/ardusub_sitl/run_in_netns.sh in a private network namespace (every packet
+stays on its loopback). $PINC_ARDUSUB_SITL names that folder (`.ci/run` sets it); without it
+these tests skip.
+
+The closed loops are real time (the firmware's clock is the host's at speedup 1): about a
+minute and a half each. The controller's model is the simulator's vehicle identified from its
+own logs (tests/fixtures/ardusub/sitl_identified.toml, the owner's path of docs/VEHICLE.md);
+the estimate is checked against the simulator's truth (SIM_STATE).
+
+Needs target/release/pinc and target/release/examples/mpc_track, pymavlink and mcap.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from test_vehicle_link import ROOT, pinc_binary, read_mcap
+from test_vehicle_drive import mpc_track_binary
+
+SITL_DIR = os.environ.get("PINC_ARDUSUB_SITL")
+if not SITL_DIR:
+    pytest.skip("PINC_ARDUSUB_SITL is not set: the firmware tests need ArduSub's simulator "
+                "(../shared/ardusub_sitl; .ci/run sets it)", allow_module_level=True)
+SITL = Path(SITL_DIR)
+RUN = SITL / "run_in_netns.sh"
+if not (SITL / "ardusub").is_file():
+    pytest.skip(f"{SITL}/ardusub is missing", allow_module_level=True)
+
+HERE = Path(__file__).resolve().parent
+INJECT = HERE / "sitl_inject.py"
+FIXTURES = ROOT / "tests" / "fixtures" / "ardusub"
+VEHICLE = FIXTURES / "sitl_identified.toml"
+PASSTHROUGH = FIXTURES / "thrusters_passthrough.parm"
+JS_GAIN = SITL / "js_gain_full.parm"
+NO_POSITION = SITL / "no_position_source.parm"
+
+
+def run_on_firmware(tmp_path, parms, client, timeout=300):
+    """Runs `client` (a list) beside the firmware, pinc being its first client (on 5760)."""
+    cmd = [str(RUN), "-d", str(tmp_path / "sitl"), "-p", ",".join(str(p) for p in parms), "--", *map(str, client)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+def mpc_track_args(tmp_path, way, *extra):
+    return [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--vehicle", VEHICLE, "--oracle", "--arm",
+            "--command", way, "--js-gain", "1", "--sim-truth", "--json", "--out-dir", tmp_path / "out",
+            "--timeout", "30", *extra]
+
+
+def closed_loop(tmp_path, parms, way, *extra, faults=(), timeout=300):
+    client = mpc_track_args(tmp_path, way, *extra)
+    if faults:
+        inject = [sys.executable, INJECT, "--log", tmp_path / "faults.jsonl"]
+        for at, name, value in faults:
+            inject += ["--at", str(at), name, str(value)]
+        client = [*inject, "--", *client]
+    r = run_on_firmware(tmp_path, parms, client, timeout=timeout)
+    assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
+    summary = json.loads(r.stdout)
+    print(json.dumps({k: summary[k] for k in ("samples", "rms_depth_m", "rms_heading_deg",
+                                              "held_heading_error_max_deg", "stopped")}), summary["live"])
+    return r, summary
+
+
+def fault_log(tmp_path):
+    return [json.loads(line) for line in (tmp_path / "faults.jsonl").read_text().splitlines()]
+
+
+def logs(summary):
+    return [m["message"] for _, m in read_mcap(Path(summary["log"]))["/log"]]
+
+
+def assert_tracks(summary, r):
+    """The issue's targets for a 60 s run of the default references."""
+    assert summary["stopped"] is None and r.returncode == 0, r.stderr
+    assert summary["samples"] >= 740
+    assert summary["rms_depth_m"] <= 0.15 and summary["rms_heading_deg"] <= 6.0
+    assert summary["held_heading_error_max_deg"] <= 1.0
+    assert summary["live"]["disarm_sent"], "pinc armed, so it disarms at the end"
+
+
+def assert_estimate(summary):
+    e = summary["live"]["estimate_rms_error"]
+    assert summary["live"]["truth_samples"] >= 700
+    assert e["w"] <= 0.05 and e["r"] <= 0.05, e
+    assert e["u"] <= 0.15 and e["v"] <= 0.15, e
+
+
+@pytest.mark.parametrize("way", ["manual", "thrusters"])
+def test_closed_loop_with_a_position_source(tmp_path, way):
+    # GPS on (the simulator's GPS works under water): the EKF has a position ~20 s after
+    # arming; control starts at the first full state and runs 60 s. pinc is the firmware's
+    # first client, so its first arm commands are refused (EKF alignment) and it retries.
+    parms = [JS_GAIN] if way == "manual" else [JS_GAIN, PASSTHROUGH]
+    r, s = closed_loop(tmp_path, parms, way, "--wait-position", "45")
+    assert_tracks(s, r)
+    assert_estimate(s)
+    assert "arming refused" in r.stderr and "Arm:" in r.stderr, r.stderr
+    lines = logs(s)
+    assert any("with a position source" in line for line in lines), lines
+    assert any(line.startswith("autopilot ") for line in lines), "the autopilot's STATUSTEXTs are logged"
+
+
+@pytest.mark.parametrize("way", ["manual", "thrusters"])
+def test_closed_loop_on_a_stock_vehicle_runs_on_the_estimate(tmp_path, way):
+    # No GPS, no DVL: depth from the external pressure sensor, heading and yaw rate from
+    # ATTITUDE, the thruster outputs. The estimate gives u v w.
+    parms = [NO_POSITION] if way == "manual" else [NO_POSITION, PASSTHROUGH]
+    r, s = closed_loop(tmp_path, parms, way)
+    assert_tracks(s, r)
+    assert_estimate(s)
+    assert any("without a position source" in line for line in logs(s))
+
+
+def test_position_source_lost_mid_run_goes_on_on_the_estimate(tmp_path):
+    # GPS off 20 s into the control (it starts ~22 s after arming): the run goes on.
+    r, s = closed_loop(tmp_path, [JS_GAIN], "manual", "--wait-position", "45", "--duration", "40",
+                       faults=[(42, "SIM_GPS1_ENABLE", 0)])
+    assert s["stopped"] is None and r.returncode == 0, r.stderr
+    assert [f["name"] for f in fault_log(tmp_path) if f["event"] == "param_set"] == ["SIM_GPS1_ENABLE"]
+    lines = logs(s)
+    assert any("position source lost" in line for line in lines), lines
+    assert s["rms_depth_m"] <= 0.15 and s["rms_heading_deg"] <= 6.0
+
+
+def test_depth_sensor_lost_stops_with_neutral_and_disarms(tmp_path):
+    r, s = closed_loop(tmp_path, [NO_POSITION], "manual", "--duration", "40",
+                       faults=[(15, "SIM_BAR2_DISABLE", 1)])
+    assert r.returncode == 1
+    assert s["live"]["stop_trigger"] == "sensor_lost" and s["live"]["disarm_sent"], s["live"]
+    assert "no depth measurement" in r.stderr and "neutral command sent" in r.stderr, r.stderr
+    fault = next(f for f in fault_log(tmp_path) if f["event"] == "param_set")
+    stop = s["live"]["stop_autopilot_s"]
+    print(f"depth sensor off at {fault['boot_s']:.2f} s, neutral at {s['live']['neutral_autopilot_s']:.2f} s "
+          f"(autopilot time)")
+    # The stop comes after the limit of silence (0.5 s) and within one sample (0.08 s) of it,
+    # give or take the autopilot time the injector saw last (one 0.08 s sample).
+    assert 0.5 - 0.08 <= stop - fault["boot_s"] <= 0.5 + 0.25
+    assert s["live"]["neutral_autopilot_s"] - stop <= 0.08
+
+
+def test_signing_with_a_wrong_key_accepts_nothing(tmp_path):
+    # The autopilot gets key A; pinc with key B hears nothing (every frame is signed with A) and
+    # says why; pinc with key A works.
+    key_a, key_b = tmp_path / "a.key", tmp_path / "b.key"
+    key_a.write_text("correct horse battery staple\n")
+    key_b.write_text("0123456789abcdef" * 4 + "\n")
+    script = tmp_path / "signing.sh"
+    script.write_text("\n".join([
+        "set -u",
+        f"'{pinc_binary()}' vehicle setup-signing --connect tcp:127.0.0.1:5760 --timeout 30 --key '{key_a}' "
+        f"> '{tmp_path}/setup.out' 2> '{tmp_path}/setup.err' || exit 10",
+        f"'{pinc_binary()}' vehicle status --connect tcp:127.0.0.1:5760 --timeout 5 --signing-key '{key_b}' "
+        f"> '{tmp_path}/wrong.out' 2> '{tmp_path}/wrong.err'; echo $? > '{tmp_path}/wrong.rc'",
+        f"'{pinc_binary()}' vehicle status --connect tcp:127.0.0.1:5760 --timeout 5 --json "
+        f"> '{tmp_path}/unsigned.out' 2> '{tmp_path}/unsigned.err'; echo $? > '{tmp_path}/unsigned.rc'",
+        f"'{pinc_binary()}' vehicle status --connect tcp:127.0.0.1:5760 --timeout 10 --json --signing-key '{key_a}' "
+        f"> '{tmp_path}/right.out' 2> '{tmp_path}/right.err'; echo $? > '{tmp_path}/right.rc'",
+    ]) + "\n")
+    r = run_on_firmware(tmp_path, [JS_GAIN], ["bash", script], timeout=180)
+    setup_err = (tmp_path / "setup.err").read_text() if (tmp_path / "setup.err").exists() else ""
+    assert r.returncode == 0, (r.stderr, setup_err)
+    assert "signing set up" in (tmp_path / "setup.out").read_text()
+    assert (tmp_path / "wrong.rc").read_text().strip() == "1"
+    wrong = (tmp_path / "wrong.err").read_text()
+    assert "no autopilot heartbeat" in wrong and "signing is on" in wrong, wrong
+    # Signed frames are dropped by a link without the key too... the autopilot signs all it
+    # sends, and an unsigned link still parses signed frames: what it must not get is an answer
+    # to its unsigned commands, so its status shows no state streams.
+    right = json.loads((tmp_path / "right.out").read_text())
+    assert (tmp_path / "right.rc").read_text().strip() == "0", (tmp_path / "right.err").read_text()
+    assert right["capability"] != "none", right
