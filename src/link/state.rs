@@ -397,7 +397,7 @@ mod tests {
         // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
         let mut e = StateEstimator::default();
         assert!(e.update(&attitude(1000, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
-        let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
+        let s = e.update(&local(1010, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
         assert_eq!(s.capability, Capability::Full);
         let want = [1.0, 2.0, 3.0, std::f64::consts::FRAC_PI_2, 1.0, 0.0, 0.2, 0.1];
         for (i, (got, want)) in s.sim.iter().zip(want).enumerate() {
@@ -408,6 +408,30 @@ mod tests {
         assert!((s.sim[4]).abs() < 1e-6 && (s.sim[5] + 1.0).abs() < 1e-6, "{:?}", s.sim);
         // With the position fresh, attitudes do not make samples of their own.
         assert!(e.update(&attitude(1140, std::f32::consts::FRAC_PI_2, 0.0)).is_none());
+    }
+
+    /// The firmware's interleaving: a position stamped before the last attitude sample (the
+    /// clock passing from ATTITUDE to LOCAL_POSITION_NED) makes no sample, and the samples'
+    /// times only ever grow.
+    #[test]
+    fn samples_never_go_back_in_time_when_the_clock_changes_message() {
+        let mut e = StateEstimator::default();
+        let mut times = Vec::new();
+        let push = |times: &mut Vec<i64>, s: Option<StateEstimate>| times.extend(s.map(|s| (s.t * 1e3).round() as i64));
+        push(&mut times, e.update(&attitude(41_080, 0.0, 0.0)));
+        push(&mut times, e.update(&attitude(41_160, 0.0, 0.0)));
+        // The first position, 68 ms older than the newest attitude: kept, no sample.
+        push(&mut times, e.update(&local(41_092, [0.0; 3], [0.0; 3])));
+        assert_eq!(times, [41_080, 41_160]);
+        // Attitudes no longer make samples (the position is fresh); the next position does.
+        push(&mut times, e.update(&attitude(41_240, 0.0, 0.0)));
+        push(&mut times, e.update(&local(41_172, [0.0; 3], [0.0; 3])));
+        push(&mut times, e.update(&attitude(41_320, 0.0, 0.0)));
+        push(&mut times, e.update(&local(41_252, [0.0; 3], [0.0; 3])));
+        assert_eq!(times, [41_080, 41_160, 41_172, 41_252]);
+        assert!(times.windows(2).all(|w| w[1] > w[0]));
+        let last = e.estimate_at(41.252);
+        assert_eq!(last.capability, Capability::Full);
     }
 
     #[test]
