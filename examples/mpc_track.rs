@@ -616,6 +616,7 @@ mod live {
         let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
         // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
         let give_up = if wait_position.is_zero() { std::time::Duration::from_secs(30) } else { wait_position };
+        let frozen_limit = pinc::link::cli::positive("--max-frozen", a.drive.max_frozen)?.as_secs_f64();
         let noise = a.estimator.noise()?;
         let position_free = mpc.model().position_free();
         let model = match a.estimator.estimator_model.as_str() {
@@ -686,6 +687,14 @@ mod live {
         let (mut estimates, mut all_truths): (Vec<Estimate>, Vec<Truth>) = (Vec::new(), Vec::new());
         let mut control_after: Option<f64> = None;
         let (mut last_depth, mut last_heading): (Option<f64>, Option<f64>) = (None, None);
+        // The depth reading and when it last changed: a pressure sensor in water never repeats
+        // the same value for long; ArduSub repeats the last one when its sensor is gone.
+        let mut depth_changed: Option<(f64, f64)> = None;
+        // Per channel: sum of applied x asked, of asked^2, and the count (a least-squares gain of
+        // the outputs on the commands), and the last command with its autopilot time.
+        let mut delivered = [(0.0f64, 0.0f64, 0usize); NU];
+        let mut last_command: Option<(f64, pinc::Input)> = None;
+
         let t_log = |at: f64, t0: Option<f64>| t0.map_or(0.0, |s| (at - s).max(0.0));
         let outcome: Result<(), Trigger> = loop {
             let fresh = match drive.next_state(seen) {
@@ -695,9 +704,29 @@ mod live {
             notes.extend(drive.take_notes());
             for o in drive.drain_observations() {
                 match o {
-                    Observation::Measured(Measurement::Depth { t, .. }) => last_depth = Some(t),
+                    Observation::Measured(Measurement::Depth { t, z }) => {
+                        last_depth = Some(t);
+                        if depth_changed.is_none_or(|(value, _)| value != z) {
+                            depth_changed = Some((z, t));
+                        }
+                    }
                     Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => last_depth = Some(t),
                     Observation::Measured(Measurement::Heading { t, .. }) => last_heading = Some(t),
+                    Observation::Applied(t, applied) => {
+                        // The outputs the autopilot reports against what pinc asked for, once the
+                        // command has had time to reach them (half a sample).
+                        if let Some((sent_t, asked)) = last_command
+                            && t > sent_t + 0.5 * dt
+                        {
+                            for j in 0..NU {
+                                if asked[j].abs() > 0.05 * (hi[j] - lo[j]).abs() {
+                                    delivered[j].0 += applied[j] * asked[j];
+                                    delivered[j].1 += asked[j] * asked[j];
+                                    delivered[j].2 += 1;
+                                }
+                            }
+                        }
+                    }
                     _ => {}
                 }
                 each!(&mut tracker, tr => match o {
@@ -791,7 +820,13 @@ mod live {
                 .map(|(sensor, last)| (sensor, last.map_or(f64::INFINITY, |l| fresh.state.t - l)))
                 .find(|(_, age)| *age > sensor_limit);
             if let Some((sensor, age)) = silent {
-                break Err(Trigger::SensorLost { sensor, age, limit: sensor_limit });
+                break Err(Trigger::SensorLost { sensor, age, limit: sensor_limit, frozen: false });
+            }
+            if let Some((_, since)) = depth_changed
+                && fresh.state.t - since > frozen_limit
+            {
+                let age = fresh.state.t - since;
+                break Err(Trigger::SensorLost { sensor: "depth", age, limit: frozen_limit, frozen: true });
             }
             let t = fresh.state.t - start;
             if t >= scenario.duration() - 1e-9 {
@@ -805,7 +840,9 @@ mod live {
                 Ok(s) => s,
                 Err(t) => break Err(t),
             };
-            each!(&mut tracker, tr => tr.commanded(commander.input_of(&sent.command)));
+            let asked = commander.input_of(&sent.command);
+            each!(&mut tracker, tr => tr.commanded(asked));
+            last_command = Some((sent.autopilot_t, asked));
             let u = cycle.input;
             let bound_violation = (0..NU).any(|j| !(u[j] >= lo[j] - 1e-9 && u[j] <= hi[j] + 1e-9));
             // The state's age when its command went out, and the arrival-to-send latency.
@@ -871,6 +908,25 @@ mod live {
             let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
             log_error = log_error.or(log.log(t_log(stopped.t, t0), Level::Warning, &line).err());
         }
+        // What the thrusters delivered of what was asked (from SERVO_OUTPUT_RAW): a wrong
+        // --js-gain or thruster table shows here as a ratio away from 1.
+        let mut ratios = serde_json::Map::new();
+        for (j, name) in pinc::types::INPUT_NAMES.iter().enumerate() {
+            let (num, den, n) = delivered[j];
+            let ratio = (n >= 20 && den > 0.0).then(|| num / den);
+            if let Some(r) = ratio
+                && (r - 1.0).abs() > 0.25
+            {
+                let line = format!(
+                    "the thrusters delivered {r:.2} of the commanded {name} over {n} samples (SERVO_OUTPUT_RAW through \
+                     the vehicle file): check --js-gain against the autopilot's pilot gain (JS_GAIN_DEFAULT) and the \
+                     vehicle file's thrusters"
+                );
+                eprintln!("{line}");
+                log_error = log_error.or(log.log(t_log(stopped.t, t0), Level::Warning, &line).err());
+            }
+            ratios.insert(name.to_string(), json!(ratio));
+        }
         let counts = each!(&tracker, tr => (tr.counts(), tr.late(), tr.restarts()));
         let errors = errors_against_truth(&estimates, &all_truths);
         let names = ["u", "v", "w", "r", "z"];
@@ -883,6 +939,7 @@ mod live {
             "latency_ms": percentiles_ms(&mut latencies),
             "estimate_rms_error": estimate_rms,
             "truth_samples": errors[0].len(),
+            "delivered_to_commanded": ratios,
             "fused": counts.0.fused, "rejected": counts.0.rejected, "reacquired": counts.0.reacquired, "late": counts.1, "restarts": counts.2,
             "disarm_sent": stopped.disarm_sent,
             "stop_trigger": stopped.trigger.as_ref().map(|t| t.key()),

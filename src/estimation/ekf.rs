@@ -74,6 +74,8 @@ pub struct Ekf<M: DiscreteModel> {
     counts: FilterCounts,
     /// Consecutive rejections of each measured component (by the state it measures).
     rejected_run: [u32; NS],
+    /// The transition matrix of the last prediction (for a smoother).
+    last_f: FilterCovariance,
     /// Whether the horizontal disturbance `dX dY` is estimated (only while something observes
     /// the horizontal motion: otherwise nothing can tell it from a wrong `u v`).
     horizontal_disturbance: bool,
@@ -136,8 +138,14 @@ impl<M: DiscreteModel> Ekf<M> {
             t: 0.0,
             counts: FilterCounts::default(),
             rejected_run: [0; NS],
+            last_f: FilterCovariance::identity(),
             horizontal_disturbance: true,
         }
+    }
+
+    /// The transition matrix `F` of the last [`Ekf::predict`] (`d s_{k+1} / d s_k`).
+    pub fn last_transition(&self) -> &FilterCovariance {
+        &self.last_f
     }
 
     /// Estimates the horizontal disturbance `dX dY` (on) or holds it at zero (off: nothing
@@ -260,6 +268,7 @@ impl<M: DiscreteModel> Ekf<M> {
         if !self.horizontal_disturbance {
             self.clear_horizontal_disturbance();
         }
+        self.last_f = f;
         self.t += self.model.dt();
         self.counts.predictions += 1;
         Ok(())

@@ -1,7 +1,8 @@
 //! State estimation on the model: an extended Kalman filter whose process model is the
 //! controller's own ([`ekf`]), the measurements a vehicle gives and their noise
 //! ([`measurement`]), the filter fed in time as a controller or a log replay feeds it
-//! ([`tracker`]), and ArduSub's MAVLink messages turned into measurements ([`mavlink`]).
+//! ([`tracker`]), ArduSub's MAVLink messages turned into measurements ([`mavlink`]), and a
+//! smoother for recorded logs ([`smoother`]).
 //!
 //! A stock BlueROV2 measures depth (pressure), heading and yaw rate, and knows the thrust it
 //! commands; with the model that is enough to estimate its body velocities, which the MPC
@@ -11,6 +12,7 @@ pub mod ekf;
 #[cfg(feature = "tools")]
 pub mod mavlink;
 pub mod measurement;
+pub mod smoother;
 pub mod tracker;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};

@@ -6,6 +6,7 @@
 
 use super::ekf::{Ekf, Estimate, FilterCounts, Update};
 use super::measurement::{Measurement, NoiseSettings};
+use super::smoother::{ForwardStep, Prediction, Smoothed, rts};
 use crate::runtime::RuntimeError;
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NS, SimState};
@@ -32,6 +33,8 @@ pub struct Tracker<M: DiscreteModel> {
     last_horizontal: Option<f64>,
     late: u64,
     restarts: u64,
+    /// The forward pass, kept for a smoother when asked for ([`Tracker::keep_history`]).
+    history: Option<Vec<ForwardStep>>,
 }
 
 impl<M: DiscreteModel> Tracker<M> {
@@ -46,6 +49,49 @@ impl<M: DiscreteModel> Tracker<M> {
             last_horizontal: None,
             late: 0,
             restarts: 0,
+            history: None,
+        }
+    }
+
+    /// Keeps every step of the forward pass (a recorded log's replay), for
+    /// [`Tracker::smoothed`]. Allocates as it goes: not for a control loop.
+    pub fn keep_history(mut self) -> Self {
+        self.history = Some(Vec::new());
+        self
+    }
+
+    /// The smoothed estimates of every step kept so far (each unbroken run smoothed on its
+    /// own); empty without [`Tracker::keep_history`].
+    pub fn smoothed(&self) -> Vec<Smoothed> {
+        let Some(h) = &self.history else { return Vec::new() };
+        let mut out = Vec::with_capacity(h.len());
+        let mut start = 0;
+        for k in 0..h.len() {
+            if h[k].next.is_none() {
+                out.extend(rts(&h[start..=k]));
+                start = k + 1;
+            }
+        }
+        out
+    }
+
+    /// The filter's own estimates of every step kept so far (what it knew at each step, before
+    /// smoothing); empty without [`Tracker::keep_history`].
+    pub fn filtered(&self) -> Vec<Smoothed> {
+        let Some(h) = &self.history else { return Vec::new() };
+        h.iter()
+            .map(|s| Smoothed {
+                t: s.t,
+                state: s.filtered,
+                std: std::array::from_fn(|i| s.filtered_p[(i, i)].max(0.0).sqrt()),
+            })
+            .collect()
+    }
+
+    fn record_start(&mut self) {
+        if let Some(h) = &mut self.history {
+            let (x, p) = (*self.ekf.state(), *self.ekf.covariance());
+            h.push(ForwardStep { t: self.ekf.t(), filtered: x, filtered_p: p, next: None });
         }
     }
 
@@ -165,11 +211,21 @@ impl<M: DiscreteModel> Tracker<M> {
             self.try_start(t);
             self.pending.retain(|m| m.t() > t); // what the start used
             self.reported.clear();
+            if self.started {
+                self.record_start();
+            }
             return Ok(self.started.then(|| self.ekf.estimate()));
         }
         while self.ekf.t() + 0.5 * dt <= t {
             let u = self.step_input(self.ekf.t() + dt);
             self.ekf.predict(&u)?;
+            if let Some(h) = &mut self.history {
+                let (x, p, f) = (*self.ekf.state(), *self.ekf.covariance(), *self.ekf.last_transition());
+                if let Some(last) = h.last_mut() {
+                    last.next = Some(Prediction { state: x, p, f });
+                }
+                h.push(ForwardStep { t: self.ekf.t(), filtered: x, filtered_p: p, next: None });
+            }
         }
         let now = self.ekf.t();
         self.ekf.set_horizontal_disturbance(self.horizontal_observed(now));
@@ -184,6 +240,10 @@ impl<M: DiscreteModel> Tracker<M> {
             }
         }
         self.pending.clear();
+        if let Some(last) = self.history.as_mut().and_then(|h| h.last_mut()) {
+            last.filtered = *self.ekf.state();
+            last.filtered_p = *self.ekf.covariance();
+        }
         Ok(Some(self.ekf.estimate()))
     }
 }

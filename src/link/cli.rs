@@ -86,6 +86,10 @@ pub struct DriveArgs {
     /// Stop when turning faster than this (deg/s).
     #[arg(long, default_value_t = 180.0)]
     pub max_yaw_rate: f64,
+    /// Stop when the depth reading has not changed for this long (s): a frozen or lost sensor
+    /// (ArduSub repeats the last reading when its depth sensor is gone).
+    #[arg(long, default_value_t = 1.0)]
+    pub max_frozen: f64,
     /// Stop after more than this many malformed frames.
     #[arg(long, default_value_t = 0)]
     pub max_malformed: u64,

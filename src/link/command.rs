@@ -163,9 +163,19 @@ impl Commander {
                 Command::Override(ch)
             }
             Some(pinv) => {
+                // ArduSub turns the mixer's output into whole microseconds toward neutral: a
+                // PWM just outside a deadband's edge would land on the edge and give no
+                // thrust (measured on the firmware: small yaw moments had no effect and the
+                // heading limit-cycled). One microsecond more keeps it outside.
+                let margin = |p: f64, t: &crate::vehicle::Thruster| {
+                    let (lo, hi) = t.curve.deadband;
+                    if p > hi { p.max(hi + 1.0) } else if p < lo { p.min(lo - 1.0) } else { p }
+                };
                 let outputs = nalgebra::DVector::from_iterator(
                     pwm.len(),
-                    pwm.iter().map(|p| ((p - PWM_NEUTRAL) / PWM_HALF_RANGE).clamp(-1.0, 1.0)),
+                    pwm.iter()
+                        .zip(&self.thrusters.list)
+                        .map(|(p, t)| ((margin(*p, t) - PWM_NEUTRAL) / PWM_HALF_RANGE).clamp(-1.0, 1.0)),
                 );
                 let a = pinv * outputs;
                 let (yaw, throttle, forward, lateral) = (a[0], a[1], a[2], a[3]);

@@ -86,14 +86,17 @@ pub enum Trigger {
         /// The limit (rad/s).
         limit: f64,
     },
-    /// A sensor the controller needs went silent (its measurements stopped coming).
+    /// A sensor the controller needs went silent (its measurements stopped coming) or froze
+    /// (the same reading over and over, as ArduSub sends when its depth sensor is gone).
     SensorLost {
         /// Which (`depth`, `heading`).
         sensor: &'static str,
-        /// Seconds since its last measurement.
+        /// Seconds since its last measurement, or since its reading last changed.
         age: f64,
         /// The limit (s).
         limit: f64,
+        /// Whether the readings kept coming unchanged.
+        frozen: bool,
     },
     /// The autopilot disarmed on its own (a failsafe, the pilot).
     Disarmed,
@@ -140,9 +143,13 @@ impl fmt::Display for Trigger {
             Trigger::YawRate { rate, limit } => {
                 write!(f, "yaw rate {:.1} deg/s beyond the limit {:.1} deg/s", rate.to_degrees(), limit.to_degrees())
             }
-            Trigger::SensorLost { sensor, age, limit } => {
+            Trigger::SensorLost { sensor, age, limit, frozen: false } => {
                 write!(f, "no {sensor} measurement for {age:.3} s (limit {limit:.3} s)")
             }
+            Trigger::SensorLost { sensor, age, limit, frozen: true } => write!(
+                f,
+                "the {sensor} reading has not changed for {age:.3} s (limit {limit:.3} s): the sensor is frozen or gone"
+            ),
             Trigger::Disarmed => write!(f, "the autopilot disarmed on its own"),
             Trigger::Malformed { count } => write!(f, "{count} malformed MAVLink frame(s) received"),
             Trigger::Link(e) => write!(f, "link error: {e}"),

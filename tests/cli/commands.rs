@@ -380,3 +380,48 @@ fn writing_into_a_closed_pipe_exits_quietly_with_status_0() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: "));
 }
+
+/// `pinc estimate` on a real ArduSub simulator log with its position source left out (a stock
+/// vehicle's view: depth, heading, yaw rate, thruster outputs), against the same log's own
+/// EKF velocities (GPS-aided) as the reference: heave and yaw rate follow them closely.
+#[test]
+fn estimate_without_the_position_recovers_heave_and_yaw_rate_of_a_simulator_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let log = format!("{root}/tests/fixtures/ardusub/sitl_excite_1_head.tlog");
+    let vehicle = format!("{root}/tests/fixtures/ardusub/sitl_truth.toml");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec!["estimate", "--log", &log, "--vehicle", &vehicle, "--json", "--out", out.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let o = pinc(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let rows: Vec<Vec<f64>> = std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(|f| f.parse().unwrap()).collect())
+            .collect();
+        (report, rows)
+    };
+    let (with, reference) = run("with.csv", &[]);
+    let (without, blind) = run("without.csv", &["--ignore-position"]);
+    assert_eq!(with["position_source"], true);
+    assert_eq!(without["position_source"], false);
+    assert!(without["not_identifiable"].as_array().unwrap().iter().any(|k| k == "x_uu"));
+    // Compare where both have rows at the same times (the position starts later in the log).
+    let mut err = [0.0f64; 2];
+    let mut n = 0usize;
+    for b in &blind {
+        if let Some(r) = reference.iter().find(|r| (r[0] - b[0]).abs() < 1e-6) {
+            err[0] += (b[7] - r[7]).powi(2);
+            err[1] += (b[8] - r[8]).powi(2);
+            n += 1;
+        }
+    }
+    assert!(n > 100, "{n} common samples");
+    let rms = err.map(|e| (e / n as f64).sqrt());
+    eprintln!("without the position against with it, {n} samples: RMS w {:.3} m/s, r {:.4} rad/s", rms[0], rms[1]);
+    assert!(rms[0] < 0.1 && rms[1] < 0.05, "RMS w, r: {rms:?}");
+}

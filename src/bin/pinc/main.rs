@@ -13,6 +13,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
 
+mod estimate_cmd;
 mod eval_cmd;
 mod identify_cmd;
 mod import_cmd;
@@ -163,6 +164,9 @@ enum Command {
     Identify(identify_cmd::IdentifyArgs),
     /// A vehicle file's thrusters: the allocation matrix and the reachable body inputs.
     Thrusters(thrusters_cmd::ThrustersArgs),
+    /// The state estimator on a recorded .tlog (smoothed): body velocities for a log without
+    /// them, as pinc's CSV log for `pinc dataset import`.
+    Estimate(estimate_cmd::EstimateArgs),
     /// A live ArduSub vehicle over MAVLink: check the link, record a session.
     #[cfg(feature = "vehicle")]
     Vehicle {
@@ -246,6 +250,7 @@ fn main() -> ExitCode {
         },
         Command::Identify(args) => identify_cmd::run_identify(args),
         Command::Thrusters(args) => thrusters_cmd::run_thrusters(args),
+        Command::Estimate(args) => estimate_cmd::run_estimate(args),
         #[cfg(feature = "vehicle")]
         Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
     };

@@ -27,7 +27,7 @@ pub use mcap_log::{McapTopics, read_mcap};
 pub use resample::{StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use ros2::{Ros2Options, read_ros2};
 pub use streams::{BodyFrame, CommandsToInput, Series, StreamSet, WorldFrame};
-pub use tlog::read_tlog;
+pub use tlog::{TlogMessages, read_tlog, tlog_messages};
 pub use windows::{SkipCounts, cut_windows};
 
 use super::{Dataset, DatasetPreset, Excitation, InitialRanges, SetSpec, TrajectorySet};

@@ -45,13 +45,18 @@ fn frame_len(buf: &[u8], q: usize) -> Option<Result<usize, ()>> {
 
 /// Checks the frame's CRC (for every message the dialect knows) and decodes it if it is one
 /// of the messages read; `Err(true)` for a frame not read, `Err(false)` for a damaged one.
-fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
-    let (version, id, payload_at, sys) = if frame[0] == V1 {
+/// A frame's version, message id, payload offset and system id.
+fn header(frame: &[u8]) -> (MavlinkVersion, u32, usize, u8) {
+    if frame[0] == V1 {
         (MavlinkVersion::V1, frame[5] as u32, 6, frame[3])
     } else {
         let id = frame[7] as u32 | (frame[8] as u32) << 8 | (frame[9] as u32) << 16;
         (MavlinkVersion::V2, id, 10, frame[5])
-    };
+    }
+}
+
+fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
+    let (version, id, payload_at, sys) = header(frame);
     let len = frame[1] as usize;
     let wanted = WANTED.contains(&id);
     // A message the dialect does not know cannot be checked: it is stepped over as it is.
@@ -65,6 +70,61 @@ fn decode(frame: &[u8]) -> Result<(u8, MavMessage), bool> {
         return Err(true);
     }
     MavMessage::parse(version, id, &frame[payload_at..payload_at + len]).map(|m| (sys, m)).map_err(|_| false)
+}
+
+/// Every frame of a telemetry log that the dialect decodes, in file order: `(receive time µs
+/// since 1970, system id, message)`, and how many frames were damaged (bad checksum) and
+/// whether the file ends inside a frame (a torn last frame, skipped).
+pub struct TlogMessages {
+    /// The messages.
+    pub messages: Vec<(u64, u8, MavMessage)>,
+    /// Frames with a bad checksum, skipped.
+    pub damaged: usize,
+    /// The file ends inside a frame.
+    pub torn: bool,
+}
+
+/// Reads every decodable frame of a `.tlog` (not only those the streams use).
+///
+/// # Errors
+/// The file cannot be read or holds no valid frame.
+pub fn tlog_messages(path: &Path) -> Result<TlogMessages, ImportError> {
+    let buf = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
+    let mut p = 0;
+    while p + STAMP < buf.len() {
+        let q = p + STAMP;
+        let len = match frame_len(&buf, q) {
+            None => {
+                p += 1;
+                continue;
+            }
+            Some(Err(())) => {
+                out.torn = true;
+                break;
+            }
+            Some(Ok(len)) => len,
+        };
+        let frame = &buf[q..q + len];
+        let received = u64::from_be_bytes(buf[p..q].try_into().expect("8 bytes"));
+        let (version, id, payload_at, sys) = header(frame);
+        let n = frame[1] as usize;
+        let crc = u16::from_le_bytes([frame[payload_at + n], frame[payload_at + n + 1]]);
+        let known = MavMessage::default_message_from_id(id).is_some();
+        if known && mavlink::calculate_crc(&frame[1..payload_at + n], MavMessage::extra_crc(id)) != crc {
+            out.damaged += 1;
+            p += 1;
+            continue;
+        }
+        if let (true, Ok(m)) = (known, MavMessage::parse(version, id, &frame[payload_at..payload_at + n])) {
+            out.messages.push((received, sys, m));
+        }
+        p = q + len;
+    }
+    if out.messages.is_empty() {
+        return Err(ImportError::Malformed { path: path.to_path_buf(), message: "no valid MAVLink frame".into() });
+    }
+    Ok(out)
 }
 
 /// Reads a telemetry log into the streams (see the module documentation and
