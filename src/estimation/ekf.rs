@@ -323,7 +323,11 @@ impl<M: DiscreteModel> Ekf<M> {
         let (sd, sh, sr, sp, sv, sb) =
             (n.depth_std, n.heading_std, n.yaw_rate_std, n.position_std, n.velocity_ned_std, n.velocity_body_std);
         let all = match *m {
-            Measurement::Depth { z, .. } => self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sd * sd),
+            Measurement::Depth { z, .. } => {
+                // A sensor that lags by `delay` reads z(t - delay) ~ z(t) - delay w(t).
+                let delay = n.depth_delay;
+                self.scalar(z - (self.x[2] - delay * self.x[6]), &Self::row(&[(2, 1.0), (6, -delay)]), sd * sd)
+            }
             Measurement::Heading { psi, .. } => {
                 self.scalar(wrap_angle(psi - self.x[3]), &Self::row(&[(3, 1.0)]), sh * sh)
             }

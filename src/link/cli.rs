@@ -237,6 +237,9 @@ pub struct EstimatorArgs {
     /// Standard deviation of the depth sensor (m) the estimator assumes.
     #[arg(long, default_value_t = NoiseSettings::default().depth_std)]
     pub depth_std: f64,
+    /// How long the depth sensor lags (s): its reading is taken as the depth that long ago.
+    #[arg(long, default_value_t = NoiseSettings::default().depth_delay)]
+    pub depth_delay: f64,
     /// Standard deviation of the heading (rad) the estimator assumes.
     #[arg(long, default_value_t = NoiseSettings::default().heading_std)]
     pub heading_std: f64,
@@ -257,6 +260,7 @@ impl EstimatorArgs {
     pub fn noise(&self) -> Result<NoiseSettings, String> {
         let noise = NoiseSettings {
             depth_std: self.depth_std,
+            depth_delay: self.depth_delay,
             heading_std: self.heading_std,
             yaw_rate_std: self.yaw_rate_std,
             ..NoiseSettings::default()
