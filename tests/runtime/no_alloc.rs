@@ -65,3 +65,37 @@ fn analytic_vehicle_hot_calls_do_not_allocate() {
     });
     assert_eq!(count, 0);
 }
+
+/// The state estimator's sample (queued measurements, reported inputs, prediction through the
+/// model's exact Jacobians, updates) allocates nothing once started, on the network and on
+/// the analytic vehicle.
+#[test]
+fn estimator_samples_do_not_allocate() {
+    use pinc::estimation::{Measurement, NoiseSettings, Tracker};
+    fn check<M: DiscreteModel>(name: &str, model: M) {
+        let mut tr = Tracker::new(model, NoiseSettings::default());
+        let feed = |tr: &mut Tracker<M>, t: f64| {
+            tr.measure(Measurement::Depth { t, z: 1.0 });
+            tr.measure(Measurement::Heading { t, psi: 0.3 });
+            tr.measure(Measurement::YawRate { t, r: 0.01 });
+            tr.measure(Measurement::VelocityNed { t, vn: 0.1, ve: 0.0, vd: 0.0 });
+            tr.applied(t - 0.02, Input::new(5.0, 0.0, 10.0, 0.2));
+        };
+        feed(&mut tr, 0.0);
+        assert!(tr.advance(0.0).unwrap().is_some());
+        let mut t = 0.0;
+        let count = allocations_during(|| {
+            for _ in 0..50 {
+                t += 0.08;
+                feed(&mut tr, t);
+                tr.commanded(Input::new(5.0, 0.0, 10.0, 0.2));
+                std::hint::black_box(tr.advance(t).unwrap());
+            }
+        });
+        assert_eq!(count, 0, "{name}: the estimator allocated {count} times in 50 samples");
+    }
+    for (name, model) in common::variants() {
+        check(name, Predictor::<f64>::from_model(&model));
+    }
+    check("analytic", Rk4Vehicle::default());
+}
