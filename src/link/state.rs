@@ -223,14 +223,14 @@ impl StateEstimator {
         })
     }
 
-    /// Feeds one message. Returns a new state sample when the message is the state's clock:
-    /// `LOCAL_POSITION_NED` while the position is fresh, `ATTITUDE` otherwise (so a sample
-    /// never pairs a new position with an old one or the other way round).
+    /// Feeds one message. Returns a new state sample when the message is the state's clock,
+    /// `ATTITUDE`: it always comes (a position source may come and go) and carries heading and
+    /// yaw rate; each sample holds the newest position, velocity and depth with their ages.
     pub fn update(&mut self, r: &Received) -> Option<StateEstimate> {
         let sample = self.take(r)?;
-        // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants: when
-        // the clock passes from one to the other, the first position can be older than the
-        // last attitude sample. It is kept (it is the newest position) but makes no sample.
+        // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants, and a
+        // position can carry a stamp older than the newest attitude: samples are made by one
+        // message only, and never go back in time.
         if self.last_sample.is_some_and(|last| sample.t <= last) {
             return None;
         }
@@ -263,8 +263,7 @@ impl StateEstimator {
                 if self.attitudes.len() > ATTITUDE_HISTORY {
                     self.attitudes.pop_front();
                 }
-                let position_clock = self.local.is_some_and(|l| t - l.t <= self.config.max_age);
-                (!position_clock).then(|| self.estimate_at(t))
+                Some(self.estimate_at(t))
             }
             MavMessage::LOCAL_POSITION_NED(m) => {
                 if self.local.is_some_and(|l| t <= l.t) {
@@ -273,7 +272,7 @@ impl StateEstimator {
                 let f = |v: f32| f64::from(v);
                 self.local =
                     Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
-                Some(self.estimate_at(t))
+                None
             }
             MavMessage::SCALED_PRESSURE2(m) => {
                 self.external_pressure_seen = true;
@@ -397,17 +396,18 @@ mod tests {
         // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
         let mut e = StateEstimator::default();
         assert!(e.update(&attitude(1000, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
-        let s = e.update(&local(1010, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
+        assert!(e.update(&local(1010, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).is_none(), "ATTITUDE is the clock");
+        let s = e.update(&attitude(1080, std::f32::consts::FRAC_PI_2, 0.1)).expect("a sample");
         assert_eq!(s.capability, Capability::Full);
         let want = [1.0, 2.0, 3.0, std::f64::consts::FRAC_PI_2, 1.0, 0.0, 0.2, 0.1];
         for (i, (got, want)) in s.sim.iter().zip(want).enumerate() {
             assert!((got - want).abs() < 1e-6, "{}: {got} vs {want}", SIM_STATE_NAMES[i]);
         }
+        assert!((s.part(Part::Position).age.unwrap() - 0.07).abs() < 1e-9);
         // Moving north while heading east is a sway to port: v = -1.
-        let s = e.update(&local(1100, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0])).unwrap();
+        e.update(&local(1100, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0]));
+        let s = e.update(&attitude(1160, std::f32::consts::FRAC_PI_2, 0.0)).unwrap();
         assert!((s.sim[4]).abs() < 1e-6 && (s.sim[5] + 1.0).abs() < 1e-6, "{:?}", s.sim);
-        // With the position fresh, attitudes do not make samples of their own.
-        assert!(e.update(&attitude(1140, std::f32::consts::FRAC_PI_2, 0.0)).is_none());
     }
 
     /// The firmware's interleaving: a position stamped before the last attitude sample (the
@@ -423,15 +423,21 @@ mod tests {
         // The first position, 68 ms older than the newest attitude: kept, no sample.
         push(&mut times, e.update(&local(41_092, [0.0; 3], [0.0; 3])));
         assert_eq!(times, [41_080, 41_160]);
-        // Attitudes no longer make samples (the position is fresh); the next position does.
         push(&mut times, e.update(&attitude(41_240, 0.0, 0.0)));
         push(&mut times, e.update(&local(41_172, [0.0; 3], [0.0; 3])));
+        // A late attitude (older than the newest) makes no sample either.
+        push(&mut times, e.update(&attitude(41_200, 0.0, 0.0)));
         push(&mut times, e.update(&attitude(41_320, 0.0, 0.0)));
-        push(&mut times, e.update(&local(41_252, [0.0; 3], [0.0; 3])));
-        assert_eq!(times, [41_080, 41_160, 41_172, 41_252]);
-        assert!(times.windows(2).all(|w| w[1] > w[0]));
-        let last = e.estimate_at(41.252);
-        assert_eq!(last.capability, Capability::Full);
+        assert_eq!(times, [41_080, 41_160, 41_240, 41_320]);
+        assert_eq!(e.estimate_at(41.32).capability, Capability::Full);
+        // The position source stops: the samples go on at the attitude's rate, the position
+        // turns stale after max_age.
+        for k in 1..=10 {
+            push(&mut times, e.update(&attitude(41_320 + 80 * k, 0.0, 0.0)));
+        }
+        assert_eq!(times.len(), 14);
+        assert!(times.windows(2).all(|w| w[1] - w[0] == 80));
+        assert_eq!(e.estimate_at(42.12).part(Part::Position).fresh, false);
     }
 
     #[test]

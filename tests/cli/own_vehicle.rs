@@ -158,11 +158,13 @@ fn bad_input_on_the_path_is_a_one_line_error_and_leaves_nothing_behind() {
     let inputs = d("in.csv");
     ok(pinc(&["excitation", "--out", &inputs, "--duration", "20"]), "excitation");
     let rec = ok(pinc(&["simulate", "--x0", "0,0,1,0,0,0,0,0", "--inputs", &inputs, "--record"]), "simulate");
-    // Truncated in the middle of a row.
+    // A row cut short before the last line (a torn last line alone is skipped and noted).
     let cut = d("cut.csv");
-    std::fs::write(&cut, &rec[..rec.len() / 2]).unwrap();
+    let mut lines: Vec<String> = rec.lines().map(str::to_string).collect();
+    lines[40] = lines[40].split(',').take(5).collect::<Vec<_>>().join(",");
+    std::fs::write(&cut, lines.join("\n") + "\n").unwrap();
     let out = d("out");
-    fails(pinc(&["dataset", "import", "--out", &out, &cut]), &format!("{cut}: line "));
+    fails(pinc(&["dataset", "import", "--out", &out, &cut]), &format!("{cut}: line 41: 5 fields"));
     assert!(!Path::new(&out).exists(), "nothing written");
     // A window longer than every run (20 s is 250 samples).
     let whole = d("whole.csv");

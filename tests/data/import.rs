@@ -38,7 +38,7 @@ fn run(path: &str, period: f64, rows: usize, x0: f64) -> Recording {
         .collect();
     let s0 = SimState::from([x0, 0.0, 1.0, 0.2, 0.1, 0.0, 0.0, 0.0]);
     let states = sim.simulate(&s0, &inputs[..rows - 1]);
-    Recording { path: PathBuf::from(path), t: (0..rows).map(|i| i as f64 * period).collect(), states, inputs }
+    Recording { path: PathBuf::from(path), t: (0..rows).map(|i| i as f64 * period).collect(), states, inputs, notes: Vec::new() }
 }
 
 fn write_csv(dir: &Path, name: &str, rec: &Recording) -> PathBuf {
@@ -155,10 +155,20 @@ fn bad_input_is_an_error_naming_the_file_and_the_place() {
         p
     };
     let err = |p: &Path| read_csv(p).unwrap_err().to_string();
-    // Truncated in the middle of a row.
+    // Cut in the middle of its last row (a logger that lost power): every complete row is
+    // read, the torn one skipped and noted.
     let cut = write("cut.csv", &text[..text.len() - 40]);
-    let e = err(&cut);
-    assert!(e.starts_with(&format!("{}: line 101: ", cut.display())) && e.contains("fields"), "{e}");
+    let torn = read_csv(&cut).unwrap();
+    assert_eq!(torn.t.len(), 99);
+    assert!(torn.notes.iter().any(|n| n.starts_with("line 101: ") && n.contains("fields") && n.contains("last line")), "{:?}", torn.notes);
+    // The same damage before the last line is an error naming its line.
+    let lines: Vec<&str> = text.lines().collect();
+    let short_row: String = lines[50].split(',').take(9).collect::<Vec<_>>().join(",");
+    let mut damaged: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    damaged[50] = short_row;
+    let middle = write("middle.csv", &(damaged.join("\n") + "\n"));
+    let e = err(&middle);
+    assert!(e.starts_with(&format!("{}: line 51: 9 fields, the header has 13", middle.display())), "{e}");
     let header = write("header.csv", &text.replacen("psi", "yaw", 1));
     assert!(err(&header).contains("line 1: header must be t,x,y,z,psi"), "{}", err(&header));
     let word = write("word.csv", &text.replacen("\n0.08,", "\nlater,", 1));

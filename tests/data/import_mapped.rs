@@ -323,3 +323,24 @@ fn todays_header_without_a_mapping_reads_every_field_exactly_as_written() {
         }
     }
 }
+
+/// A log whose logger lost power mid-write ends in a torn line (the published tank dataset
+/// has one: `line 3997: 16 fields, the header has 72`): every complete row is read, the torn
+/// one skipped and said so in the report; the same damage before the last line is an error.
+#[test]
+fn a_torn_last_line_is_skipped_and_noted_and_a_damaged_middle_row_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = bluerov_heavy_csv(20);
+    let torn_at = text.trim_end().rfind(',').unwrap() - 60; // inside the last row
+    let csv = write(dir.path(), "torn.csv", &text[..torn_at]);
+    let s = read_mapped_csv(&csv, &mapping(dir.path(), BLUEROV_MAPPING), None).unwrap();
+    assert_eq!(s.position.as_ref().unwrap().t.len(), 19);
+    let note = s.notes.iter().find(|n| n.contains("last line")).unwrap_or_else(|| panic!("{:?}", s.notes));
+    assert!(note.starts_with("line 21: ") && note.contains("fields, the header has 27"), "{note}");
+    // The same row cut short in the middle of the file.
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    lines[10] = lines[10].split(',').take(16).collect::<Vec<_>>().join(",");
+    let middle = write(dir.path(), "middle.csv", &(lines.join("\n") + "\n"));
+    let err = read_mapped_csv(&middle, &mapping(dir.path(), BLUEROV_MAPPING), None).unwrap_err().to_string();
+    assert!(err.contains("middle.csv") && err.contains("line 11: 16 fields, the header has 27"), "{err}");
+}

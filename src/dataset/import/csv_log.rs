@@ -1,7 +1,7 @@
 //! Recorded runs as CSV: header `t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz` (s, m, rad, m/s, rad/s, N,
 //! N m), one row per sample, the inputs of a row held until the next row.
 
-use super::csv_mapping::parse_field;
+use super::csv_rows::{next_row, parse_field};
 use super::{ImportError, Recording};
 use crate::types::{Input, SimState};
 use std::path::Path;
@@ -12,9 +12,12 @@ pub const CSV_COLUMNS: [&str; 13] = ["t", "x", "y", "z", "psi", "u", "v", "w", "
 /// Reads one run. An empty field or `nan` is kept as NaN (the windowing skips that row and
 /// counts it); anything else that is not a number is an error naming the line and column.
 ///
+/// A torn last line (fewer fields than the header: a logger cut off mid-write) is skipped and
+/// noted; a damaged row anywhere else is an error.
+///
 /// # Errors
-/// The file cannot be read, the header differs, a row has the wrong number of fields (a
-/// truncated file) or a field is not a number.
+/// The file cannot be read, the header differs, a row before the last has the wrong number of
+/// fields or a field is not a number.
 pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
@@ -28,14 +31,10 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
             header.iter().collect::<Vec<_>>().join(",")
         )));
     }
-    let mut rec = Recording { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new() };
+    let mut rec = Recording { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new(), notes: Vec::new() };
     let mut record = csv::ByteRecord::new();
-    loop {
-        match reader.read_byte_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(malformed(row_error(&e, CSV_COLUMNS.len()))),
-        }
+    let mut torn = None;
+    while next_row(&mut reader, &mut record, CSV_COLUMNS.len(), &mut torn).map_err(malformed)? {
         let line = record.position().map_or(0, |p| p.line());
         let mut v = [0.0; 13];
         for (j, field) in record.iter().enumerate() {
@@ -51,17 +50,6 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
     if rec.t.is_empty() {
         return Err(malformed("no rows after the header".into()));
     }
+    rec.notes.extend(torn);
     Ok(rec)
-}
-
-/// `line N: what` for a row the csv crate could not read; a row with the wrong number of fields
-/// (`width` expected) is a truncated or damaged one.
-pub(super) fn row_error(e: &csv::Error, width: usize) -> String {
-    let line = e.position().map_or(0, |p| p.line());
-    match e.kind() {
-        csv::ErrorKind::UnequalLengths { len, .. } => {
-            format!("line {line}: {len} fields, the header has {width} (truncated or damaged row)")
-        }
-        _ => format!("line {line}: {e}"),
-    }
 }

@@ -3,6 +3,7 @@
 //! converts everything to pinc's conventions (NED world, forward-right-down body, rad, s) and
 //! returns the per-quantity streams.
 
+use super::csv_rows::{next_row, parse_field};
 use super::{BodyFrame, CommandsToInput, ImportError, Series, StreamSet, WorldFrame};
 use crate::vehicle::wrap_angle;
 use nalgebra::Matrix3;
@@ -366,20 +367,6 @@ impl Columns {
     }
 }
 
-/// A field as a number: empty or `nan` is NaN (a missing value), anything else not a number
-/// is `None`.
-#[inline]
-pub(super) fn parse_field(field: &[u8]) -> Option<f64> {
-    // Trimming here, on the fields read, is cheaper than the reader trimming every field.
-    let field = field.trim_ascii();
-    if field.is_empty() {
-        return Some(f64::NAN);
-    }
-    // The standard parser (Eisel-Lemire with a slow-path fallback) is fast enough here: the
-    // criterion bench `import_csv` measures it.
-    std::str::from_utf8(field).ok()?.parse().ok()
-}
-
 /// The rotation (body to world) of a unit quaternion `w, x, y, z`.
 fn rotation(w: f64, x: f64, y: f64, z: f64) -> Matrix3<f64> {
     Matrix3::new(
@@ -627,11 +614,10 @@ pub fn read_mapped_csv(
         })
     ];
     let mut row = 0usize;
+    let mut torn: Option<String> = None;
     loop {
-        match reader.read_byte_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(malformed(super::csv_log::row_error(&e, width))),
+        if !next_row(&mut reader, &mut record, width, &mut torn).map_err(malformed)? {
+            break;
         }
         for (v, &idx) in vals.iter_mut().zip(&cols.index) {
             let field = &record[idx];
@@ -724,6 +710,7 @@ pub fn read_mapped_csv(
         return Err(malformed("no rows after the header".into()));
     }
     notes.push(format!("{row} rows"));
+    notes.extend(torn);
     out.position = pos_s;
     out.attitude = att_s;
     match velocity.as_ref().map(|v| v.1) {

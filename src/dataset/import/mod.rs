@@ -5,6 +5,7 @@
 mod ardupilot;
 mod csv_log;
 mod csv_mapping;
+mod csv_rows;
 mod dataflash;
 mod mcap_log;
 mod resample;
@@ -59,6 +60,8 @@ pub struct Recording {
     pub states: Vec<SimState>,
     /// `[X, Y, Z, Mz]` per row, held until the next row.
     pub inputs: Vec<Input>,
+    /// What the reader noticed (a torn last line skipped), for the import report.
+    pub notes: Vec<String>,
 }
 
 /// What can go wrong while importing: every variant names the file.

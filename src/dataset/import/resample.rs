@@ -112,7 +112,9 @@ pub fn stream_set_of(rec: &Recording) -> StreamSet {
         velocity_body: Some(Series::new("u,v,w")),
         yaw_rate: Some(Series::new("r")),
         input: Some(Series::new("X,Y,Z,Mz")),
-        notes: vec!["one row per sample: every quantity on the row's time stamp".into()],
+        notes: std::iter::once("one row per sample: every quantity on the row's time stamp".to_string())
+            .chain(rec.notes.iter().cloned())
+            .collect(),
         ..StreamSet::default()
     };
     for ((&t, s), u) in rec.t.iter().zip(&rec.states).zip(&rec.inputs) {
@@ -435,5 +437,5 @@ pub fn resample(
         }
     }
     let inputs = grid.iter().map(|&g| Input::from(held_mean(&inp.t, &inp.v, g, g + dt, snap))).collect();
-    Ok((Recording { path: path.to_path_buf(), t: grid, states, inputs }, report))
+    Ok((Recording { path: path.to_path_buf(), t: grid, states, inputs, notes: Vec::new() }, report))
 }
