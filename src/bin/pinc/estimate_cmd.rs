@@ -2,7 +2,7 @@
 //! body velocities), forward and then smoothed backward, written as pinc's CSV log
 //! (`t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz`) that `pinc dataset import` reads.
 
-use pinc::dataset::import::tlog_messages;
+use pinc::dataset::import::{TlogMessages, tlog_messages};
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
 use pinc::estimation::{NoiseSettings, Tracker};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
@@ -14,7 +14,8 @@ use std::path::PathBuf;
 /// Arguments of `pinc estimate`.
 #[derive(clap::Args)]
 pub struct EstimateArgs {
-    /// The recorded log: a QGroundControl / MAVProxy `.tlog`.
+    /// The recorded log: a QGroundControl / MAVProxy `.tlog`, or a `pinc vehicle record` /
+    /// `excite` MCAP (its /mavlink/* messages).
     #[arg(long)]
     pub log: PathBuf,
     /// Vehicle file: its analytic vehicle is the process model, its [[thruster]] tables turn
@@ -48,6 +49,43 @@ pub struct EstimateArgs {
     pub json: bool,
 }
 
+/// The MAVLink messages a `pinc vehicle record` MCAP holds (`/mavlink/<NAME>`, JSON with the
+/// sender in `header`), in log order.
+#[cfg(feature = "vehicle")]
+fn mcap_messages(path: &std::path::Path) -> Result<TlogMessages, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
+    for m in stream {
+        let m = m.map_err(|e| format!("{}: {e}", path.display()))?;
+        if !m.channel.topic.starts_with("/mavlink/") {
+            continue;
+        }
+        // A message this build's dialect cannot read back is counted, not fatal.
+        let value: serde_json::Value = match serde_json::from_slice(&m.data) {
+            Ok(v) => v,
+            Err(_) => {
+                out.damaged += 1;
+                continue;
+            }
+        };
+        let sys = value["header"]["system_id"].as_u64().unwrap_or(0) as u8;
+        match serde_json::from_value::<MavMessage>(value) {
+            Ok(message) => out.messages.push((m.log_time / 1000, sys, message)),
+            Err(_) => out.damaged += 1,
+        }
+    }
+    if out.messages.is_empty() {
+        return Err(format!("{}: no /mavlink/* messages (record it with `pinc vehicle record`)", path.display()));
+    }
+    Ok(out)
+}
+
+#[cfg(not(feature = "vehicle"))]
+fn mcap_messages(path: &std::path::Path) -> Result<TlogMessages, String> {
+    Err(format!("{}: reading MAVLink from MCAP needs the `vehicle` feature", path.display()))
+}
+
 /// What such data determine: with a position source, every coefficient; without one, the
 /// surge and sway velocities are the model's own, so only heave and yaw can be identified.
 fn determinable(horizontal: bool) -> (Vec<&'static str>, Vec<&'static str>) {
@@ -64,7 +102,8 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     noise.validate()?;
     let params = VehicleParams::load(&a.vehicle).map_err(|e| e.to_string())?;
     let thrusters = Thrusters::load(&a.vehicle).map_err(|e| e.to_string())?;
-    let log = tlog_messages(&a.log).map_err(|e| e.to_string())?;
+    let is_mcap = a.log.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    let log = if is_mcap { mcap_messages(&a.log)? } else { tlog_messages(&a.log).map_err(|e| e.to_string())? };
     // The autopilot is the system that sends ATTITUDE.
     let autopilot = log
         .messages
