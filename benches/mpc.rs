@@ -17,12 +17,12 @@
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group};
+use pinc::estimation::{Measurement, NoiseSettings, Tracker};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig, Reference};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::{Rk4Vehicle, to_network};
-use pinc::estimation::{Measurement, NoiseSettings, Tracker};
 use pinc::{Input, SimState, State};
 use std::hint::black_box;
 

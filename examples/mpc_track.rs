@@ -287,7 +287,12 @@ fn print_live(l: &serde_json::Value) {
         let f = |k: &str| e[k].as_f64().map_or("-".into(), |v| format!("{v:.3}"));
         println!(
             "estimate vs truth RMS   u {} v {} w {} m/s, r {} rad/s, z {} m ({} samples)",
-            f("u"), f("v"), f("w"), f("r"), f("z"), l["truth_samples"]
+            f("u"),
+            f("v"),
+            f("w"),
+            f("r"),
+            f("z"),
+            l["truth_samples"]
         );
     }
     println!(
@@ -572,7 +577,13 @@ mod live {
             }
             let f = (e.t - a.t) / (b.t - a.t);
             let lerp = |x: f64, y: f64| x + f * (y - x);
-            let truth = [lerp(a.uvw[0], b.uvw[0]), lerp(a.uvw[1], b.uvw[1]), lerp(a.uvw[2], b.uvw[2]), lerp(a.r, b.r), lerp(a.z, b.z)];
+            let truth = [
+                lerp(a.uvw[0], b.uvw[0]),
+                lerp(a.uvw[1], b.uvw[1]),
+                lerp(a.uvw[2], b.uvw[2]),
+                lerp(a.r, b.r),
+                lerp(a.z, b.z),
+            ];
             for (i, idx) in [4, 5, 6, 7, 2].into_iter().enumerate() {
                 errors[i].push(e.sim[idx] - truth[i]);
             }
@@ -770,13 +781,19 @@ mod live {
                     if state.is_none() || waiting_for_position {
                         if state.is_none() && waited.elapsed() > give_up {
                             let why = if a.estimator.no_estimator {
-                                format!("no full state: {}; the estimator (on by default) needs only depth and heading", fresh.state.capability)
+                                format!(
+                                    "no full state: {}; the estimator (on by default) needs only depth and heading",
+                                    fresh.state.capability
+                                )
                             } else if !position_free {
                                 "the model needs x, y (it is not position-free) and no position source came".to_string()
                             } else {
                                 format!("the state estimate did not start: {}", fresh.state.capability)
                             };
-                            break Err(Trigger::Error(format!("no state to control on after {:.0} s: {why}", waited.elapsed().as_secs_f64())));
+                            break Err(Trigger::Error(format!(
+                                "no state to control on after {:.0} s: {why}",
+                                waited.elapsed().as_secs_f64()
+                            )));
                         }
                         match drive.send_neutral(&fresh) {
                             Ok(_) => {
@@ -793,7 +810,11 @@ mod live {
                             "control starts {:.1} s after arming, on the {}{}",
                             waited.elapsed().as_secs_f64(),
                             if estimate.is_some() { "state estimate" } else { "raw state" },
-                            if horizontal { " with a position source" } else { " without a position source (depth and heading)" }
+                            if horizontal {
+                                " with a position source"
+                            } else {
+                                " without a position source (depth and heading)"
+                            }
                         ),
                         from_autopilot: false,
                     });

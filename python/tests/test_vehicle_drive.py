@@ -138,20 +138,26 @@ def rms(summary):
     return summary["rms_depth_m"], summary["rms_heading_deg"]
 
 
-def test_mpc_track_connected_tracks_like_the_in_process_run(fake_factory, tmp_path):
-    # 20 s of the default scenario: the depth steps to 1 m at 2 s and the heading to 45 deg at
-    # 10 s. The in-process plant is pinc's BlueROV2 from rest at the surface; so is the fake
-    # (held until armed), moved by the simulator's thrusters that the vehicle file describes.
+def in_process_and_connected(fake_factory, tmp_path, position_delay):
+    """20 s of the default scenario in process and against the fake (held until armed, its
+    position `position_delay` s late, "inf" for none): both summaries."""
     common = ["--duration", "20", "--json", "--vehicle", str(SITL)]
     r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "sim")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
-    sim = json.loads(r.stdout)
-    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--x0", *["0"] * 8)
-    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "live"),
-                        "--connect", fake.url, "--arm", "--timeout", "5"], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
-    live = json.loads(r.stdout)
+    fake = fake_factory("--position-delay", position_delay, "--hold-until-armed", "--x0", *["0"] * 8)
+    live = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "live"),
+                           "--connect", fake.url, "--arm", "--timeout", "5"], capture_output=True, text=True,
+                          timeout=60)
+    assert live.returncode == 0, live.stderr
+    return json.loads(r.stdout), json.loads(live.stdout)
+
+
+def test_mpc_track_connected_tracks_like_the_in_process_run(fake_factory, tmp_path):
+    # 20 s of the default scenario: the depth steps to 1 m at 2 s and the heading to 45 deg at
+    # 10 s. The in-process plant is pinc's BlueROV2 from rest at the surface; so is the fake
+    # (held until armed), moved by the simulator's thrusters that the vehicle file describes.
+    sim, live = in_process_and_connected(fake_factory, tmp_path, "0")
     print("in-process", rms(sim), "connected", rms(live))
     assert live["samples"] >= 245 and live["stopped"] is None
     for got, want in zip(rms(live), rms(sim)):
@@ -189,16 +195,7 @@ def test_mpc_track_without_a_position_source_runs_on_the_estimate(fake_factory, 
     # A stock BlueROV2: depth, heading and yaw rate only. The estimator (on the controller's
     # model, driven by the thruster outputs) gives u v w and the MPC tracks as it does in
     # process on the same plant.
-    common = ["--duration", "20", "--json", "--vehicle", str(SITL)]
-    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "sim")],
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
-    sim = json.loads(r.stdout)
-    fake = fake_factory("--position-delay", "inf", "--hold-until-armed", "--x0", *["0"] * 8)
-    r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "live"),
-                        "--connect", fake.url, "--arm", "--timeout", "5"], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
-    live = json.loads(r.stdout)
+    sim, live = in_process_and_connected(fake_factory, tmp_path, "inf")
     print("in-process", rms(sim), "on the estimate", rms(live), live["live"])
     assert live["samples"] >= 245 and live["stopped"] is None
     assert live["rms_depth_m"] <= 1.25 * sim["rms_depth_m"] and live["rms_heading_deg"] <= 1.25 * sim["rms_heading_deg"]

@@ -436,7 +436,11 @@ mod tests {
         let model = Rk4Vehicle::with_dt(0.08);
         let mut truth = SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
         let mut e = Ekf::new(model, NoiseSettings::default());
-        e.reset(0.0, &SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]), &[10.0, 10.0, 0.1, 0.05, 0.3, 0.3, 0.3, 0.1]);
+        e.reset(
+            0.0,
+            &SimState::from([0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 0.0]),
+            &[10.0, 10.0, 0.1, 0.05, 0.3, 0.3, 0.3, 0.1],
+        );
         let mut ws = ();
         let mut err = [0.0f64; 4];
         let n = 500;
@@ -448,7 +452,12 @@ mod tests {
         };
         for k in 0..n {
             let t = k as f64 * 0.08;
-            let u = Input::new(20.0 * (0.3 * t).sin(), 10.0 * (0.2 * t).cos(), 15.0 * (0.5 * t).sin(), 2.0 * (0.4 * t).sin());
+            let u = Input::new(
+                20.0 * (0.3 * t).sin(),
+                10.0 * (0.2 * t).cos(),
+                15.0 * (0.5 * t).sin(),
+                2.0 * (0.4 * t).sin(),
+            );
             let mut next = crate::types::State::zeros();
             model.step(&mut ws, &to_network(&truth), &u, &mut next).unwrap();
             truth = crate::vehicle::to_simulator(&next);

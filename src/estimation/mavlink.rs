@@ -140,7 +140,9 @@ mod tests {
     fn messages_become_measurements_and_late_ones_are_dropped() {
         let mut m = MavlinkMeasurements::new(1013.25, 1000.0, None);
         let mut got = Vec::new();
-        let attitude = |ms, yaw| MavMessage::ATTITUDE(ATTITUDE_DATA { time_boot_ms: ms, yaw, yawspeed: 0.1, ..Default::default() });
+        let attitude = |ms, yaw| {
+            MavMessage::ATTITUDE(ATTITUDE_DATA { time_boot_ms: ms, yaw, yawspeed: 0.1, ..Default::default() })
+        };
         m.observe(0.0, &attitude(1000, 0.5), |o| got.push(o));
         m.observe(0.0, &attitude(960, 0.4), |o| got.push(o));
         assert_eq!(got.len(), 2, "the late attitude is dropped");
@@ -168,6 +170,8 @@ mod tests {
         // depth sensor, the position's depth is left to it.
         let Observation::Measured(Measurement::Position { x, z, .. }) = got[3] else { panic!("{:?}", got[3]) };
         assert!(x == 1.0 && z.is_nan());
-        assert!(matches!(got[4], Observation::Measured(Measurement::VelocityNed { vd, .. }) if (vd - 0.3).abs() < 1e-6));
+        assert!(
+            matches!(got[4], Observation::Measured(Measurement::VelocityNed { vd, .. }) if (vd - 0.3).abs() < 1e-6)
+        );
     }
 }

@@ -92,7 +92,10 @@ impl Measurement {
 
     /// Whether it observes the horizontal motion (a position or a velocity).
     pub fn observes_horizontal(&self) -> bool {
-        matches!(self, Measurement::Position { .. } | Measurement::VelocityNed { .. } | Measurement::VelocityBody { .. })
+        matches!(
+            self,
+            Measurement::Position { .. } | Measurement::VelocityNed { .. } | Measurement::VelocityBody { .. }
+        )
     }
 }
 
@@ -168,9 +171,16 @@ impl NoiseSettings {
             ("disturbance_time_constant", self.disturbance_time_constant),
             ("gate", self.gate),
         ];
-        let lists = self.process_std.iter().map(|v| ("process_std", *v)).chain(self.disturbance_std.iter().map(|v| ("disturbance_std", *v)));
+        let lists = self
+            .process_std
+            .iter()
+            .map(|v| ("process_std", *v))
+            .chain(self.disturbance_std.iter().map(|v| ("disturbance_std", *v)));
         if !(self.depth_delay.is_finite() && self.depth_delay >= 0.0) {
-            return Err(format!("estimator depth_delay must be a number of seconds, zero or more, got {}", self.depth_delay));
+            return Err(format!(
+                "estimator depth_delay must be a number of seconds, zero or more, got {}",
+                self.depth_delay
+            ));
         }
         for (name, v) in named.into_iter().chain(lists) {
             if !(v.is_finite() && v > 0.0) {

@@ -69,9 +69,9 @@ pub fn rts(steps: &[ForwardStep]) -> Vec<Smoothed> {
 mod tests {
     use super::*;
     use crate::estimation::{Ekf, Measurement, NoiseSettings};
+    use crate::traits::DiscreteModel;
     use crate::types::{Input, SimState};
     use crate::vehicle::{Rk4Vehicle, to_network, to_simulator};
-    use crate::traits::DiscreteModel;
 
     /// On a simulated dive and turn measured by depth, heading and yaw rate only, the smoother's
     /// heave and yaw rate are closer to the truth than the filter's.

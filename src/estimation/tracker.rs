@@ -190,8 +190,7 @@ impl<M: DiscreteModel> Tracker<M> {
         // Unknown horizontal position: a wide prior; velocities at rest within 0.3 m/s.
         let pos_std = if pos.is_some() { self.ekf.noise().position_std } else { 100.0 };
         let noise = self.ekf.noise().clone();
-        let std: [f64; NS] =
-            [pos_std, pos_std, noise.depth_std, noise.heading_std, 0.3, 0.3, 0.3, noise.yaw_rate_std];
+        let std: [f64; NS] = [pos_std, pos_std, noise.depth_std, noise.heading_std, 0.3, 0.3, 0.3, noise.yaw_rate_std];
         self.ekf.reset(t, &sim, &std);
         self.started = true;
     }

@@ -169,7 +169,13 @@ impl Commander {
                 // heading limit-cycled). One microsecond more keeps it outside.
                 let margin = |p: f64, t: &crate::vehicle::Thruster| {
                     let (lo, hi) = t.curve.deadband;
-                    if p > hi { p.max(hi + 1.0) } else if p < lo { p.min(lo - 1.0) } else { p }
+                    if p > hi {
+                        p.max(hi + 1.0)
+                    } else if p < lo {
+                        p.min(lo - 1.0)
+                    } else {
+                        p
+                    }
                 };
                 let outputs = nalgebra::DVector::from_iterator(
                     pwm.len(),

@@ -336,7 +336,12 @@ impl Drive {
                             self.arm_text = Some(text.clone());
                         }
                         let (level, name) = severity_level(s.severity);
-                        self.push_note(Note { t, level, text: format!("autopilot {name}: {text}"), from_autopilot: true });
+                        self.push_note(Note {
+                            t,
+                            level,
+                            text: format!("autopilot {name}: {text}"),
+                            from_autopilot: true,
+                        });
                     }
                     MavMessage::COMMAND_ACK(a) if a.command == MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => {
                         self.arm_ack = Some(a.result);

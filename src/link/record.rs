@@ -18,11 +18,11 @@
 use super::link::Received;
 use super::state::{Capability, DepthSource, StateEstimate};
 use crate::closed_loop::Level;
+use crate::estimation::Estimate;
+use crate::estimation::mavlink::{outputs_time, servo_pwm};
 use crate::types::INPUT_NAMES;
 use crate::types::Input;
 use crate::vehicle::Thrusters;
-use crate::estimation::Estimate;
-use crate::estimation::mavlink::{outputs_time, servo_pwm};
 use mavlink::dialects::ardupilotmega::SERVO_OUTPUT_RAW_DATA;
 use mcap::records::{MessageHeader, Metadata};
 use serde_json::{Map, Value, json};

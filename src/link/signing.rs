@@ -91,7 +91,8 @@ impl SigningKey {
     /// 2015-01-01, as the protocol counts).
     pub fn setup_message(&self, target_system: u8, target_component: u8) -> SETUP_SIGNING_DATA {
         let since_unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-        let initial_timestamp = since_unix.as_micros().saturating_sub(u128::from(SIGNING_EPOCH_UNIX_S) * 1_000_000) / 10;
+        let initial_timestamp =
+            since_unix.as_micros().saturating_sub(u128::from(SIGNING_EPOCH_UNIX_S) * 1_000_000) / 10;
         SETUP_SIGNING_DATA {
             initial_timestamp: initial_timestamp as u64,
             target_system,

@@ -38,7 +38,13 @@ fn run(path: &str, period: f64, rows: usize, x0: f64) -> Recording {
         .collect();
     let s0 = SimState::from([x0, 0.0, 1.0, 0.2, 0.1, 0.0, 0.0, 0.0]);
     let states = sim.simulate(&s0, &inputs[..rows - 1]);
-    Recording { path: PathBuf::from(path), t: (0..rows).map(|i| i as f64 * period).collect(), states, inputs, notes: Vec::new() }
+    Recording {
+        path: PathBuf::from(path),
+        t: (0..rows).map(|i| i as f64 * period).collect(),
+        states,
+        inputs,
+        notes: Vec::new(),
+    }
 }
 
 fn write_csv(dir: &Path, name: &str, rec: &Recording) -> PathBuf {
@@ -160,7 +166,11 @@ fn bad_input_is_an_error_naming_the_file_and_the_place() {
     let cut = write("cut.csv", &text[..text.len() - 40]);
     let torn = read_csv(&cut).unwrap();
     assert_eq!(torn.t.len(), 99);
-    assert!(torn.notes.iter().any(|n| n.starts_with("line 101: ") && n.contains("fields") && n.contains("last line")), "{:?}", torn.notes);
+    assert!(
+        torn.notes.iter().any(|n| n.starts_with("line 101: ") && n.contains("fields") && n.contains("last line")),
+        "{:?}",
+        torn.notes
+    );
     // The same damage before the last line is an error naming its line.
     let lines: Vec<&str> = text.lines().collect();
     let short_row: String = lines[50].split(',').take(9).collect::<Vec<_>>().join(",");

@@ -243,7 +243,13 @@ fn a_recording_at_the_period_goes_through_unchanged_and_the_period_can_come_from
     let inputs: Vec<Input> = (0..100).map(|k| held_input(k / 3)).collect();
     let s0 = SimState::from([0.0, 0.0, 1.0, 3.0, 0.2, 0.0, 0.0, 0.3]);
     let states = sim.simulate(&s0, &inputs[..99]);
-    let rec = Recording { path: "r".into(), t: (0..100).map(|i| i as f64 * 0.08).collect(), states, inputs, notes: Vec::new() };
+    let rec = Recording {
+        path: "r".into(),
+        t: (0..100).map(|i| i as f64 * 0.08).collect(),
+        states,
+        inputs,
+        notes: Vec::new(),
+    };
     let set = stream_set_of(&rec);
     assert_eq!(pinc::dataset::import::log_dt(&set), Some(0.08));
     let (grid, _) = resample(&set, 0.08, None, &rec.path).unwrap();

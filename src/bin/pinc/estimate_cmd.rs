@@ -2,11 +2,11 @@
 //! body velocities), forward and then smoothed backward, written as pinc's CSV log
 //! (`t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz`) that `pinc dataset import` reads.
 
+use mavlink::dialects::ardupilotmega::MavMessage;
 use pinc::dataset::import::{TlogMessages, tlog_messages};
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
 use pinc::estimation::{NoiseSettings, Tracker};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
-use mavlink::dialects::ardupilotmega::MavMessage;
 use serde_json::json;
 use std::io::Write;
 use std::path::PathBuf;

@@ -27,8 +27,7 @@ pub struct IdentifyArgs {
 fn thruster_tables(path: &std::path::Path) -> Result<String, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let table: toml::Table = text.parse().map_err(|e| format!("{}: {e}", path.display()))?;
-    let kept: toml::Table =
-        table.into_iter().filter(|(k, _)| k == "thruster" || k == "curve").collect();
+    let kept: toml::Table = table.into_iter().filter(|(k, _)| k == "thruster" || k == "curve").collect();
     if kept.is_empty() {
         return Ok(String::new());
     }

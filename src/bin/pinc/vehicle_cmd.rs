@@ -3,6 +3,9 @@
 
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
+use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
+use pinc::estimation::{NoiseSettings, Tracker};
+use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
 use pinc::link::drive::{severity_level, statustext};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
@@ -10,9 +13,6 @@ use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
-use pinc::link::SigningKey;
-use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{NoiseSettings, Tracker};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::{Value, json};
 use std::cell::RefCell;
