@@ -701,6 +701,12 @@ mod live {
         // The depth reading and when it last changed: a pressure sensor in water never repeats
         // the same value for long; ArduSub repeats the last one when its sensor is gone.
         let mut depth_changed: Option<(f64, f64)> = None;
+        // Which of the last 25 readings changed, and whether the current run of repeats began
+        // on a live sensor (one whose readings changed on at least 20 of the 25 before): a
+        // simulator without sensor noise repeats its depth at rest and is not taken as frozen.
+        const LIVE_WINDOW_MASK: u32 = (1 << 25) - 1;
+        const LIVE_CHANGES: u32 = 20;
+        let (mut depth_changes, mut frozen_from_live) = (0u32, false);
         // Per channel: sum of applied x asked, of asked^2, and the count (a least-squares gain of
         // the outputs on the commands), and the last command with its autopilot time.
         let mut delivered = [(0.0f64, 0.0f64, 0usize); NU];
@@ -717,9 +723,18 @@ mod live {
                 match o {
                     Observation::Measured(Measurement::Depth { t, z }) => {
                         last_depth = Some(t);
-                        if depth_changed.is_none_or(|(value, _)| value != z) {
+                        let changed = depth_changed.is_none_or(|(value, _)| value != z);
+                        if changed {
                             depth_changed = Some((z, t));
+                        } else if depth_changes.count_ones() >= LIVE_CHANGES {
+                            // The first repeat of a sensor that was changing on nearly every
+                            // reading: if the repeats go on, it froze.
+                            frozen_from_live = true;
                         }
+                        if changed {
+                            frozen_from_live = false;
+                        }
+                        depth_changes = (depth_changes << 1 | u32::from(changed)) & LIVE_WINDOW_MASK;
                     }
                     Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => last_depth = Some(t),
                     Observation::Measured(Measurement::Heading { t, .. }) => last_heading = Some(t),
@@ -844,6 +859,7 @@ mod live {
                 break Err(Trigger::SensorLost { sensor, age, limit: sensor_limit, frozen: false });
             }
             if let Some((_, since)) = depth_changed
+                && frozen_from_live
                 && fresh.state.t - since > frozen_limit
             {
                 let age = fresh.state.t - since;

@@ -109,7 +109,10 @@ def test_dropped_and_reordered_packets_do_not_stop_a_run(fake_factory, tmp_path)
                         "--fault", "drop-reorder", "--fault-after", "0.5", "--seed", "3")
     r, out = excite(fake, tmp_path, excitation(tmp_path, 6))
     assert r.returncode == 0, (r.stdout, r.stderr)
-    assert "75 of 75 inputs played" in r.stdout
+    # An input whose state sample (an ATTITUDE) was dropped is not played late: with a tenth of
+    # the packets lost the run still ends on time, having played the rest.
+    played = re.search(r"excitation finished: (\d+) of 75 inputs played", r.stdout)
+    assert played and 0.85 * 75 <= int(played.group(1)) <= 75, r.stdout
     fake.stop()
     topics = read_mcap(out)
     times = [t for t, _ in topics["/vehicle/state"]]

@@ -111,7 +111,8 @@ def test_status_without_a_position_says_depth_and_heading_only(fake_factory):
     # And the text form says why.
     r = run_pinc("vehicle", "status", "--connect", fake.url, "--timeout", "5", "--window", "1")
     assert r.returncode == 0, r.stderr
-    assert "no body velocities" in r.stdout and "ALT_HOLD" in r.stdout
+    assert "no measured body velocities" in r.stdout and "ALT_HOLD" in r.stdout
+    assert "the MPC runs on the state estimate" in r.stdout, r.stdout
 
 
 def test_commands_from_another_system_id_are_ignored(fake_factory):

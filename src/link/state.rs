@@ -181,6 +181,8 @@ pub struct StateEstimator {
     clock: Option<(f64, Instant)>,
     /// Time of the last sample returned by [`StateEstimator::update`]: samples never go back.
     last_sample: Option<f64>,
+    /// When the newest position arrived (host clock).
+    local_arrival: Option<Instant>,
 }
 
 fn wrap(a: f64) -> f64 {
@@ -223,14 +225,15 @@ impl StateEstimator {
         })
     }
 
-    /// Feeds one message. Returns a new state sample when the message is the state's clock,
-    /// `ATTITUDE`: it always comes (a position source may come and go) and carries heading and
-    /// yaw rate; each sample holds the newest position, velocity and depth with their ages.
+    /// Feeds one message. Returns a new state sample when the message is the state's clock:
+    /// `LOCAL_POSITION_NED` while positions keep coming (so position and velocity are those of
+    /// the sample's own time), `ATTITUDE` otherwise, from one and a half attitude periods after
+    /// the last position on (a position source lost mid-run leaves no gap in the samples).
     pub fn update(&mut self, r: &Received) -> Option<StateEstimate> {
         let sample = self.take(r)?;
         // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants, and a
-        // position can carry a stamp older than the newest attitude: samples are made by one
-        // message only, and never go back in time.
+        // position can carry a stamp older than the newest attitude: when the clock passes from
+        // one to the other, a sample older than the last makes none. Samples never go back.
         if self.last_sample.is_some_and(|last| sample.t <= last) {
             return None;
         }
@@ -263,7 +266,18 @@ impl StateEstimator {
                 if self.attitudes.len() > ATTITUDE_HISTORY {
                     self.attitudes.pop_front();
                 }
-                Some(self.estimate_at(t))
+                // The attitude's own period: the shortest of its last intervals (a gap is not a
+                // period), at most 0.1 s.
+                let newer = self.attitudes.iter().rev();
+                let older = self.attitudes.iter().rev().skip(1);
+                let period = newer.zip(older).take(8).map(|(a, b)| a.t - b.t).fold(0.1, f64::min);
+                // Positions arrive in the same bursts as attitudes but stamped up to a period
+                // earlier: whether they are still coming is judged by their arrival.
+                let since = self.local_arrival.map(|a| r.at.saturating_duration_since(a).as_secs_f64());
+                let position_clock = since.is_some_and(|s| s <= 1.5 * period);
+                // A sample the attitude makes holds a position only from its own moment (within
+                // the same window): an older one would put the vehicle where it was.
+                (!position_clock).then(|| self.estimate_with(t, (1.5 * period).min(self.config.max_age)))
             }
             MavMessage::LOCAL_POSITION_NED(m) => {
                 if self.local.is_some_and(|l| t <= l.t) {
@@ -272,7 +286,8 @@ impl StateEstimator {
                 let f = |v: f32| f64::from(v);
                 self.local =
                     Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
-                None
+                self.local_arrival = Some(r.at);
+                Some(self.estimate_at(t))
             }
             MavMessage::SCALED_PRESSURE2(m) => {
                 self.external_pressure_seen = true;
@@ -305,11 +320,17 @@ impl StateEstimator {
 
     /// The state at autopilot time `t` (s) from the newest sample of each part.
     pub fn estimate_at(&self, t: f64) -> StateEstimate {
+        self.estimate_with(t, self.config.max_age)
+    }
+
+    /// The state at `t`, a position counting as fresh up to `position_max_age` (s).
+    fn estimate_with(&self, t: f64, position_max_age: f64) -> StateEstimate {
         let max_age = self.config.max_age;
-        let status = |part, stamp: Option<f64>| {
+        let status_within = |part, stamp: Option<f64>, limit: f64| {
             let age = stamp.map(|s| (t - s).max(0.0));
-            PartStatus { part, stamp, age, fresh: age.is_some_and(|a| a <= max_age) }
+            PartStatus { part, stamp, age, fresh: age.is_some_and(|a| a <= limit) }
         };
+        let status = |part, stamp: Option<f64>| status_within(part, stamp, max_age);
         let mut sim = [f64::NAN; NS];
         // The attitude of the estimate's time: the nearest one to `t`, if it is fresh.
         let attitude = self.attitude_near(t);
@@ -319,8 +340,8 @@ impl StateEstimator {
             sim[3] = a.yaw;
             sim[7] = a.yaw_rate;
         }
-        let position = status(Part::Position, self.local.map(|l| l.t));
-        let mut velocity = status(Part::Velocity, self.local.map(|l| l.t));
+        let position = status_within(Part::Position, self.local.map(|l| l.t), position_max_age);
+        let mut velocity = status_within(Part::Velocity, self.local.map(|l| l.t), position_max_age);
         if let (Some(l), true) = (self.local, position.fresh) {
             sim[..3].copy_from_slice(&l.position);
             // Body velocities need the heading at the position's own time.
@@ -395,19 +416,18 @@ mod tests {
     fn surge_while_heading_east_is_an_east_velocity_turned_into_u() {
         // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
         let mut e = StateEstimator::default();
-        assert!(e.update(&attitude(1000, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
-        assert!(e.update(&local(1010, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).is_none(), "ATTITUDE is the clock");
-        let s = e.update(&attitude(1080, std::f32::consts::FRAC_PI_2, 0.1)).expect("a sample");
+        assert!(e.update(&attitude(960, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
+        let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
         assert_eq!(s.capability, Capability::Full);
         let want = [1.0, 2.0, 3.0, std::f64::consts::FRAC_PI_2, 1.0, 0.0, 0.2, 0.1];
         for (i, (got, want)) in s.sim.iter().zip(want).enumerate() {
             assert!((got - want).abs() < 1e-6, "{}: {got} vs {want}", SIM_STATE_NAMES[i]);
         }
-        assert!((s.part(Part::Position).age.unwrap() - 0.07).abs() < 1e-9);
         // Moving north while heading east is a sway to port: v = -1.
-        e.update(&local(1100, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0]));
-        let s = e.update(&attitude(1160, std::f32::consts::FRAC_PI_2, 0.0)).unwrap();
+        let s = e.update(&local(1080, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0])).unwrap();
         assert!((s.sim[4]).abs() < 1e-6 && (s.sim[5] + 1.0).abs() < 1e-6, "{:?}", s.sim);
+        // With positions coming, attitudes do not make samples of their own.
+        assert!(e.update(&attitude(1100, std::f32::consts::FRAC_PI_2, 0.0)).is_none());
     }
 
     /// The firmware's interleaving: a position stamped before the last attitude sample (the
@@ -415,29 +435,40 @@ mod tests {
     /// times only ever grow.
     #[test]
     fn samples_never_go_back_in_time_when_the_clock_changes_message() {
+        // Each message arrives at its host time (ms after `t0`) in bursts 80 ms apart, the
+        // position stamped 68 ms before the attitude of its burst, as the firmware sends them.
+        let t0 = Instant::now();
+        let at = |r: Received, ms: u64| Received { at: t0 + std::time::Duration::from_millis(ms), ..r };
         let mut e = StateEstimator::default();
         let mut times = Vec::new();
-        let push = |times: &mut Vec<i64>, s: Option<StateEstimate>| times.extend(s.map(|s| (s.t * 1e3).round() as i64));
-        push(&mut times, e.update(&attitude(41_080, 0.0, 0.0)));
-        push(&mut times, e.update(&attitude(41_160, 0.0, 0.0)));
-        // The first position, 68 ms older than the newest attitude: kept, no sample.
-        push(&mut times, e.update(&local(41_092, [0.0; 3], [0.0; 3])));
-        assert_eq!(times, [41_080, 41_160]);
-        push(&mut times, e.update(&attitude(41_240, 0.0, 0.0)));
-        push(&mut times, e.update(&local(41_172, [0.0; 3], [0.0; 3])));
-        // A late attitude (older than the newest) makes no sample either.
-        push(&mut times, e.update(&attitude(41_200, 0.0, 0.0)));
-        push(&mut times, e.update(&attitude(41_320, 0.0, 0.0)));
-        assert_eq!(times, [41_080, 41_160, 41_240, 41_320]);
-        assert_eq!(e.estimate_at(41.32).capability, Capability::Full);
-        // The position source stops: the samples go on at the attitude's rate, the position
-        // turns stale after max_age.
-        for k in 1..=10 {
-            push(&mut times, e.update(&attitude(41_320 + 80 * k, 0.0, 0.0)));
+        let mut feed = |e: &mut StateEstimator, r: Received| {
+            times.extend(e.update(&r).map(|s| (s.t * 1e3).round() as i64));
+            times.clone()
+        };
+        feed(&mut e, at(attitude(41_080, 0.0, 0.0), 0));
+        feed(&mut e, at(attitude(41_160, 0.0, 0.0), 80));
+        // The first position, older than the newest attitude: kept, no sample.
+        let so_far = feed(&mut e, at(local(41_092, [0.0; 3], [0.0; 3]), 81));
+        assert_eq!(so_far, [41_080, 41_160]);
+        // Positions keep coming: they are the clock, attitudes make no samples.
+        for k in 1..=3u32 {
+            feed(&mut e, at(attitude(41_160 + 80 * k, 0.0, 0.0), 80 + 80 * u64::from(k)));
+            feed(&mut e, at(local(41_092 + 80 * k, [0.0; 3], [0.0; 3]), 81 + 80 * u64::from(k)));
         }
-        assert_eq!(times.len(), 14);
-        assert!(times.windows(2).all(|w| w[1] - w[0] == 80));
-        assert_eq!(e.estimate_at(42.12).part(Part::Position).fresh, false);
+        let so_far = feed(&mut e, at(attitude(41_480, 0.0, 0.0), 400));
+        assert_eq!(so_far, [41_080, 41_160, 41_172, 41_252, 41_332]);
+        assert_eq!(e.estimate_at(41.332).capability, Capability::Full);
+        // The position source stops (its last arrived at 321 ms): from 1.5 attitude periods on,
+        // the attitude is the clock again: 159 ms of host time without a sample, 228 ms between
+        // the stamps (the position's lag included), then one every 80 ms.
+        for k in 1..=10u32 {
+            feed(&mut e, at(attitude(41_480 + 80 * k, 0.0, 0.0), 400 + 80 * u64::from(k)));
+        }
+        let all = feed(&mut e, at(attitude(42_400, 0.0, 0.0), 1320));
+        assert_eq!(all[5], 41_560, "{all:?}");
+        assert!(all.windows(2).all(|w| w[1] > w[0] && w[1] - w[0] <= 240), "{all:?}");
+        assert!(all[5..].windows(2).all(|w| w[1] - w[0] <= 120), "{all:?}");
+        assert!(!e.estimate_at(42.4).part(Part::Position).fresh);
     }
 
     #[test]
@@ -469,7 +500,8 @@ mod tests {
         e.update(&attitude(1000, 0.0, 0.0));
         e.update(&local(1000, [1.0, 1.0, 1.0], [0.0; 3]));
         // 0.6 s later only attitudes arrive: the position is stale and the attitude is the clock.
-        let s = e.update(&attitude(1600, 0.0, 0.0)).expect("attitude is the clock again");
+        let later = Received { at: Instant::now() + std::time::Duration::from_millis(600), ..attitude(1600, 0.0, 0.0) };
+        let s = e.update(&later).expect("attitude is the clock again");
         let p = s.part(Part::Position);
         assert!(!p.fresh && (p.age.unwrap() - 0.6).abs() < 1e-9, "{p:?}");
         assert!(s.sim[0].is_nan() && s.sim[2].is_nan() && s.sim[4].is_nan());
