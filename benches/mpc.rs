@@ -79,7 +79,7 @@ fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M) {
     let x0 = SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]);
     let u = Input::new(10.0, 0.0, 20.0, 1.0);
     let mut t = 0.0;
-    let mut feed = |tracker: &mut Tracker<M>, t: f64| {
+    let feed = |tracker: &mut Tracker<M>, t: f64| {
         tracker.measure(Measurement::Depth { t, z: x0[2] });
         tracker.measure(Measurement::Heading { t, psi: x0[3] });
         tracker.measure(Measurement::YawRate { t, r: x0[7] });
