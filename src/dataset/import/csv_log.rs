@@ -31,13 +31,7 @@ pub fn read_csv(path: &Path) -> Result<Recording, ImportError> {
             header.iter().collect::<Vec<_>>().join(",")
         )));
     }
-    let mut rec = Recording {
-        path: path.to_path_buf(),
-        t: Vec::new(),
-        states: Vec::new(),
-        inputs: Vec::new(),
-        notes: Vec::new(),
-    };
+    let mut rec = Recording::empty(path);
     let mut record = csv::ByteRecord::new();
     let mut torn = None;
     while next_row(&mut reader, &mut record, CSV_COLUMNS.len(), &mut torn).map_err(malformed)? {

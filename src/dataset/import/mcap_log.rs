@@ -94,13 +94,7 @@ pub fn read_mcap(path: &Path, topics: &McapTopics) -> Result<Recording, ImportEr
             return Err(malformed(format!("no messages on topic {topic} (the file has: {})", have.join(", "))));
         }
     }
-    let mut rec = Recording {
-        path: path.to_path_buf(),
-        t: Vec::new(),
-        states: Vec::new(),
-        inputs: Vec::new(),
-        notes: Vec::new(),
-    };
+    let mut rec = Recording::empty(path);
     for (time, s) in states {
         rec.t.push(time as f64 * 1e-9);
         rec.states.push(s);

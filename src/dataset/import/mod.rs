@@ -64,6 +64,13 @@ pub struct Recording {
     pub notes: Vec<String>,
 }
 
+impl Recording {
+    /// An empty recording of `path`, for a reader to fill.
+    pub fn empty(path: &std::path::Path) -> Self {
+        Self { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new(), notes: Vec::new() }
+    }
+}
+
 /// What can go wrong while importing: every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
