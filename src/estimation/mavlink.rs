@@ -17,6 +17,12 @@ use mavlink::dialects::ardupilotmega::{MavMessage, SERVO_OUTPUT_RAW_DATA};
 
 /// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
 pub const GRAVITY: f64 = 9.80665;
+
+/// Depth (m, down) of an absolute pressure `hpa` under `surface_hpa` in water of `density`
+/// (kg/m^3): `(p - p_surface) / (rho g)`.
+pub fn depth_from_pressure(hpa: f64, surface_hpa: f64, density: f64) -> f64 {
+    (hpa - surface_hpa) * 100.0 / (density * GRAVITY)
+}
 /// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
 pub const USEC_WRAP_S: f64 = 4294.967296;
 
@@ -87,7 +93,7 @@ impl MavlinkMeasurements {
     }
 
     fn depth(&self, hpa: f32) -> f64 {
-        (f64::from(hpa) - self.surface_pressure_hpa) * 100.0 / (self.water_density * GRAVITY)
+        depth_from_pressure(f64::from(hpa), self.surface_pressure_hpa, self.water_density)
     }
 
     /// The observations in `message` (autopilot time `now` s where the message has no stamp

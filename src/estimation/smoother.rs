@@ -2,7 +2,7 @@
 //! estimate of a recorded log uses the measurements after it too. For logs, not for control.
 
 use super::ekf::{FilterCovariance, FilterState};
-use crate::types::NS;
+use crate::types::{Input, NS};
 use nalgebra::SMatrix;
 
 /// One step of a filter's forward pass: the estimate after the step's measurements, and the
@@ -28,6 +28,8 @@ pub struct Prediction {
     pub p: FilterCovariance,
     /// The transition matrix used.
     pub f: FilterCovariance,
+    /// The input applied over the step (without the estimated disturbance).
+    pub input: Input,
 }
 
 /// A smoothed estimate.
@@ -39,6 +41,13 @@ pub struct Smoothed {
     pub state: FilterState,
     /// One standard deviation of each simulator-state part.
     pub std: [f64; NS],
+    /// The input applied from this step to the next (`None` at the end of a run).
+    pub input: Option<Input>,
+}
+
+/// One standard deviation of each simulator-state part of a covariance.
+pub fn std_of(p: &FilterCovariance) -> [f64; NS] {
+    std::array::from_fn(|i| p[(i, i)].max(0.0).sqrt())
 }
 
 /// Smooths one unbroken run of steps (each `next` but the last's set).
@@ -47,8 +56,7 @@ pub fn rts(steps: &[ForwardStep]) -> Vec<Smoothed> {
     let mut out = vec![None; n];
     let Some(last) = steps.last() else { return Vec::new() };
     let (mut x, mut p) = (last.filtered, last.filtered_p);
-    let std = |p: &FilterCovariance| -> [f64; NS] { std::array::from_fn(|i| p[(i, i)].max(0.0).sqrt()) };
-    out[n - 1] = Some(Smoothed { t: last.t, state: x, std: std(&p) });
+    out[n - 1] = Some(Smoothed { t: last.t, state: x, std: std_of(&p), input: None });
     for k in (0..n - 1).rev() {
         let s = &steps[k];
         let Some(pred) = &s.next else { break };
@@ -60,7 +68,7 @@ pub fn rts(steps: &[ForwardStep]) -> Vec<Smoothed> {
         x = s.filtered + gain * (x - pred.state);
         p = s.filtered_p + gain * (p - pred.p) * gain.transpose();
         p = (p + p.transpose()) * 0.5;
-        out[k] = Some(Smoothed { t: s.t, state: x, std: std(&p) });
+        out[k] = Some(Smoothed { t: s.t, state: x, std: std_of(&p), input: Some(pred.input) });
     }
     out.into_iter().flatten().collect()
 }
@@ -97,7 +105,8 @@ mod tests {
                 e.predict(&u).unwrap();
                 let last = steps.last_mut().unwrap();
                 debug_assert_eq!(last.filtered, prior.0);
-                last.next = Some(Prediction { state: *e.state(), p: *e.covariance(), f: *e.last_transition() });
+                last.next =
+                    Some(Prediction { state: *e.state(), p: *e.covariance(), f: *e.last_transition(), input: u });
                 let mut next = crate::types::State::zeros();
                 model.step(&mut (), &to_network(&truth), &u, &mut next).unwrap();
                 truth = to_simulator(&next);

@@ -6,7 +6,7 @@
 
 use super::ekf::{Ekf, Estimate, FilterCounts, Update};
 use super::measurement::{Measurement, NoiseSettings};
-use super::smoother::{ForwardStep, Prediction, Smoothed, rts};
+use super::smoother::{ForwardStep, Prediction, Smoothed, rts, std_of};
 use crate::runtime::RuntimeError;
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NS, SimState};
@@ -30,6 +30,10 @@ pub struct Tracker<M: DiscreteModel> {
     reported: Vec<(f64, Input)>,
     /// The input last commanded: used where no output was reported.
     commanded: Input,
+    /// The newest reported input, and whether a command came after it: a step without a
+    /// report holds the newer of the two (a log replay has reports only).
+    last_reported: Option<Input>,
+    commanded_since_report: bool,
     last_horizontal: Option<f64>,
     late: u64,
     restarts: u64,
@@ -46,6 +50,8 @@ impl<M: DiscreteModel> Tracker<M> {
             pending: Vec::with_capacity(QUEUE),
             reported: Vec::with_capacity(QUEUE),
             commanded: Input::zeros(),
+            last_reported: None,
+            commanded_since_report: false,
             last_horizontal: None,
             late: 0,
             restarts: 0,
@@ -83,7 +89,8 @@ impl<M: DiscreteModel> Tracker<M> {
             .map(|s| Smoothed {
                 t: s.t,
                 state: s.filtered,
-                std: std::array::from_fn(|i| s.filtered_p[(i, i)].max(0.0).sqrt()),
+                std: std_of(&s.filtered_p),
+                input: s.next.as_ref().map(|n| n.input),
             })
             .collect()
     }
@@ -121,11 +128,14 @@ impl<M: DiscreteModel> Tracker<M> {
             self.reported.remove(0);
         }
         self.reported.push((t, input));
+        self.last_reported = Some(input);
+        self.commanded_since_report = false;
     }
 
     /// The input just commanded (held until the next command).
     pub fn commanded(&mut self, input: Input) {
         self.commanded = input;
+        self.commanded_since_report = true;
     }
 
     /// Measurements that came later than the step they belonged to and were dropped.
@@ -149,7 +159,7 @@ impl<M: DiscreteModel> Tracker<M> {
     }
 
     /// The applied input over the step ending at `t_end`: the mean of the reported inputs
-    /// in it, else the command.
+    /// in it, else the newer of the last report (outputs hold) and the command.
     fn step_input(&mut self, t_end: f64) -> Input {
         let mut sum = Input::zeros();
         let mut n = 0;
@@ -162,7 +172,11 @@ impl<M: DiscreteModel> Tracker<M> {
                 true
             }
         });
-        if n > 0 { sum / n as f64 } else { self.commanded }
+        match (n, self.last_reported) {
+            (0, Some(held)) if !self.commanded_since_report => held,
+            (0, _) => self.commanded,
+            _ => sum / n as f64,
+        }
     }
 
     /// Starts from the newest of each measured part, if heading, yaw rate and depth are among
@@ -221,7 +235,7 @@ impl<M: DiscreteModel> Tracker<M> {
             if let Some(h) = &mut self.history {
                 let (x, p, f) = (*self.ekf.state(), *self.ekf.covariance(), *self.ekf.last_transition());
                 if let Some(last) = h.last_mut() {
-                    last.next = Some(Prediction { state: x, p, f });
+                    last.next = Some(Prediction { state: x, p, f, input: u });
                 }
                 h.push(ForwardStep { t: self.ekf.t(), filtered: x, filtered_p: p, next: None });
             }

@@ -13,6 +13,7 @@
 //! time) is stale and reported as missing (`NaN`), never held.
 
 use super::link::Received;
+use crate::estimation::mavlink::depth_from_pressure;
 use crate::types::{NS, SIM_STATE_NAMES};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use std::collections::VecDeque;
@@ -67,9 +68,6 @@ impl Default for StateConfig {
         Self { max_age: 0.5, surface_pressure_hpa: 1013.25, water_density: 1000.0 }
     }
 }
-
-/// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
-const GRAVITY: f64 = 9.80665;
 
 /// One part's time stamp and age.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -361,7 +359,7 @@ impl StateEstimator {
         } else {
             let d = status(Part::Depth, self.pressure.map(|(s, _)| s));
             if let (Some((_, p)), true) = (self.pressure, d.fresh) {
-                sim[2] = (p - self.config.surface_pressure_hpa) * 100.0 / (self.config.water_density * GRAVITY);
+                sim[2] = depth_from_pressure(p, self.config.surface_pressure_hpa, self.config.water_density);
             }
             let source = d.fresh.then_some(DepthSource::Pressure);
             (d, source)

@@ -114,7 +114,6 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     let model = Rk4Vehicle { params, ..Rk4Vehicle::with_dt(a.dt) };
     let mut tracker = Tracker::new(model, noise).keep_history();
     let (mut now, mut next_sample, mut horizontal) = (0.0f64, f64::NEG_INFINITY, false);
-    let mut inputs: Vec<(f64, pinc::Input)> = Vec::new();
     for (_, sys, message) in &log.messages {
         if *sys != autopilot || (a.ignore_position && matches!(message, MavMessage::LOCAL_POSITION_NED(_))) {
             continue;
@@ -128,10 +127,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
                 }
                 tracker.measure(m);
             }
-            Observation::Applied(t, u) => {
-                inputs.push((t, u));
-                tracker.applied(t, u);
-            }
+            Observation::Applied(t, u) => tracker.applied(t, u),
         });
         // ATTITUDE is the clock: a sample every dt of its time.
         if let Some(t) = attitude_t {
@@ -149,27 +145,16 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
             a.log.display()
         ));
     }
-    // The input of each row: the mean of the outputs reported until the next row.
+    // The input of each row: what the filter applied until the next row (the mean of the
+    // outputs reported in the step), held over the end of a run.
     let partial = a.out.with_extension("csv.partial");
     let file = std::fs::File::create(&partial).map_err(|e| format!("{}: {e}", partial.display()))?;
     let mut w = std::io::BufWriter::new(file);
     let io = |e: std::io::Error| format!("{}: {e}", partial.display());
     writeln!(w, "t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz").map_err(io)?;
-    let mut k = 0;
     let mut last_u = pinc::Input::zeros();
-    for (i, s) in steps.iter().enumerate() {
-        let end = steps.get(i + 1).map_or(f64::INFINITY, |n| n.t);
-        let (mut sum, mut n) = (pinc::Input::zeros(), 0);
-        while k < inputs.len() && inputs[k].0 <= end {
-            if inputs[k].0 > s.t {
-                sum += inputs[k].1;
-                n += 1;
-            }
-            k += 1;
-        }
-        if n > 0 {
-            last_u = sum / n as f64;
-        }
+    for s in &steps {
+        last_u = s.input.unwrap_or(last_u);
         let x = s.state;
         writeln!(
             w,
