@@ -1,6 +1,6 @@
 //! Bytes <-> [`PincModel`]: the fixed header, the checksum, bincode, and validation.
 
-use super::format::PincModelV1;
+use super::format::{PincModelV1, PincModelV2};
 use super::{FORMAT_VERSION, HEADER_SIZE, MAGIC, MAX_FILE_BYTES, ModelError, OLDEST_READ_VERSION, PincModel, validate};
 use std::path::Path;
 
@@ -70,12 +70,18 @@ impl PincModel {
             return Err(ModelError::ChecksumMismatch { stored, computed });
         }
         let decode_error = |e: bincode::error::DecodeError| ModelError::Decode(e.to_string());
-        let (model, used): (PincModel, usize) = if version == 1 {
-            let (v1, used): (PincModelV1, usize) =
-                bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
-            (v1.into(), used)
-        } else {
-            bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?
+        let (model, used): (PincModel, usize) = match version {
+            1 => {
+                let (v1, used): (PincModelV1, usize) =
+                    bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
+                (v1.into(), used)
+            }
+            2 => {
+                let (v2, used): (PincModelV2, usize) =
+                    bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
+                (v2.into(), used)
+            }
+            _ => bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?,
         };
         if used != body.len() {
             return Err(ModelError::TrailingBytes { extra: body.len() - used });

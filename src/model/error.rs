@@ -28,7 +28,9 @@ pub enum ModelError {
         found: Vec<u8>,
     },
     /// Written by a different format version.
-    #[error("format version {found} is not supported (this build reads version {supported})")]
+    #[error(
+        "format version {found} is not supported (this build reads versions 1 to {supported}; a newer pinc wrote this file)"
+    )]
     UnsupportedVersion {
         /// Version in the file.
         found: u32,

@@ -12,8 +12,9 @@ use std::collections::BTreeMap;
 
 /// First bytes of every `.pinc` file.
 pub const MAGIC: [u8; 8] = *b"PINC\x00MDL";
-/// Version written by this build; readers refuse any other.
-pub const FORMAT_VERSION: u32 = 2;
+/// Version written by this build; readers refuse newer ones and read every older one from
+/// [`OLDEST_READ_VERSION`] on.
+pub const FORMAT_VERSION: u32 = 3;
 /// The oldest version still read: version 1 files have no vehicle and were all trained on
 /// the BlueROV2.
 pub const OLDEST_READ_VERSION: u32 = 1;
@@ -180,8 +181,51 @@ pub struct PincModel {
     /// The learned parameters.
     pub weights: Weights,
     /// The vehicle whose equations the physics loss used (format version 2; version 1 files
-    /// read as the BlueROV2, the only vehicle they could have used).
+    /// read as the BlueROV2, the only vehicle they could have used). In a hybrid model, also
+    /// the vehicle whose step the network corrects.
     pub vehicle: VehicleParams,
+    /// Present in a hybrid model (format version 3): the next state is the analytic
+    /// `vehicle`'s RK4 step plus the network's correction (docs/MODEL.md section 13). Absent:
+    /// a PINC, the network's increment added to the current state. Files before version 3
+    /// read as PINCs.
+    pub hybrid: Option<HybridPhysics>,
+}
+
+/// The analytic part of a hybrid model: how `vehicle` is integrated over a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HybridPhysics {
+    /// Classic RK4 sub-steps per step (of whatever length the step is: `dt / substeps` each),
+    /// as `pinc simulate` and the oracle integrate the vehicle.
+    pub substeps: u32,
+}
+
+/// A version 2 payload: [`PincModel`] without the hybrid part.
+#[derive(Deserialize)]
+pub(crate) struct PincModelV2 {
+    architecture: Architecture,
+    dt: f64,
+    input_scaling: Option<Affine>,
+    output_scaling: Option<Affine>,
+    envelope: Option<Envelope>,
+    provenance: Provenance,
+    weights: Weights,
+    vehicle: VehicleParams,
+}
+
+impl From<PincModelV2> for PincModel {
+    fn from(v: PincModelV2) -> Self {
+        Self {
+            architecture: v.architecture,
+            dt: v.dt,
+            input_scaling: v.input_scaling,
+            output_scaling: v.output_scaling,
+            envelope: v.envelope,
+            provenance: v.provenance,
+            weights: v.weights,
+            vehicle: v.vehicle,
+            hybrid: None,
+        }
+    }
 }
 
 /// A version 1 payload: [`PincModel`] without the vehicle.
@@ -198,7 +242,7 @@ pub(crate) struct PincModelV1 {
 
 impl From<PincModelV1> for PincModel {
     fn from(v: PincModelV1) -> Self {
-        Self {
+        PincModelV2 {
             architecture: v.architecture,
             dt: v.dt,
             input_scaling: v.input_scaling,
@@ -208,6 +252,7 @@ impl From<PincModelV1> for PincModel {
             weights: v.weights,
             vehicle: VehicleParams::default(),
         }
+        .into()
     }
 }
 

@@ -1,6 +1,6 @@
 //! What `pinc inspect` shows: the header of a model without its weights.
 
-use super::{Activation, Envelope, FORMAT_VERSION, PincModel, Provenance};
+use super::{Activation, Envelope, FORMAT_VERSION, HybridPhysics, PincModel, Provenance};
 use crate::types::STATE_NAMES;
 use crate::vehicle::VehicleParams;
 use serde::Serialize;
@@ -38,8 +38,10 @@ pub struct ModelSummary {
     pub output_scaling: bool,
     /// Training envelope, if recorded.
     pub envelope: Option<Envelope>,
-    /// The vehicle the physics loss used.
+    /// The vehicle the physics loss used (in a hybrid, also the physics the network corrects).
     pub vehicle: VehicleParams,
+    /// A hybrid's analytic part; `None` for a PINC.
+    pub hybrid: Option<HybridPhysics>,
     /// Provenance and metrics.
     pub provenance: Provenance,
 }
@@ -68,6 +70,7 @@ impl ModelSummary {
             output_scaling: m.output_scaling.is_some(),
             envelope: m.envelope.clone(),
             vehicle: m.vehicle,
+            hybrid: m.hybrid,
             provenance: m.provenance.clone(),
         }
     }
@@ -76,6 +79,14 @@ impl ModelSummary {
 impl std::fmt::Display for ModelSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "format version  {}", self.format_version)?;
+        match &self.hybrid {
+            Some(h) => writeln!(
+                f,
+                "model           hybrid: the vehicle below (RK4, {} sub-steps per step) plus the network's correction",
+                h.substeps
+            )?,
+            None => writeln!(f, "model           PINC: the network's increment on the current state")?,
+        }
         if let Some(b) = self.file_bytes {
             writeln!(f, "file size       {b} bytes")?;
         }
@@ -102,6 +113,12 @@ impl std::fmt::Display for ModelSummary {
             }
             None => writeln!(f, "envelope        none recorded")?,
         }
+        // A hybrid's physics is half the model: every coefficient.
+        if self.hybrid.is_some() {
+            let all: Vec<String> = self.vehicle.named().iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            writeln!(f, "vehicle         {}", all.join(", "))?;
+            return self.provenance_lines(f);
+        }
         // The coefficients that differ from the BlueROV2's, or that it is the BlueROV2.
         let default = VehicleParams::default().named();
         let changed: Vec<String> = self
@@ -116,6 +133,12 @@ impl std::fmt::Display for ModelSummary {
             true => writeln!(f, "vehicle         BlueROV2 (models/bluerov2.toml)")?,
             false => writeln!(f, "vehicle         BlueROV2 but {}", changed.join(", "))?,
         }
+        self.provenance_lines(f)
+    }
+}
+
+impl ModelSummary {
+    fn provenance_lines(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let p = &self.provenance;
         writeln!(
             f,

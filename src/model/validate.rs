@@ -3,6 +3,9 @@
 use super::{Affine, Linear, MAX_LAYERS, MAX_WIDTH, ModelError, PincModel};
 use crate::types::NX;
 
+/// Most RK4 sub-steps a hybrid model may ask for per step (a 1 s step at 0.1 ms).
+pub const MAX_SUBSTEPS: u32 = 10_000;
+
 fn dim(what: impl Into<String>, expected: usize, found: usize) -> Result<(), ModelError> {
     if expected == found { Ok(()) } else { Err(ModelError::DimensionMismatch { what: what.into(), expected, found }) }
 }
@@ -93,6 +96,21 @@ pub fn validate(m: &PincModel) -> Result<(), ModelError> {
         }
     }
     linear("output", &m.weights.output, NX, a.width)?;
+    if let Some(h) = &m.hybrid {
+        if !a.residual {
+            return Err(invalid(
+                "architecture.residual",
+                "a hybrid model's network corrects the physics' step: it must be residual",
+            ));
+        }
+        if h.substeps == 0 || h.substeps > MAX_SUBSTEPS {
+            return Err(ModelError::LimitExceeded {
+                what: "hybrid.substeps (1 at least)",
+                value: h.substeps as usize,
+                max: MAX_SUBSTEPS as usize,
+            });
+        }
+    }
     if let Some(s) = &m.input_scaling {
         affine("input_scaling", s, a.input_size())?;
     }

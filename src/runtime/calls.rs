@@ -141,7 +141,11 @@ impl<T: Real> Predictor<T> {
             let x = out[k];
             self.check_args(ws, k, &x, u)?;
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false);
-            let (next, heading) = self.output.apply(&x, &o);
+            let base = match &self.physics {
+                Some(p) => p.step(&x, u, dt),
+                None => x,
+            };
+            let (next, heading) = self.output.apply(&base, &o);
             ws.envelope.record_heading(k, heading);
             if next.iter().any(|v| !v.is_finite()) {
                 return Err(RuntimeError::NonFiniteOutput { step: k });
@@ -168,8 +172,13 @@ impl<T: Real> Predictor<T> {
             self.check_args(ws, k, &x, u)?;
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true);
             self.net.reverse::<F>(&mut ws.net);
-            self.output.jacobians(&self.net, &ws.net, &x, &o, &mut a[k], &mut b[k]);
-            let (x_next, heading) = self.output.apply(&x, &o);
+            let physics = self.physics.map(|p| p.linearise(&x, u, self.dt));
+            let (base, base_jacobians) = match &physics {
+                Some((s, pa, pb)) => (*s, Some((pa, pb))),
+                None => (x, None),
+            };
+            self.output.jacobians(&self.net, &ws.net, &base, base_jacobians, &o, &mut a[k], &mut b[k]);
+            let (x_next, heading) = self.output.apply(&base, &o);
             ws.envelope.record_heading(k, heading);
             // Three plain loops: one chained iterator over the three did not inline (5 % of a
             // linearisation).

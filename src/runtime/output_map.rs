@@ -18,12 +18,13 @@ pub(crate) struct OutputMap {
 }
 
 impl OutputMap {
-    /// `x_next` from `x` and the raw output: residual, rotation of the planar increments
+    /// `x_next` from the base state (the current state, or a hybrid's physics step) and the
+    /// raw output: residual, rotation of the planar increments
     /// by the predicted yaw, optional renormalisation; and how far the raw predicted
     /// `(cos psi, sin psi)` was off unit length (`|v| - 1`, before the renormalisation).
     #[inline(always)]
-    pub(crate) fn apply(&self, x: &State, o: &NetOut) -> (State, f64) {
-        let mut lanes: [[f64; 1]; NX] = std::array::from_fn(|c| [x[c]]);
+    pub(crate) fn apply(&self, base: &State, o: &NetOut) -> (State, f64) {
+        let mut lanes: [[f64; 1]; NX] = std::array::from_fn(|c| [base[c]]);
         let [deviation] = self.apply_lanes(&mut lanes, &std::array::from_fn(|c| [o[c]]));
         (State::from_fn(|c, _| lanes[c][0]), deviation)
     }
@@ -56,13 +57,16 @@ impl OutputMap {
     }
 
     /// Jacobians of [`OutputMap::apply`] given the network's `d out / d input` rows in
-    /// `ws.rows` (after [`Network::reverse`]).
+    /// `ws.rows` (after [`Network::reverse`]), the base state and, for a hybrid, the base's
+    /// own Jacobians (`None`: the base is the current state, or zero without a residual).
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // the network's and the base's parts, and the outputs
     pub(crate) fn jacobians<T: Real>(
         &self,
         net: &Network<T>,
         ws: &NetScratch<T>,
-        x: &State,
+        base: &State,
+        base_jacobians: Option<(&StateMatrix, &InputMatrix)>,
         o: &NetOut,
         a: &mut StateMatrix,
         b: &mut InputMatrix,
@@ -81,29 +85,38 @@ impl OutputMap {
                 du[(k, c)] = row[ns + c].to_f64();
             }
         }
-        *a = if self.residual { StateMatrix::identity() } else { StateMatrix::zeros() };
-        let base = if self.residual { *x } else { State::zeros() };
+        // d base / d x and d base / d u.
+        match base_jacobians {
+            Some((ba, bb)) => {
+                *a = *ba;
+                *b = *bb;
+            }
+            None => {
+                *a = if self.residual { StateMatrix::identity() } else { StateMatrix::zeros() };
+                *b = InputMatrix::zeros();
+            }
+        }
+        let base = if self.residual { *base } else { State::zeros() };
         let (c, s) = (base[3] + o[3], base[4] + o[4]);
         for k in 2..NX {
             for j in 0..NX {
                 a[(k, j)] += dx[(k, j)];
             }
             for j in 0..NU {
-                b[(k, j)] = du[(k, j)];
+                b[(k, j)] += du[(k, j)];
             }
         }
         if self.rotate {
-            let r = if self.residual { 1.0 } else { 0.0 };
             for j in 0..NX {
-                // d c / d x_j and d s / d x_j.
-                let cj = if j == 3 { r } else { 0.0 } + dx[(3, j)];
-                let sj = if j == 4 { r } else { 0.0 } + dx[(4, j)];
+                // d c / d x_j and d s / d x_j (rows 3 and 4 already hold base plus output).
+                let (cj, sj) = (a[(3, j)], a[(4, j)]);
                 a[(0, j)] += c * dx[(0, j)] - s * dx[(1, j)] + o[0] * cj - o[1] * sj;
                 a[(1, j)] += s * dx[(0, j)] + c * dx[(1, j)] + o[0] * sj + o[1] * cj;
             }
             for j in 0..NU {
-                b[(0, j)] = c * du[(0, j)] - s * du[(1, j)] + o[0] * du[(3, j)] - o[1] * du[(4, j)];
-                b[(1, j)] = s * du[(0, j)] + c * du[(1, j)] + o[0] * du[(4, j)] + o[1] * du[(3, j)];
+                let (cj, sj) = (b[(3, j)], b[(4, j)]);
+                b[(0, j)] += c * du[(0, j)] - s * du[(1, j)] + o[0] * cj - o[1] * sj;
+                b[(1, j)] += s * du[(0, j)] + c * du[(1, j)] + o[0] * sj + o[1] * cj;
             }
         } else {
             for j in 0..NX {
@@ -111,8 +124,8 @@ impl OutputMap {
                 a[(1, j)] += dx[(1, j)];
             }
             for j in 0..NU {
-                b[(0, j)] = du[(0, j)];
-                b[(1, j)] = du[(1, j)];
+                b[(0, j)] += du[(0, j)];
+                b[(1, j)] += du[(1, j)];
             }
         }
         if self.renormalise_yaw {

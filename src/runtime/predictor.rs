@@ -6,11 +6,14 @@ use super::envelope::{EnvelopeCheck, EnvelopeStatus};
 use super::error::{RuntimeError, check_input, check_state};
 use super::kernels::{Avx2Fma, NetScratch, Network, Real};
 use super::output_map::OutputMap;
+use super::physics::HybridBase;
 use crate::model::{Envelope, PincModel};
 use crate::types::{Input, State};
 
 /// A frozen PINC ready to run: `x_hat(t) = x + N([x_seen, u, t])` with the planar
-/// increments rotated by the predicted yaw (docs/MODEL.md section 3).
+/// increments rotated by the predicted yaw (docs/MODEL.md section 3); or a hybrid model,
+/// `x_hat(t) = Phi_t(x, u) + N([x_seen, u, t])`, `Phi_t` being the file's vehicle integrated
+/// over `t` (section 13). Both kinds run through the same calls.
 ///
 /// Immutable after construction; every call takes a [`Workspace`] so that one predictor
 /// can serve many threads.
@@ -50,6 +53,8 @@ pub struct Predictor<T: Real = f32> {
     pub(crate) output: OutputMap,
     pub(crate) dt: f64,
     pub(crate) envelope: EnvelopeCheck,
+    /// A hybrid model's analytic part: the state the network's output is added to.
+    pub(crate) physics: Option<HybridBase>,
     /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
     pub(crate) cpu: Option<Avx2Fma>,
 }
@@ -90,6 +95,7 @@ impl<T: Real> Predictor<T> {
             net,
             output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: true },
             dt: model.dt,
+            physics: HybridBase::of(model),
             cpu: Avx2Fma::detect(),
         }
     }
@@ -126,6 +132,16 @@ impl<T: Real> Predictor<T> {
     /// The training envelope, if the model file has one.
     pub fn envelope(&self) -> Option<&Envelope> {
         self.envelope.envelope()
+    }
+
+    /// Whether this is a hybrid model (the vehicle's step plus the network's correction).
+    pub fn is_hybrid(&self) -> bool {
+        self.physics.is_some()
+    }
+
+    /// A hybrid model's physics: its vehicle and RK4 sub-steps per step.
+    pub fn hybrid_physics(&self) -> Option<(&crate::vehicle::VehicleParams, usize)> {
+        self.physics.as_ref().map(|p| (p.params(), p.substeps()))
     }
 
     /// Indices of the 9-state components the network sees.

@@ -48,6 +48,7 @@ fn exported_weights_round_trip_through_the_frozen_format() {
         provenance: Provenance::default(),
         weights: net.weights(),
         vehicle: crate::vehicle::VehicleParams::default(),
+        hybrid: None,
     };
     crate::model::validate(&model).unwrap();
     let again = PincNet::from_model(&model, &device);

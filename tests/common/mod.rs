@@ -63,8 +63,20 @@ pub fn random_model(arch: Architecture, seed: u64) -> PincModel {
         provenance: Provenance { source: "test".into(), ..Provenance::default() },
         weights: Weights { hidden, output },
         vehicle: pinc::vehicle::VehicleParams::default(),
+        hybrid: None,
         architecture: arch,
     }
+}
+
+/// `m` as a hybrid model: a vehicle other than the BlueROV2 (heavier, 20 % more damping, a
+/// little buoyant) integrated in `substeps` RK4 sub-steps, corrected by `m`'s network.
+pub fn hybrid(mut m: PincModel, substeps: u32) -> PincModel {
+    let mut v = pinc::vehicle::VehicleParams::default().with_damping_scaled(1.2);
+    v.m = 12.1;
+    v.izz = 0.3;
+    m.vehicle = v;
+    m.hybrid = Some(pinc::model::HybridPhysics { substeps });
+    m
 }
 
 /// The paper's 4 x 32 architecture with random weights.
@@ -100,6 +112,7 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
     tanh.activation = Activation::Tanh;
     let mut no_pos = Architecture::paper(2, 24);
     no_pos.state_inputs = vec![3, 4, 5, 6, 7, 8];
+    let no_pos_hybrid = no_pos.clone();
     let mut no_ln = Architecture::paper(3, 20);
     no_ln.layer_norm = vec![false; 3];
     // 13 units: the last pack of 8 is padded; LayerNorm after the negative beta of layer 2.
@@ -114,6 +127,8 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
         ("position-free 2x24", with_extras(random_model(no_pos, 6))),
         ("no LayerNorm 3x20", random_model(no_ln, 7)),
         ("LayerNorm everywhere 3x13", with_extras(random_model(all_ln, 8))),
+        ("hybrid 4x32", hybrid(random_model(Architecture::paper(4, 32), 9), 16)),
+        ("hybrid position-free 2x24 scaled", hybrid(with_extras(random_model(no_pos_hybrid, 10)), 5)),
     ]
 }
 
@@ -163,7 +178,16 @@ pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64
     if let Some(s) = &m.output_scaling {
         o = o.iter().enumerate().map(|(k, v)| v * s.std[k] + s.mean[k]).collect();
     }
-    let mut next = if arch.residual { *x } else { [0.0; 9] };
+    let mut next = match (&m.hybrid, arch.residual) {
+        // A hybrid's base: the vehicle's RK4 step over `t` in `substeps` equal parts.
+        (Some(h), _) => {
+            let f = |x: &pinc::State| pinc::vehicle::rhs(&m.vehicle, x, &pinc::Input::from(*u));
+            let n = h.substeps as usize;
+            pinc::vehicle::rk4(f, pinc::State::from(*x), t / n as f64, n).into()
+        }
+        (None, true) => *x,
+        (None, false) => [0.0; 9],
+    };
     let (c, s) = (next[3] + o[3], next[4] + o[4]);
     let (dx, dy) = if arch.rotate_xy { (c * o[0] - s * o[1], s * o[0] + c * o[1]) } else { (o[0], o[1]) };
     next[0] += dx;

@@ -66,7 +66,10 @@ fn rejects_future_version() {
     assert!(
         matches!(err, ModelError::UnsupportedVersion { found, supported } if found == FORMAT_VERSION + 1 && supported == FORMAT_VERSION)
     );
-    assert!(err.to_string().contains("version 2"));
+    assert!(
+        err.to_string().contains("format version 4") && err.to_string().contains("versions 1 to 3; a newer pinc"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -50,3 +50,42 @@ fn the_vehicle_is_recorded_and_version_1_files_read_as_the_bluerov2() {
     let err = model.to_bytes().unwrap_err().to_string();
     assert!(err.starts_with("vehicle: x_ud = 20: the effective mass"), "{err}");
 }
+
+/// `bytes` re-framed as another format version with the payload cut by `drop` bytes.
+fn reframed(bytes: &[u8], version: u32, drop: usize) -> Vec<u8> {
+    let payload = &bytes[pinc::model::HEADER_SIZE..bytes.len() - drop];
+    let mut out = bytes[..8].to_vec();
+    out.extend_from_slice(&version.to_le_bytes());
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    out.extend_from_slice(payload);
+    out
+}
+
+#[test]
+fn hybrid_files_keep_both_parts_and_version_2_files_read_as_pincs() {
+    let hybrid = common::hybrid(common::paper_4x32(4), 12);
+    let bytes = hybrid.to_bytes().unwrap();
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
+    let back = PincModel::from_bytes(&bytes).unwrap();
+    assert_eq!(back.hybrid, Some(pinc::model::HybridPhysics { substeps: 12 }));
+    assert_eq!(back.vehicle, hybrid.vehicle);
+    // A version 2 file is a version 3 payload without the hybrid field (the last one, absent
+    // being one byte): it reads as the same PINC.
+    let mut pinc_model = hybrid.clone();
+    pinc_model.hybrid = None;
+    let v3 = pinc_model.to_bytes().unwrap();
+    assert_eq!(*v3.last().unwrap(), 0, "an absent hybrid part is bincode's None");
+    assert_eq!(PincModel::from_bytes(&reframed(&v3, 2, 1)).unwrap(), pinc_model);
+    // A hybrid's bytes claimed as version 2 leave bytes over: refused, not misread.
+    assert!(PincModel::from_bytes(&reframed(&bytes, 2, 0)).is_err());
+    // What a hybrid cannot be.
+    let mut bad = hybrid.clone();
+    bad.architecture.residual = false;
+    let err = bad.to_bytes().unwrap_err().to_string();
+    assert!(err.contains("architecture.residual") && err.contains("hybrid"), "{err}");
+    let mut bad = hybrid;
+    bad.hybrid = Some(pinc::model::HybridPhysics { substeps: 0 });
+    let err = bad.to_bytes().unwrap_err().to_string();
+    assert!(err.contains("hybrid.substeps"), "{err}");
+}

@@ -7,6 +7,7 @@ mod common;
 mod counting_alloc;
 
 mod behaviour;
+mod hybrid;
 mod jacobian_fd;
 mod no_alloc;
 mod torch_fixtures;

@@ -159,6 +159,7 @@ fn model() -> PincModel {
         provenance: Provenance::default(),
         weights: Weights { hidden, output },
         vehicle: crate::vehicle::VehicleParams::default(),
+        hybrid: None,
         architecture: arch,
     }
 }
