@@ -87,6 +87,13 @@ void pinc_workspace_free(struct PincWorkspace *w);
 // `p` must be null or a live predictor.
 double pinc_predictor_dt(const struct PincPredictor *p);
 
+// 1 when the model is a hybrid (its vehicle's RK4 step plus the network's correction), 0
+// when it is a PINC, -1 for a null predictor. Every call serves both kinds alike.
+//
+// # Safety
+// `p` must be null or a live predictor.
+int pinc_predictor_is_hybrid(const struct PincPredictor *p);
+
 // One step from `x` under `u` over `dt` seconds (`dt <= 0`: the model's sample period)
 // into `out`.
 //

@@ -157,15 +157,28 @@ pub fn rollout_mse<T: crate::runtime::Real>(
     set: &TrajectorySet,
     steps: usize,
 ) -> Result<f64, RuntimeError> {
+    Ok(mean(&rollout_mse_per_trajectory(p, set, steps)?))
+}
+
+/// [`rollout_mse`] of each trajectory of `set` (every trajectory has as many starting points,
+/// so their mean is the set's).
+///
+/// # Errors
+/// A non-finite state or input in the set.
+pub fn rollout_mse_per_trajectory<T: crate::runtime::Real>(
+    p: &Predictor<T>,
+    set: &TrajectorySet,
+    steps: usize,
+) -> Result<Vec<f64>, RuntimeError> {
     rollout_mse_by(|x0, inputs, n| rollouts(p, set.dt, x0, inputs, n), set, steps)
 }
 
-/// [`rollout_mse`] with the rollouts made by `roll(x0, inputs, steps)`.
+/// Per-trajectory rollout MSE with the rollouts made by `roll(x0, inputs, steps)`.
 fn rollout_mse_by(
     roll: impl Fn(&[State], &[Input], usize) -> Result<Vec<State>, RuntimeError>,
     set: &TrajectorySet,
     steps: usize,
-) -> Result<f64, RuntimeError> {
+) -> Result<Vec<f64>, RuntimeError> {
     let intervals = set.points - 1;
     let starts = intervals + 1 - steps.min(intervals);
     let mut x0 = Vec::with_capacity(set.count * starts);
@@ -178,17 +191,20 @@ fn rollout_mse_by(
         }
     }
     let out = roll(&x0, &inputs, steps)?;
-    let mut sum = 0.0;
-    for i in 0..set.count {
-        let (xs, _) = set.trajectory(i);
-        for k in 0..starts {
-            let pred = &out[(i * starts + k) * (steps + 1)..(i * starts + k + 1) * (steps + 1)];
-            for j in 1..=steps {
-                sum += squared_error(&pred[j], &xs[k + j]);
+    let per = (0..set.count)
+        .map(|i| {
+            let (xs, _) = set.trajectory(i);
+            let mut sum = 0.0;
+            for k in 0..starts {
+                let pred = &out[(i * starts + k) * (steps + 1)..(i * starts + k + 1) * (steps + 1)];
+                for j in 1..=steps {
+                    sum += squared_error(&pred[j], &xs[k + j]);
+                }
             }
-        }
-    }
-    Ok(sum / (set.count * starts * steps * NX) as f64)
+            sum / (starts * steps * NX) as f64
+        })
+        .collect();
+    Ok(per)
 }
 
 /// Rolls out a [`DiscreteModel`] from every `x0` under its `steps` inputs, at the model's own
@@ -240,8 +256,8 @@ pub fn evaluate_set_discrete<M: DiscreteModel>(m: &M, set: &TrajectorySet) -> Re
     let mut v = vpt_of_rollouts(&roll(&x0, &set.inputs, set.points - 1)?, set);
     v.sort_by(f64::total_cmp);
     Ok(SetMetrics {
-        one_step_mse: rollout_mse_by(roll, set, 1)?,
-        rollout10_mse: rollout_mse_by(roll, set, 10.min(set.points - 1))?,
+        one_step_mse: mean(&rollout_mse_by(roll, set, 1)?),
+        rollout10_mse: mean(&rollout_mse_by(roll, set, 10.min(set.points - 1))?),
         physics_mse: f64::NAN,
         vpt_s: mean(&v),
         vpt_median_s: v.get(v.len() / 2).copied().unwrap_or(0.0),

@@ -277,6 +277,17 @@ pub unsafe extern "C" fn pinc_predictor_dt(p: *const PincPredictor) -> f64 {
     unsafe { p.as_ref() }.map_or(f64::NAN, |p| p.predictor.dt())
 }
 
+/// 1 when the model is a hybrid (its vehicle's RK4 step plus the network's correction), 0
+/// when it is a PINC, -1 for a null predictor. Every call serves both kinds alike.
+///
+/// # Safety
+/// `p` must be null or a live predictor.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinc_predictor_is_hybrid(p: *const PincPredictor) -> c_int {
+    // SAFETY: null or live (caller).
+    unsafe { p.as_ref() }.map_or(-1, |p| c_int::from(p.predictor.is_hybrid()))
+}
+
 /// One step from `x` under `u` over `dt` seconds (`dt <= 0`: the model's sample period)
 /// into `out`.
 ///

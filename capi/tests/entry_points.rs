@@ -265,3 +265,48 @@ fn heading_rescaling_is_on_by_default_can_be_turned_off_and_drift_is_counted() {
     assert_eq!(unsafe { pinc_predictor_set_yaw_renormalisation(null_mut(), 1) }, PINC_ERR_NULL);
     assert_eq!(last_error(), "pinc_predictor_set_yaw_renormalisation: p is null");
 }
+
+#[test]
+fn a_hybrid_model_runs_through_the_same_entry_points() {
+    // The shipped controller network as the correction of a heavier, more damped vehicle.
+    let mut model = PincModel::load(model_path().to_str().unwrap()).unwrap();
+    model.vehicle = model.vehicle.with_damping_scaled(1.2);
+    model.vehicle.m = 12.5;
+    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16 });
+    let bytes = model.to_bytes().unwrap();
+    let p = pinc::runtime::Predictor::new(&model);
+    let n = 6;
+    let u: Vec<pinc::Input> = (0..n).map(|k| pinc::Input::new(2.0 + 0.5 * k as f64, 0.3, 4.0, 0.1)).collect();
+    let mut lin = pinc::runtime::HorizonLinearisation::new(n);
+    p.linearise_horizon(&mut p.workspace(), &pinc::State::from(X0), &u, &mut lin).unwrap();
+    let flat: Vec<f64> = u.iter().flat_map(|u| u.iter().copied()).collect();
+    let (mut t, mut a, mut b) = (vec![0.0; 9 * (n + 1)], vec![0.0; 81 * n], vec![0.0; 36 * n]);
+    let (mut q, mut w) = (null_mut(), null_mut());
+    // SAFETY: valid pointers and lengths; the handles are freed below.
+    unsafe {
+        assert_eq!(pinc_predictor_from_bytes(bytes.as_ptr(), bytes.len(), &mut q), PINC_OK);
+        assert_eq!(pinc_predictor_is_hybrid(q), 1);
+        assert_eq!(pinc_predictor_is_hybrid(Handles::load().0), 0);
+        assert_eq!(pinc_predictor_is_hybrid(null()), -1);
+        assert_eq!(pinc_workspace_new(q, &mut w), PINC_OK);
+        let rc =
+            pinc_linearise_horizon(q, w, X0.as_ptr(), flat.as_ptr(), n, t.as_mut_ptr(), a.as_mut_ptr(), b.as_mut_ptr());
+        assert_eq!(rc, PINC_OK, "{}", last_error());
+        pinc_workspace_free(w);
+        pinc_predictor_free(q);
+    }
+    for k in 0..=n {
+        assert_eq!(&t[9 * k..9 * (k + 1)], lin.trajectory()[k].as_slice(), "state {k}");
+    }
+    // Row-major A_k and B_k, as pinc.h documents.
+    for k in 0..n {
+        for r in 0..9 {
+            for c in 0..9 {
+                assert_eq!(a[81 * k + 9 * r + c], lin.a()[k][(r, c)]);
+            }
+            for c in 0..4 {
+                assert_eq!(b[36 * k + 4 * r + c], lin.b()[k][(r, c)]);
+            }
+        }
+    }
+}

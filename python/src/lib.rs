@@ -97,6 +97,13 @@ impl Predictor {
         self.inner.dt()
     }
 
+    /// Whether the model is a hybrid: its vehicle's RK4 step plus the network's correction
+    /// (steps, rollouts and Jacobians include the physics).
+    #[getter]
+    fn is_hybrid(&self) -> bool {
+        self.inner.is_hybrid()
+    }
+
     /// What the last `step`, `rollout` or `linearise` saw: `{"envelope_exits": steps with a state or input outside the
     /// training envelope, "heading_off_circle": predictions whose heading vector was off unit
     /// length by more than 1 % before rescaling}`.

@@ -18,4 +18,4 @@ pub use format::{
 #[cfg(feature = "tools")]
 pub use import_torch::import_state_dict;
 pub use summary::ModelSummary;
-pub use validate::validate;
+pub use validate::{MAX_SUBSTEPS, validate};

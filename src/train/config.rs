@@ -2,7 +2,7 @@
 //! in the frozen model's provenance).
 
 use super::GradCombine;
-use crate::model::Architecture;
+use crate::model::{Architecture, HybridPhysics};
 use crate::vehicle::VehicleParams;
 use serde::{Deserialize, Serialize};
 
@@ -133,6 +133,11 @@ pub struct TrainConfig {
     /// rollout losses train. Weights are selected only from epochs with every loss active.
     #[serde(default)]
     pub physics_after: f64,
+    /// Train a hybrid model: the network corrects `vehicle`'s RK4 step (this many sub-steps
+    /// per step) instead of predicting the whole transition, and starts at zero, as the
+    /// physics (docs/MODEL.md section 13). `None`: a PINC.
+    #[serde(default)]
+    pub hybrid: Option<HybridPhysics>,
 }
 
 fn one() -> usize {
@@ -170,6 +175,7 @@ impl TrainConfig {
             grad_refresh: 1,
             lr_schedule: LrSchedule::Plateau,
             physics_after: 0.0,
+            hybrid: None,
         }
     }
 
@@ -222,6 +228,14 @@ impl TrainConfig {
         }
         if !(0.0..1.0).contains(&self.physics_after) {
             return Err(format!("physics_after {}: need a fraction in [0, 1)", self.physics_after));
+        }
+        if let Some(h) = &self.hybrid {
+            if h.substeps == 0 || h.substeps > crate::model::MAX_SUBSTEPS {
+                return Err(format!("hybrid.substeps {}: need 1 to {}", h.substeps, crate::model::MAX_SUBSTEPS));
+            }
+            if !self.architecture.residual {
+                return Err("hybrid: the network must be residual (it corrects the physics' step)".into());
+            }
         }
         if self.time_limit_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
             return Err("time_limit_s must be positive".into());

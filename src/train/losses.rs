@@ -148,10 +148,11 @@ fn rollout_losses(
     let mut x = r.start.clone();
     let (mut data, mut phys): (Option<Tensor<1>>, Option<Tensor<1>>) = (None, None);
     let add = |acc: &mut Option<Tensor<1>>, v: Tensor<1>| *acc = Some(acc.take().map_or(v.clone(), |a| a + v));
-    for (u, target) in r.inputs.iter().zip(&r.targets) {
+    for (j, (u, target)) in r.inputs.iter().zip(&r.targets).enumerate() {
         let [w, _] = x.dims();
         let t = Tensor::full([w, 1], t_end, &device);
-        let pred = net.forward(x, u.clone(), t, want_physics);
+        // From the second step on, the state is the previous prediction.
+        let pred = net.forward_from(x, u.clone(), t, want_physics, j > 0);
         if let Some(rate) = pred.rate {
             add(&mut phys, mse(rate, rhs(params, pred.state.clone(), u.clone())));
         }

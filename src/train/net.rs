@@ -2,6 +2,8 @@
 //! every layer as ordinary tensor ops (burn has no double backward, so reverse mode must
 //! differentiate through the tangent for the physics loss).
 
+use super::hybrid::HybridStep;
+use super::physics::rhs;
 use crate::model::{Activation, Architecture, HiddenLayer, LayerNormWeights, Linear, PincModel, Weights};
 use crate::types::NX;
 use burn::module::{Module, Param};
@@ -30,6 +32,9 @@ pub struct PincNet {
     out_b: Param<Tensor<1>>,
     #[module(skip)]
     arch: Architecture,
+    /// A hybrid's physics: the network's output corrects its step instead of the state.
+    #[module(skip)]
+    hybrid: Option<HybridStep>,
 }
 
 /// A forward pass: the prediction and, if asked for, its time derivative.
@@ -82,7 +87,29 @@ impl PincNet {
             out_w: param2(xavier(w, NX), [w, NX], device),
             out_b: param1(vec![0.0; NX], device),
             arch: arch.clone(),
+            hybrid: None,
         }
+    }
+
+    /// This network as the correction of a hybrid model on `physics`: its output layer set to
+    /// zero, so that the model starts as the physics exactly (docs/MODEL.md section 13).
+    ///
+    /// # Panics
+    /// If the architecture is not residual (a hybrid's correction adds to the physics' step).
+    #[must_use]
+    pub fn into_hybrid(mut self, physics: HybridStep) -> Self {
+        assert!(self.arch.residual, "a hybrid network is residual");
+        let device = self.out_b.val().device();
+        let w = self.arch.width;
+        self.out_w = param2(vec![0.0; w * NX], [w, NX], &device);
+        self.out_b = param1(vec![0.0; NX], &device);
+        self.hybrid = Some(physics);
+        self
+    }
+
+    /// The hybrid's physics, if this network corrects one.
+    pub fn hybrid(&self) -> Option<&HybridStep> {
+        self.hybrid.as_ref()
     }
 
     /// The network of a frozen model (its scalings must be absent: the trainer uses none).
@@ -110,6 +137,7 @@ impl PincNet {
             out_w: param2(transpose(&m.weights.output), [m.weights.output.cols, NX], device),
             out_b: param1(m.weights.output.bias.clone(), device),
             arch: m.architecture.clone(),
+            hybrid: m.hybrid.map(|h| HybridStep { params: m.vehicle, substeps: h.substeps as usize }),
         }
     }
 
@@ -154,12 +182,24 @@ impl PincNet {
     }
 
     /// Forward pass from states `x [N, 9]`, held inputs `u [N, 4]` and times `t [N, 1]`;
-    /// with `tangent`, also `d x_hat / d t`.
+    /// with `tangent`, also `d x_hat / d t`. `x` is data (not a prediction).
     ///
     /// # Shapes
     /// - `x`: `[N, 9]`, `u`: `[N, 4]`, `t`: `[N, 1]`
     /// - returns `state` `[N, 9]` and `rate` `[N, 9]`
     pub fn forward(&self, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tangent: bool) -> Prediction {
+        self.forward_from(x, u, t, tangent, false)
+    }
+
+    /// [`PincNet::forward`] from a state that may be a prediction (`tracked`: a rollout's
+    /// later steps), whose gradient must then flow through a hybrid's physics too.
+    pub fn forward_from(&self, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tangent: bool, tracked: bool) -> Prediction {
+        // A hybrid's base: the physics over `t` and, for the tangent, its rate f(Phi_t, u).
+        let base = self.hybrid.as_ref().map(|h| {
+            let phi = h.step(x.clone(), u.clone(), t.clone(), tracked);
+            let rate = tangent.then(|| rhs(&h.params, phi.clone(), u.clone()));
+            (phi, rate)
+        });
         let device = x.device();
         let [n, _] = x.dims();
         let seen: Vec<i64> = self.arch.state_inputs.iter().map(|&i| i64::from(i)).collect();
@@ -213,13 +253,23 @@ impl PincNet {
         }
         let o = a.matmul(self.out_w.val()) + self.out_b.val().unsqueeze::<2>();
         let d_o = da.map(|d| d.matmul(self.out_w.val()));
-        self.compose(x, o, d_o)
+        match base {
+            Some((phi, rate)) => self.compose(Some(phi), rate, o, d_o),
+            None => self.compose(self.arch.residual.then_some(x), None, o, d_o),
+        }
     }
 
     /// Residual and rotation of the planar increments by the predicted yaw, with tangents.
-    fn compose(&self, x: Tensor<2>, o: Tensor<2>, d_o: Option<Tensor<2>>) -> Prediction {
+    /// `base` is what the output is added to (the state, a hybrid's physics step, or nothing)
+    /// and `base_rate` its time derivative (a hybrid's; a state's is zero).
+    fn compose(
+        &self,
+        base: Option<Tensor<2>>,
+        base_rate: Option<Tensor<2>>,
+        o: Tensor<2>,
+        d_o: Option<Tensor<2>>,
+    ) -> Prediction {
         let col = |t: &Tensor<2>, k: usize| t.clone().narrow(1, k, 1);
-        let base = if self.arch.residual { Some(x) } else { None };
         let plus = |k: usize| match &base {
             Some(x) => col(x, k) + col(&o, k),
             None => col(&o, k),
@@ -237,7 +287,12 @@ impl PincNet {
             None => increment,
         };
         let rate = d_o.map(|d| {
-            let (d0, d1, d3, d4) = (col(&d, 0), col(&d, 1), col(&d, 3), col(&d, 4));
+            // d c / d t and d s / d t include the base's own motion.
+            let (d0, d1) = (col(&d, 0), col(&d, 1));
+            let (d3, d4) = match &base_rate {
+                Some(r) => (col(r, 3) + col(&d, 3), col(r, 4) + col(&d, 4)),
+                None => (col(&d, 3), col(&d, 4)),
+            };
             let (ddx, ddy) = if self.arch.rotate_xy {
                 (
                     d3.clone() * o0.clone() + c.clone() * d0.clone() - d4.clone() * o1.clone() - s.clone() * d1.clone(),
@@ -246,7 +301,11 @@ impl PincNet {
             } else {
                 (d0, d1)
             };
-            Tensor::cat(vec![ddx, ddy, d.narrow(1, 2, NX - 2)], 1)
+            let increment = Tensor::cat(vec![ddx, ddy, d.narrow(1, 2, NX - 2)], 1);
+            match &base_rate {
+                Some(r) => r.clone() + increment,
+                None => increment,
+            }
         });
         Prediction { state, rate }
     }

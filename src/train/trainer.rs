@@ -5,11 +5,12 @@
 use super::GradCombine;
 use super::config::{Backend, LossKind, LrSchedule, TrainConfig};
 use super::grad_combine::{clip_global_norm, coefficients, weighted_sum};
+use super::hybrid::HybridStep;
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
-use crate::eval::{mean, one_step_mse, rollout_mse, vpt};
-use crate::model::{Envelope, PincModel, Provenance};
+use crate::eval::{mean, one_step_mse, rollout_mse_per_trajectory, vpt};
+use crate::model::{Envelope, HybridPhysics, PincModel, Provenance};
 use crate::runtime::Predictor;
 use crate::types::{NU, NX};
 use crate::vehicle::VehicleParams;
@@ -176,9 +177,10 @@ pub(super) fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
     v.out
 }
 
-/// Freezes `net` with the run's envelope, provenance and vehicle.
+/// Freezes `net` with the run's envelope, provenance and vehicle (a hybrid's physics).
 fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance, vehicle: VehicleParams) -> PincModel {
     PincModel {
+        hybrid: net.hybrid().map(|h| HybridPhysics { substeps: h.substeps as u32 }),
         architecture: net.architecture().clone(),
         dt,
         input_scaling: None,
@@ -190,13 +192,41 @@ fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance, v
     }
 }
 
-/// Dev metrics of a frozen model: (one-step MSE, 10-step rollout MSE, mean VPT).
-fn dev_metrics(model: &PincModel, dev: &TrajectorySet) -> (f64, f64, f64) {
+/// Dev metrics of a frozen model: (one-step MSE, 10-step rollout MSE, mean VPT), and the
+/// last two per dev window.
+fn dev_metrics(model: &PincModel, dev: &TrajectorySet) -> ((f64, f64, f64), PerWindow) {
     let p = Predictor::<f32>::new(model);
     let one = one_step_mse(&p, dev).unwrap_or(f64::INFINITY);
-    let roll = rollout_mse(&p, dev, 10).unwrap_or(f64::INFINITY);
-    let v = vpt(&p, dev).map(|v| mean(&v)).unwrap_or(0.0);
-    (one, roll, v)
+    let roll = rollout_mse_per_trajectory(&p, dev, 10).unwrap_or_else(|_| vec![f64::INFINITY; dev.count]);
+    let v = vpt(&p, dev).unwrap_or_else(|_| vec![0.0; dev.count]);
+    ((one, mean(&roll), mean(&v)), PerWindow { vpt: v, rollout10: roll })
+}
+
+/// A model's dev metrics window by window.
+#[derive(Debug, Clone)]
+struct PerWindow {
+    vpt: Vec<f64>,
+    rollout10: Vec<f64>,
+}
+
+impl PerWindow {
+    /// Whether `self` beats `base` on dev window by window beyond chance: the mean per-window
+    /// VPT gain and the mean per-window 10-step MSE reduction both above twice their standard
+    /// error (docs/MODEL.md section 13). A hybrid's correction must pass this against its
+    /// physics; on a few dev windows, a gain in the mean alone is as often noise.
+    fn clearly_better_than(&self, base: &PerWindow) -> bool {
+        let clear = |gains: Vec<f64>| {
+            let n = gains.len() as f64;
+            if n < 2.0 || gains.iter().any(|g| !g.is_finite()) {
+                return false;
+            }
+            let m = mean(&gains);
+            let var = gains.iter().map(|g| (g - m).powi(2)).sum::<f64>() / (n - 1.0);
+            m > 2.0 * (var / n).sqrt()
+        };
+        clear(self.vpt.iter().zip(&base.vpt).map(|(a, b)| a - b).collect())
+            && clear(self.rollout10.iter().zip(&base.rollout10).map(|(a, b)| b - a).collect())
+    }
 }
 
 /// Reduce-on-plateau with PyTorch's semantics (relative threshold 1e-4).
@@ -238,12 +268,17 @@ pub fn train(
     check_run(cfg, train_set, dev)?;
     let run = Run::new(cfg, train_set, dev, source);
     let mut net = PincNet::init(&cfg.architecture, cfg.seed, &run.device);
+    if let Some(h) = cfg.hybrid {
+        net = net.into_hybrid(HybridStep { params: cfg.vehicle, substeps: h.substeps as usize });
+    }
     let mut optim =
         AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7261_696e);
-    let mut best = {
-        let (model, metrics) = run.measure(&net, 0);
-        Best::of(model, 0, metrics)
+    // Epoch 0: for a hybrid, its physics (the network starts at zero), which a correction
+    // must beat clearly on dev to replace.
+    let (mut best, physics) = {
+        let (model, metrics, windows) = run.measure(&net, 0);
+        (Best::of(model, 0, metrics), cfg.hybrid.is_some().then_some(windows))
     };
     let mut schedule = Schedule { plateau: Plateau { best: f64::INFINITY, bad: 0 }, smoothed: f64::NAN, lr: cfg.lr };
     let mut history = Vec::new();
@@ -265,7 +300,7 @@ pub fn train(
         };
         // Under the curriculum, only weights trained with every loss count.
         let complete = active.iter().all(|&on| on);
-        let record = run.close_epoch(epoch, &net, losses, &mut schedule, &mut best, complete);
+        let record = run.close_epoch(epoch, &net, losses, &mut schedule, &mut best, complete, physics.as_ref());
         on_epoch(&record);
         history.push(record);
         if cfg.time_limit_s.is_some_and(|t| run.start.elapsed().as_secs_f64() >= t) && epoch < cfg.epochs {
@@ -390,11 +425,11 @@ impl<'a> Run<'a> {
     }
 
     /// `net` frozen after `epoch`, and its dev metrics (one-step MSE, 10-step rollout MSE,
-    /// mean VPT).
-    fn measure(&self, net: &PincNet, epoch: usize) -> (PincModel, (f64, f64, f64)) {
+    /// mean VPT; and per window).
+    fn measure(&self, net: &PincNet, epoch: usize) -> (PincModel, (f64, f64, f64), PerWindow) {
         let model = freeze(net, self.train_set.dt, &self.envelope, self.provenance(epoch), self.params);
-        let metrics = dev_metrics(&model, self.dev);
-        (model, metrics)
+        let (metrics, windows) = dev_metrics(&model, self.dev);
+        (model, metrics, windows)
     }
 
     /// How far the run is through its budget, in [0, 1]: the larger of the epochs' share and
@@ -516,8 +551,9 @@ impl<'a> Run<'a> {
         (values, g)
     }
 
-    /// After an epoch: dev metrics, the learning-rate schedule, best-on-dev selection, and
-    /// the epoch's record.
+    /// After an epoch: dev metrics, the learning-rate schedule, best-on-dev selection (for a
+    /// hybrid, only among epochs clearly better than its `physics`), and the epoch's record.
+    #[allow(clippy::too_many_arguments)] // the run's state, each named
     fn close_epoch(
         &self,
         epoch: usize,
@@ -526,9 +562,10 @@ impl<'a> Run<'a> {
         schedule: &mut Schedule,
         best: &mut Best,
         complete: bool,
+        physics: Option<&PerWindow>,
     ) -> EpochRecord {
         let cfg = self.cfg;
-        let (frozen, (one, roll, v)) = self.measure(net, epoch);
+        let (frozen, (one, roll, v), windows) = self.measure(net, epoch);
         schedule.smoothed = if schedule.smoothed.is_nan() {
             roll
         } else {
@@ -538,7 +575,9 @@ impl<'a> Run<'a> {
         if cfg.lr_schedule == LrSchedule::Plateau {
             schedule.lr = schedule.plateau.update(cfg, schedule.smoothed, schedule.lr);
         }
-        let is_best = complete && (v > best.vpt || (v == best.vpt && roll < best.rollout10));
+        let is_best = complete
+            && (v > best.vpt || (v == best.vpt && roll < best.rollout10))
+            && physics.is_none_or(|p| windows.clearly_better_than(p));
         if is_best {
             *best = Best::of(frozen, epoch, (one, roll, v));
         }

@@ -7,7 +7,7 @@ use burn::prelude::*;
 use pinc::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use pinc::runtime::Predictor;
 use pinc::train::{Batch, LossKind, PincNet, TrainConfig, loss};
-use pinc::vehicle::{self, VehicleParams};
+use pinc::vehicle;
 use pinc::{Input, State};
 use rand::SeedableRng;
 
@@ -41,13 +41,23 @@ fn assert_rel(got: f64, want: f64, what: &str) {
 
 #[test]
 fn every_loss_matches_the_runtime() {
+    losses_match_the_runtime(common::paper_4x32(21));
+}
+
+#[test]
+fn every_loss_of_a_hybrid_matches_the_runtime() {
+    // The physics (another vehicle than the data's) enters every loss, its time derivative
+    // included: the runtime's is by central differences of the RK4 step in its length.
+    losses_match_the_runtime(common::hybrid(common::paper_4x32(21), 16));
+}
+
+fn losses_match_the_runtime(model: pinc::model::PincModel) {
     let device = Device::flex();
     let set = small_set();
-    let model = common::paper_4x32(21);
     let net = PincNet::from_model(&model, &device);
     // burn computes the bare network: compare with the runtime without its heading rescaling.
     let p = Predictor::reference(&model).with_yaw_renormalisation(false);
-    let params = VehicleParams::default();
+    let params = model.vehicle;
     let mut cfg = TrainConfig::paper();
     cfg.rollout_steps = STEPS;
     cfg.rollout_stride = 1;
@@ -94,6 +104,7 @@ fn every_loss_matches_the_runtime() {
     zero.weights.output.weight.fill(0.0);
     zero.weights.output.bias.fill(0.0);
     let ic = value(loss(LossKind::InitialCondition, &PincNet::from_model(&zero, &device), &params, &batch));
+    // A hybrid's physics over t = 0 is the state itself (RK4 steps of length zero).
     assert_eq!(ic, 0.0);
     assert!(value(loss(LossKind::InitialCondition, &net, &params, &batch)) > 0.0);
 }

@@ -5,5 +5,6 @@
 mod common;
 
 mod agreement;
+mod hybrid;
 mod losses;
 mod smoke;

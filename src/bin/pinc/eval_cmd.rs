@@ -43,6 +43,10 @@ pub struct EvalArgs {
     /// for the --vehicle file's analytic model.
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// With --data: the set of the folder to evaluate on (a generated folder, `pinc gen-data`,
+    /// has `dev_eval` and the VPT sets instead of a test split).
+    #[arg(long, default_value = "test", requires = "data")]
+    pub set: String,
 }
 
 /// Generates the sets with a progress bar.
@@ -139,8 +143,9 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
         return Err("--data needs a --model or a --vehicle to evaluate".into());
     }
     let data = pinc::dataset::load(dir).map_err(|e| e.to_string())?;
-    let test = data.set("test").filter(|s| s.count > 0).ok_or_else(|| {
-        format!("{}: the dataset has no test windows (imported with a zero test fraction?)", dir.display())
+    let test = data.set(&a.set).filter(|s| s.count > 0).ok_or_else(|| match a.set.as_str() {
+        "test" => format!("{}: the dataset has no test windows (imported with a zero test fraction?)", dir.display()),
+        other => format!("{}: the dataset has no set {other:?} (or it is empty)", dir.display()),
     })?;
     let vehicle = a.vehicle.as_deref().map(|p| load_vehicle(Some(p))).transpose()?;
     let mut rows = Vec::new();
@@ -187,7 +192,14 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
         let v = if out.len() == 1 && a.vehicle.is_none() { out.remove(0) } else { serde_json::Value::Array(out) };
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
-        println!("test split of {} ({} windows of {} points at {} s)", dir.display(), test.count, test.points, test.dt);
+        println!(
+            "{} set of {} ({} windows of {} points at {} s)",
+            a.set,
+            dir.display(),
+            test.count,
+            test.points,
+            test.dt
+        );
         print_set_rows(&rows);
         if let Some(p) = &plot {
             println!("plot: {}", p.display());

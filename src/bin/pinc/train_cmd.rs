@@ -30,10 +30,22 @@ pub struct TrainArgs {
     /// splits, and the final metrics on its test split, instead of a generated preset.
     #[arg(long, conflicts_with = "preset")]
     pub data: Option<PathBuf>,
-    /// Vehicle file: the data are simulated with it and the physics losses use it (the model
-    /// records it) [default: the BlueROV2].
+    /// Vehicle file: the physics losses use it (the model records it), a preset's data are
+    /// simulated with it unless --plant says otherwise, and a --hybrid corrects it
+    /// [default: the BlueROV2].
     #[arg(long)]
     pub vehicle: Option<PathBuf>,
+    /// Train a hybrid model: the network learns a correction of --vehicle's RK4 step (an
+    /// identified vehicle file, typically) instead of the whole transition, starting at zero,
+    /// as the physics; selection on dev keeps the physics unless a correction beats it
+    /// (docs/MODEL.md section 13).
+    #[arg(long)]
+    pub hybrid: bool,
+    /// Vehicle file that simulates a preset's data when it is not --vehicle (a plant other
+    /// than the model's physics: a perturbed BlueROV2 with the nominal one as --vehicle)
+    /// [default: --vehicle].
+    #[arg(long, conflicts_with = "data")]
+    pub plant: Option<PathBuf>,
     /// Epochs [default: 1200].
     #[arg(long)]
     pub epochs: Option<usize>,
@@ -64,7 +76,7 @@ pub struct TrainArgs {
     /// Physics-loss collocation points per interval: 1 is t = T (the paper's best), more are a Latin hypercube in [0, T] [default: 1].
     #[arg(long)]
     pub collocation: Option<usize>,
-    /// Initial learning rate [default: 8e-3].
+    /// Initial learning rate [default: 8e-3; 1e-3 with --hybrid].
     #[arg(long)]
     pub lr: Option<f64>,
     /// Epochs without improvement of the smoothed dev loss before the rate halves [default: 100].
@@ -123,6 +135,9 @@ pub struct TrainArgs {
     #[arg(long)]
     pub json: bool,
 }
+
+/// A hybrid's default initial learning rate (docs/MODEL.md section 13).
+const HYBRID_LR: f64 = 1e-3;
 
 /// Gradient combination scheme names on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -185,7 +200,8 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     }
     cfg.rollout_steps = a.rollout_steps.unwrap_or(cfg.rollout_steps);
     cfg.rollout_stride = a.rollout_stride.unwrap_or(cfg.rollout_stride);
-    cfg.lr = a.lr.unwrap_or(cfg.lr);
+    // A correction is small: a hybrid starts slower than a PINC.
+    cfg.lr = a.lr.unwrap_or(if a.hybrid { HYBRID_LR } else { cfg.lr });
     cfg.patience = a.patience.unwrap_or(cfg.patience);
     cfg.time_limit_s = a.time_limit.map(|m| m * 60.0);
     if let Some(sched) = a.lr_schedule {
@@ -223,12 +239,22 @@ fn sibling(out: &Path, ext: &str) -> PathBuf {
 pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let mut cfg = config(&a)?;
     cfg.vehicle = load_vehicle(a.vehicle.as_deref())?;
-    let preset = a.preset.preset_for(cfg.vehicle);
+    let plant = match &a.plant {
+        Some(p) => load_vehicle(Some(p))?,
+        None => cfg.vehicle,
+    };
+    let preset = a.preset.preset_for(plant);
     let folder = a.data.as_deref().map(|d| pinc::dataset::load(d).map_err(|e| e.to_string())).transpose()?;
     let (train_set, dev) = match &folder {
         Some(data) => folder_sets(&a, data)?,
         None => training_sets(&a, &preset)?,
     };
+    if a.hybrid {
+        // Sub-steps of at most the default 5 ms over the data's sample period.
+        let substeps = pinc::vehicle::Rk4Vehicle::with_dt(train_set.dt).substeps as u32;
+        cfg.hybrid = Some(pinc::model::HybridPhysics { substeps });
+        cfg.check()?;
+    }
     let interrupt = Arc::new(AtomicBool::new(false));
     {
         let flag = interrupt.clone();
@@ -239,6 +265,10 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let source = match &a.data {
         Some(d) => format!("pinc train --data {}", d.display()),
         None => format!("pinc train --preset {}", preset.name),
+    };
+    let source = match a.hybrid {
+        true => format!("{source} --hybrid"),
+        false => source,
     };
     let all = train_with_progress(&a, &cfg, &train_set, &dev, &source, &interrupt, &csv_path)?;
     let outcome = all.best();
@@ -255,7 +285,7 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
                 .map_err(|e| format!("final evaluation failed: {e}"))?,
         ),
         None => {
-            let sets = eval_sets(&a.preset.preset_for(outcome.model.vehicle), a.seed, a.eval_count, a.json);
+            let sets = eval_sets(&preset, a.seed, a.eval_count, a.json);
             FinalMetrics::Paper(evaluate(&outcome.model, &sets).map_err(|e| format!("final evaluation failed: {e}"))?)
         }
     };
