@@ -17,6 +17,10 @@
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group};
+
+#[path = "common/mod.rs"]
+mod common;
+use common::median_ns;
 use pinc::estimation::{Measurement, NoiseSettings, Tracker};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig, Reference};
@@ -62,15 +66,6 @@ fn mpc_iteration(c: &mut Criterion) {
     let paper = load("paper_pinc.pinc");
     let pp = Predictor::reference(&paper);
     bench_model(c, "mpc_iteration_h20_paper", Predictor::reference(&paper), &pp);
-}
-
-/// Criterion's median estimate (ns) of bench `id` from this run's files.
-fn median_ns(id: &str) -> Option<f64> {
-    let dir = std::env::var("CARGO_TARGET_DIR").unwrap_or_else(|_| format!("{}/target", env!("CARGO_MANIFEST_DIR")));
-    let path = format!("{dir}/criterion/{id}/new/estimates.json");
-    let text = std::fs::read_to_string(path).ok()?;
-    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-    v["median"]["point_estimate"].as_f64()
 }
 
 /// One estimator sample: the model step with its Jacobians and three scalar updates.

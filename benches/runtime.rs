@@ -11,12 +11,19 @@
 //!   no tangent), so the runtime's advantage over the framework is measured in one run;
 //!   `burn_step_ndarray` on burn's ndarray device;
 //! - `rk4_step`: one 0.08 s sample period of the analytic vehicle (16 RK4 sub-steps), and
-//!   `rk4_linearise`: the same with the exact Jacobians of the discrete map.
+//!   `rk4_linearise`: the same with the exact Jacobians of the discrete map; `rk4_step_network`
+//!   the step in the network's state form (what a hybrid model integrates);
+//! - `hybrid_step`, `hybrid_linearise_h20`: the same network as the correction of a hybrid
+//!   model on the BlueROV2 (16 sub-steps); at the end, the ratio of `hybrid_step` to
+//!   `rk4_step_network` plus `step`, measured in this run.
 //!
 //! Run with `cargo bench --bench runtime`; criterion reports the median of each ID.
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, criterion_group};
+
+#[path = "common/mod.rs"]
+mod common;
 use pinc::model::{Activation, import_state_dict};
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::vehicle::{Rk4Vehicle, to_network};
@@ -109,7 +116,47 @@ fn rk4_step(c: &mut Criterion) {
     c.bench_function("rk4_step", |b| b.iter(|| vehicle.step_sim(black_box(&s), black_box(&u))));
     let x = to_network(&s);
     c.bench_function("rk4_linearise", |b| b.iter(|| vehicle.step_with_jacobians(black_box(&x), black_box(&u))));
+    c.bench_function("rk4_step_network", |b| b.iter(|| vehicle.step_network(black_box(&x), black_box(&u))));
 }
 
-criterion_group!(benches, network, burn_step, rk4_step);
-criterion_main!(benches);
+fn hybrid(c: &mut Criterion) {
+    let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
+    let mut model = import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap();
+    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16 });
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let (x, u) = (x0(), inputs(20));
+    let mut out = State::zeros();
+    c.bench_function("hybrid_step", |b| b.iter(|| p.step(&mut ws, black_box(&x), black_box(&u[0]), &mut out).unwrap()));
+    let mut lin = HorizonLinearisation::new(20);
+    c.bench_function("hybrid_linearise_h20", |b| {
+        b.iter(|| p.linearise_horizon(&mut ws, black_box(&x), black_box(&u), &mut lin).unwrap())
+    });
+}
+
+criterion_group!(benches, network, burn_step, rk4_step, hybrid);
+
+fn main() {
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+    let m = common::median_ns;
+    println!("\nhybrid / (its physics + its network), medians of this run:");
+    for (hybrid, parts) in
+        [("hybrid_step", ["rk4_step_network", "step"]), ("hybrid_linearise_h20", ["rk4_linearise", "linearise_h20"])]
+    {
+        match (m(hybrid), m(parts[0]), m(parts[1])) {
+            (Some(h), Some(a), Some(b)) => {
+                // The linearisation's physics part runs 20 times per horizon.
+                let physics = if hybrid == "hybrid_step" { a } else { 20.0 * a };
+                println!(
+                    "{hybrid:22} {:8.2} us / ({:.2} + {:.2}) us = {:.2}",
+                    h / 1e3,
+                    physics / 1e3,
+                    b / 1e3,
+                    h / (physics + b)
+                )
+            }
+            _ => println!("{hybrid:22} (not measured in this run)"),
+        }
+    }
+}

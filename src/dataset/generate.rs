@@ -1,11 +1,11 @@
 //! Seeded, bit-for-bit reproducible generation of a preset's trajectory sets.
 
+use super::collocation::{latin_hypercube, set_rng};
 use super::excitation::{apply_paper_scaling, sample_inputs};
 use super::{DatasetPreset, SetSpec};
 use crate::types::{Input, NS, SimState, State};
 use crate::vehicle::{Rk4Vehicle, VehicleParams, to_network};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use rand::Rng;
 
 /// One set of equally long trajectories, stored flat in trajectory-major order.
 #[derive(Debug, Clone, PartialEq)]
@@ -49,7 +49,7 @@ pub struct Dataset {
     /// The sets, in the preset's order.
     pub sets: Vec<TrajectorySet>,
     /// For a dataset imported from recorded runs: the files and options.
-    pub source: Option<super::import::ImportSource>,
+    pub source: Option<super::source::ImportSource>,
 }
 
 impl Dataset {
@@ -57,14 +57,6 @@ impl Dataset {
     pub fn set(&self, name: &str) -> Option<&TrajectorySet> {
         self.sets.iter().find(|s| s.name == name)
     }
-}
-
-/// Each set draws from its own ChaCha stream keyed by its name, so adding or resizing one
-/// set never changes another.
-fn set_rng(seed: u64, name: &str) -> ChaCha8Rng {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(u64::from(crc32fast::hash(name.as_bytes())));
-    rng
 }
 
 /// Generates one set with `vehicle`; `on_trajectory` is called after each trajectory (for
@@ -106,33 +98,6 @@ pub fn generate_set(
         on_trajectory();
     }
     set
-}
-
-/// Collocation times for `intervals` recorded intervals of the set `name`, `m` per interval,
-/// from the set's own stream of `seed` (as generation draws them, but without trajectories).
-pub(super) fn collocation_times(seed: u64, name: &str, intervals: usize, m: usize, dt: f64) -> Vec<f64> {
-    let mut rng = set_rng(seed, name);
-    let mut out = Vec::with_capacity(intervals * m);
-    for _ in 0..intervals {
-        latin_hypercube(&mut rng, m, dt, &mut out);
-    }
-    out
-}
-
-/// Appends `m` collocation times in `[0, dt]`: one at `dt` when `m == 1`, otherwise a
-/// Latin-hypercube sample (one uniform point in each of `m` equal strata, shuffled).
-fn latin_hypercube(rng: &mut impl Rng, m: usize, dt: f64, out: &mut Vec<f64>) {
-    if m == 1 {
-        out.push(dt);
-        return;
-    }
-    let start = out.len();
-    out.extend((0..m).map(|j| dt * (j as f64 + rng.random::<f64>()) / m as f64));
-    // Fisher–Yates, so strata are not in time order.
-    for i in (1..m).rev() {
-        let j = rng.random_range(0..=i);
-        out.swap(start + i, start + j);
-    }
 }
 
 /// Generates every set of `preset` from `seed`; `on_trajectory` is called after each

@@ -1,11 +1,13 @@
 //! The paper's datasets (docs/MODEL.md section 2) and an MPC operating-envelope preset: seeded
 //! generation with the analytic vehicle, and `.npy` + JSON storage numpy can read.
 
+mod collocation;
 mod error;
 mod excitation;
 mod generate;
 pub mod import;
 mod preset;
+mod source;
 mod storage;
 
 pub use error::DatasetError;

@@ -48,7 +48,7 @@ pub struct Manifest {
     /// For a dataset imported from recorded runs: the files (with their SHA-256), the
     /// options and what was skipped.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<super::import::ImportSource>,
+    pub source: Option<super::source::ImportSource>,
 }
 
 /// Manifest entry of one set.

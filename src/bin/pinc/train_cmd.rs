@@ -273,6 +273,14 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let all = train_with_progress(&a, &cfg, &train_set, &dev, &source, &interrupt, &csv_path)?;
     let outcome = all.best();
     report_stop(outcome);
+    let physics_kept = a.hybrid && outcome.best_epoch == 0;
+    if physics_kept && !a.json {
+        eprintln!(
+            "hybrid: no epoch's correction beat the physics clearly on dev (per-window VPT and 10-step MSE gains \
+             above twice their standard error): the model is its physics, the network's output zero; more data \
+             (longer or more runs) let a correction show"
+        );
+    }
     if a.members > 1 {
         report_members(&all, a.json);
     }
@@ -303,6 +311,8 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
             "stop": outcome.stop,
             "members": all.members.iter().map(|m| m.model.provenance.metrics["dev_vpt_s"]).collect::<Vec<_>>(),
             "member_kept": all.chosen,
+            "hybrid": a.hybrid,
+            "hybrid_physics_kept": physics_kept,
             "csv": csv_path.display().to_string(),
             "plot": png.display().to_string(),
         });

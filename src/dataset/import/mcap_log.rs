@@ -2,36 +2,11 @@
 //! (`/vehicle/state` field `sim`, `/mpc/command` field `input`); any log with a state topic
 //! and a command topic in that form works with its own topic and field names.
 
-use super::{ImportError, Recording};
+use super::{ImportError, McapTopics, Recording};
 use crate::types::{INPUT_NAMES, Input, NS, NU, SIM_STATE_NAMES, SimState};
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-
-/// Which topics and fields hold the state and the command.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct McapTopics {
-    /// Topic of the state messages.
-    pub state_topic: String,
-    /// Dotted path, inside a state message, of an object with keys `x y z psi u v w r`.
-    pub state_field: String,
-    /// Topic of the command messages.
-    pub command_topic: String,
-    /// Dotted path, inside a command message, of an object with keys `X Y Z Mz`.
-    pub command_field: String,
-}
-
-impl Default for McapTopics {
-    fn default() -> Self {
-        Self {
-            state_topic: "/vehicle/state".into(),
-            state_field: "sim".into(),
-            command_topic: "/mpc/command".into(),
-            command_field: "input".into(),
-        }
-    }
-}
 
 /// The numbers `names` of the object at `field` (a dotted path) in `msg`.
 fn numbers<const N: usize>(msg: &Value, field: &str, names: [&str; N]) -> Result<[f64; N], String> {

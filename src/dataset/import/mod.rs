@@ -14,6 +14,7 @@ mod streams;
 mod tlog;
 mod windows;
 
+pub use super::source::{ImportOptions, ImportSource, McapTopics, SkipCounts, SourceFile, StreamInfo, StreamReport};
 pub use ardupilot::{
     ArdupilotOptions, BLUEROV2_VECTORED_MIX, InputSource, ThrusterConversion, manual_control_axes, pilot_to_pwm,
 };
@@ -24,17 +25,16 @@ pub use csv_mapping::{
     read_mapped_csv,
 };
 pub use dataflash::read_bin;
-pub use mcap_log::{McapTopics, read_mcap};
-pub use resample::{StreamInfo, StreamReport, default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
+pub use mcap_log::read_mcap;
+pub use resample::{default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use ros2::{Ros2Options, read_ros2};
 pub use streams::{BodyFrame, CommandsToInput, Series, StreamSet, WorldFrame};
 pub use tlog::{TlogMessages, read_tlog, tlog_messages};
-pub use windows::{SkipCounts, cut_windows};
+pub use windows::cut_windows;
 
 use super::{Dataset, DatasetPreset, Excitation, InitialRanges, SetSpec, TrajectorySet};
 use crate::types::{Input, NS, SimState};
 use crate::vehicle::VehicleParams;
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// One log as read: its streams, its path and the SHA-256 of its bytes.
@@ -95,32 +95,6 @@ pub enum ImportError {
     Unusable(String),
 }
 
-/// The options of an import, recorded in the manifest.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ImportOptions {
-    /// `csv`, `mcap`, or both (`csv+mcap`) for a mix chosen by extension.
-    pub format: String,
-    /// Sample period of the dataset (s).
-    pub dt: f64,
-    /// Points per window (intervals + 1).
-    pub window: usize,
-    /// Fractions of train, dev and test.
-    pub split: [f64; 3],
-    /// Seed of the run shuffle and the collocation times.
-    pub seed: u64,
-    /// Collocation times per interval of the train split (as the presets: 1 is `t = dt`).
-    pub collocation_points: usize,
-    /// The topics and fields read from MCAP logs.
-    pub topics: Option<McapTopics>,
-    /// Longest step between two samples of a stream that is not a gap (s); `None`: per
-    /// stream, three of its median periods and at least `2 dt`.
-    #[serde(default)]
-    pub gap_tolerance: Option<f64>,
-    /// True when `dt` was chosen from the logs ([`log_dt`]) rather than given.
-    #[serde(default)]
-    pub dt_from_log: bool,
-}
-
 impl ImportOptions {
     /// Checks the numbers before any file is read.
     ///
@@ -145,39 +119,6 @@ impl ImportOptions {
         }
         Ok(())
     }
-}
-
-/// One imported file in the manifest.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SourceFile {
-    /// The path as given.
-    pub path: String,
-    /// SHA-256 of its bytes (hex, as `sha256sum` prints it).
-    pub sha256: String,
-    /// Rows at the dataset's period after resampling (the log's rows when it was recorded at
-    /// that period).
-    pub rows: usize,
-    /// Windows cut from it.
-    pub windows: usize,
-    /// The split its windows went to (`train`, `dev`, `test`, or `time` when every run was
-    /// split by time).
-    pub split: String,
-    /// Each stream's rate, span and gaps, and the reader's notes.
-    #[serde(default)]
-    pub report: StreamReport,
-}
-
-/// Where an imported dataset came from: written into its manifest.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ImportSource {
-    /// The files, in the order given.
-    pub files: Vec<SourceFile>,
-    /// The options.
-    pub options: ImportOptions,
-    /// `run` (whole runs per split) or `time` (each run split by time, one window apart).
-    pub split_by: String,
-    /// Samples that went into no window, by reason.
-    pub skipped: SkipCounts,
 }
 
 /// Builds the dataset from row-aligned recordings (CSV, MCAP): each goes through
@@ -257,8 +198,13 @@ pub fn import_logs(logs: &[LogFile], options: &ImportOptions) -> Result<Dataset,
             set.states.extend(w.states.iter().map(crate::vehicle::to_network));
             set.inputs.extend_from_slice(&w.inputs);
         }
-        set.collocation =
-            super::generate::collocation_times(options.seed, name, ws.len() * (options.window - 1), colloc, options.dt);
+        set.collocation = super::collocation::collocation_times(
+            options.seed,
+            name,
+            ws.len() * (options.window - 1),
+            colloc,
+            options.dt,
+        );
         specs.push(SetSpec {
             name: name.to_string(),
             count: set.count,

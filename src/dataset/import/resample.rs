@@ -3,50 +3,15 @@
 //! period as the zero-order-hold signals they are, gaps left out.
 
 use super::streams::{Series, StreamSet};
-use super::{ImportError, Recording};
+use super::{ImportError, Recording, StreamInfo, StreamReport};
 use crate::types::{Input, SimState};
 use crate::vehicle::wrap_angle;
-use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::Path;
 
 /// A grid time within this fraction of `dt` of a sample time is that sample: a log at the
 /// dataset's period is taken row by row, unchanged.
 const SNAP: f64 = 1e-6;
-
-/// One stream of a log as the import found it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StreamInfo {
-    /// The quantity: `position`, `depth`, `attitude`, `velocity_ned`, `velocity_body`,
-    /// `yaw_rate` or `input`.
-    pub name: String,
-    /// Where the reader took it from.
-    pub source: String,
-    /// Samples with a finite time stamp.
-    pub samples: usize,
-    /// Median rate (Hz): one over the median time step; absent with fewer than two samples.
-    pub rate_hz: Option<f64>,
-    /// First and last time stamp (s).
-    pub span_s: Option<(f64, f64)>,
-    /// Steps between consecutive samples longer than `gap_tolerance_s`.
-    pub gaps: usize,
-    /// The longest step between consecutive samples (s).
-    pub longest_step_s: f64,
-    /// The tolerance its gaps were judged by (s).
-    pub gap_tolerance_s: f64,
-    /// Samples dropped because their time stamp was not finite or went backwards.
-    pub dropped: usize,
-}
-
-/// What the import found in one file: each stream, and the reader's and the resampling's
-/// notes.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct StreamReport {
-    /// One entry per stream present.
-    pub streams: Vec<StreamInfo>,
-    /// What the reader and the resampling assumed, one line each.
-    pub notes: Vec<String>,
-}
 
 /// A stream with sorted, finite time stamps (a repeated stamp keeps the later sample).
 struct Clean<const N: usize> {

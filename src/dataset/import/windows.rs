@@ -1,40 +1,16 @@
 //! Resampling a recorded run to the sample period, cutting it into windows where it is
 //! whole, and assigning windows to splits.
 
-use super::{ImportError, Recording};
+use super::{ImportError, Recording, SkipCounts};
 use crate::types::{Input, SimState};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
 /// Relative tolerance on a time step: a step within 10 % of the log's period continues the run.
 const STEP_TOLERANCE: f64 = 0.1;
 /// How close `dt / period` must be to an integer for decimation.
 const RATIO_TOLERANCE: f64 = 1e-3;
-
-/// Samples that went into no window, by reason.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct SkipCounts {
-    /// Rows holding a NaN or an infinity.
-    pub non_finite_rows: usize,
-    /// Time steps longer than the log's period (each ends a window).
-    pub gaps: usize,
-    /// Time stamps not after the previous one (each ends a window).
-    pub non_monotonic: usize,
-    /// Whole rows left over at the ends of stretches, too short for one more window.
-    pub tail_rows: usize,
-}
-
-impl SkipCounts {
-    /// Adds another run's counts.
-    pub fn add(&mut self, o: &SkipCounts) {
-        self.non_finite_rows += o.non_finite_rows;
-        self.gaps += o.gaps;
-        self.non_monotonic += o.non_monotonic;
-        self.tail_rows += o.tail_rows;
-    }
-}
 
 impl std::fmt::Display for SkipCounts {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
