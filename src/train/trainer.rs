@@ -594,3 +594,29 @@ impl<'a> Run<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod gate_tests {
+    use super::PerWindow;
+
+    fn windows(vpt: &[f64], rollout10: &[f64]) -> PerWindow {
+        PerWindow { vpt: vpt.to_vec(), rollout10: rollout10.to_vec() }
+    }
+
+    #[test]
+    fn a_correction_must_win_window_by_window_on_both_metrics() {
+        let physics = windows(&[1.0; 8], &[1e-2; 8]);
+        // Better everywhere, by a little: clear.
+        let steady = windows(&[1.1, 1.2, 1.1, 1.15, 1.1, 1.2, 1.1, 1.1], &[8e-3; 8]);
+        assert!(steady.clearly_better_than(&physics));
+        // A larger mean VPT from one window, worse on the rest: not clear.
+        let lucky = windows(&[4.0, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9], &[8e-3; 8]);
+        assert!(!lucky.clearly_better_than(&physics));
+        // Longer predictions but a worse 10-step error: not clear.
+        assert!(!windows(&[1.2; 8], &[1.1e-2; 8]).clearly_better_than(&physics));
+        // Equal (the physics itself), one window, or a diverged window: never.
+        assert!(!physics.clearly_better_than(&physics));
+        assert!(!windows(&[2.0], &[1e-3]).clearly_better_than(&windows(&[1.0], &[1e-2])));
+        assert!(!windows(&[1.2; 8], &[f64::INFINITY; 8]).clearly_better_than(&physics));
+    }
+}

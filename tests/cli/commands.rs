@@ -425,3 +425,39 @@ fn estimate_without_the_position_recovers_heave_and_yaw_rate_of_a_simulator_log(
     eprintln!("without the position against with it, {n} samples: RMS w {:.3} m/s, r {:.4} rad/s", rms[0], rms[1]);
     assert!(rms[0] < 0.1 && rms[1] < 0.05, "RMS w, r: {rms:?}");
 }
+
+/// `--hybrid` on a preset: the file is a hybrid of the --vehicle, and a run whose correction
+/// cannot beat the physics on dev (here the data's plant, given by `--plant`, is the
+/// physics itself: no correction can predict better) is its physics exactly, and says so.
+#[cfg(feature = "train")]
+#[test]
+fn a_hybrid_that_cannot_beat_its_physics_is_its_physics() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("hybrid.pinc");
+    let m = model.to_str().unwrap();
+    let plant = write(dir.path(), "plant.toml", "x_uu = -34.96\n");
+    let args = ["--preset", "mpc", "--plant", &plant, "--hybrid", "--heading-free", "--json", "--out", m];
+    let out = pinc(&[&["train"], TINY_TRAINING, &args[..]].concat());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (v["hybrid"].as_bool(), v["hybrid_physics_kept"].as_bool(), v["best_epoch"].as_u64()),
+        (Some(true), Some(true), Some(0))
+    );
+    let frozen = pinc::model::PincModel::load(&model).unwrap();
+    assert_eq!(frozen.hybrid, Some(pinc::model::HybridPhysics { substeps: 16 }));
+    assert_eq!(frozen.vehicle, pinc::vehicle::VehicleParams::default());
+    assert_eq!(frozen.architecture.state_inputs, vec![5, 6, 7, 8]);
+    // Its rollout is the BlueROV2's.
+    let p = pinc::runtime::Predictor::reference(&frozen);
+    let s0 = pinc::SimState::from([0.0, 0.0, 1.0, 0.3, 0.5, 0.0, 0.1, 0.2]);
+    let u = vec![pinc::Input::new(20.0, -5.0, 10.0, 2.0); 30];
+    let mut traj = vec![pinc::State::zeros(); 31];
+    p.rollout(&mut p.workspace(), &pinc::vehicle::to_network(&s0), &u, &mut traj).unwrap();
+    let truth = pinc::vehicle::Rk4Vehicle::default().simulate(&s0, &u);
+    let worst = traj.iter().zip(&truth).map(|(x, s)| (x - pinc::vehicle::to_network(s)).amax()).fold(0.0, f64::max);
+    assert!(worst < 1e-9, "{worst:e}");
+    let text = String::from_utf8(pinc(&["inspect", m]).stdout).unwrap();
+    assert!(text.contains("hybrid: the vehicle below (RK4, 16 sub-steps per step)"), "{text}");
+    assert!(text.contains("x_uu = -34.96"), "every coefficient of the physics: {text}");
+}

@@ -117,6 +117,11 @@ pub struct TrainArgs {
     /// it, so the model is not confined to the positions it was trained at.
     #[arg(long)]
     pub position_free: bool,
+    /// Keep the heading out of the network input too: it sees the body velocities and the
+    /// input only. For a hybrid's correction: the vehicle's dynamics do not depend on where it
+    /// points, and a correction that could would hand the controller a heading-dependent bias.
+    #[arg(long)]
+    pub heading_free: bool,
     /// Use only the first N training trajectories' worth (a smaller generated set).
     #[arg(long)]
     pub train_count: Option<usize>,
@@ -175,6 +180,9 @@ fn config(a: &TrainArgs) -> Result<TrainConfig, String> {
     }
     if a.position_free {
         cfg.architecture.state_inputs = (3..pinc::NX as u8).collect();
+    }
+    if a.heading_free {
+        cfg.architecture.state_inputs = (5..pinc::NX as u8).collect();
     }
     if let Some(list) = &a.losses {
         let mut keep = Vec::new();
