@@ -133,7 +133,7 @@ enum Command {
         #[arg(long, value_enum, default_value = "softplus")]
         activation: ActivationName,
     },
-    /// Train a PINC (or a data-only baseline) and freeze the best-on-dev weights.
+    /// Train a PINC (or a data-only baseline, or with --hybrid a learned correction of a vehicle file) and freeze the best-on-dev weights.
     ///
     /// Writes OUT (the model), OUT with .csv (metrics per epoch) and .png (curves).
     #[cfg(feature = "train")]
