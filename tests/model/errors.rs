@@ -8,9 +8,9 @@ fn good_bytes() -> Vec<u8> {
 }
 
 /// Re-frames `payload` with a valid header and checksum, so only the payload is at fault.
-fn framed(payload: &[u8]) -> Vec<u8> {
+pub(crate) fn framed(payload: &[u8], version: u32) -> Vec<u8> {
     let mut out = MAGIC.to_vec();
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&version.to_le_bytes());
     out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
     out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
     out.extend_from_slice(payload);
@@ -91,7 +91,7 @@ fn rejects_huge_length_prefix_inside_the_payload() {
     let mut evil = vec![0xFD];
     evil.extend_from_slice(&(1u64 << 62).to_le_bytes());
     evil.extend_from_slice(&payload[1..]);
-    let err = PincModel::from_bytes(&framed(&evil)).unwrap_err();
+    let err = PincModel::from_bytes(&framed(&evil, FORMAT_VERSION)).unwrap_err();
     assert!(matches!(err, ModelError::Decode(_)), "{err}");
 }
 

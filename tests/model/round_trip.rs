@@ -53,13 +53,7 @@ fn the_vehicle_is_recorded_and_version_1_files_read_as_the_bluerov2() {
 
 /// `bytes` re-framed as another format version with the payload cut by `drop` bytes.
 fn reframed(bytes: &[u8], version: u32, drop: usize) -> Vec<u8> {
-    let payload = &bytes[pinc::model::HEADER_SIZE..bytes.len() - drop];
-    let mut out = bytes[..8].to_vec();
-    out.extend_from_slice(&version.to_le_bytes());
-    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
-    out.extend_from_slice(payload);
-    out
+    crate::errors::framed(&bytes[pinc::model::HEADER_SIZE..bytes.len() - drop], version)
 }
 
 #[test]
