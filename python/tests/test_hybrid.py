@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import pinc
-from finite_differences import central_differences
 import pinc.casadi
+from finite_differences import central_differences
 
 ROOT = Path(__file__).resolve().parents[2]
 HYBRID = ROOT / "models" / "hybrid_plant_a.pinc"
