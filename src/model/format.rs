@@ -257,6 +257,16 @@ impl From<PincModelV1> for PincModel {
 }
 
 impl PincModel {
+    /// A hybrid model's physics: its vehicle with the file's sub-steps over the model's
+    /// sample period; `None` for a PINC.
+    pub fn hybrid_vehicle(&self) -> Option<crate::vehicle::Rk4Vehicle> {
+        self.hybrid.map(|h| crate::vehicle::Rk4Vehicle {
+            params: self.vehicle,
+            dt: self.dt,
+            substeps: h.substeps as usize,
+        })
+    }
+
     /// Number of learned scalars.
     pub fn parameter_count(&self) -> usize {
         let lin = |l: &Linear| l.weight.len() + l.bias.len();

@@ -152,12 +152,12 @@ impl<T: Real> Predictor<T> {
                 let o: [[f64; LANES]; NX] =
                     std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * LANES + b].to_f64()));
                 let x: &mut [[f64; LANES]; NX] = (&mut ws.states[..]).try_into().expect("NX components");
-                if let Some(p) = &self.physics {
+                if let Some(p) = self.physics.map(|p| p.over(dt)) {
                     // A hybrid's output is added to the physics' step, lane by lane.
                     for b in (0..block.lanes).filter(|&b| !dead[b]) {
                         let xb = State::from_fn(|c, _| x[c][b]);
                         let ub = Input::from_fn(|c, _| u[c][b]);
-                        let next = p.step(&xb, &ub, dt);
+                        let next = p.step_network(&xb, &ub);
                         for c in 0..NX {
                             x[c][b] = next[c];
                         }

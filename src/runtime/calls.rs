@@ -142,7 +142,7 @@ impl<T: Real> Predictor<T> {
             self.check_args(ws, k, &x, u)?;
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false);
             let base = match &self.physics {
-                Some(p) => p.step(&x, u, dt),
+                Some(p) => p.over(dt).step_network(&x, u),
                 None => x,
             };
             let (next, heading) = self.output.apply(&base, &o);
@@ -172,7 +172,7 @@ impl<T: Real> Predictor<T> {
             self.check_args(ws, k, &x, u)?;
             let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true);
             self.net.reverse::<F>(&mut ws.net);
-            let physics = self.physics.map(|p| p.linearise(&x, u, self.dt));
+            let physics = self.physics.map(|p| p.step_with_jacobians(&x, u));
             let (base, base_jacobians) = match &physics {
                 Some((s, pa, pb)) => (*s, Some((pa, pb))),
                 None => (x, None),

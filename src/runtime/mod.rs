@@ -29,7 +29,6 @@ mod error;
 mod horizon;
 mod kernels;
 mod output_map;
-mod physics;
 mod predictor;
 
 pub use batch::{BatchWorkspace, LANES};

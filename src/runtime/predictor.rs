@@ -6,9 +6,9 @@ use super::envelope::{EnvelopeCheck, EnvelopeStatus};
 use super::error::{RuntimeError, check_input, check_state};
 use super::kernels::{Avx2Fma, NetScratch, Network, Real};
 use super::output_map::OutputMap;
-use super::physics::HybridBase;
 use crate::model::{Envelope, PincModel};
 use crate::types::{Input, State};
+use crate::vehicle::Rk4Vehicle;
 
 /// A frozen PINC ready to run: `x_hat(t) = x + N([x_seen, u, t])` with the planar
 /// increments rotated by the predicted yaw (docs/MODEL.md section 3); or a hybrid model,
@@ -53,8 +53,9 @@ pub struct Predictor<T: Real = f32> {
     pub(crate) output: OutputMap,
     pub(crate) dt: f64,
     pub(crate) envelope: EnvelopeCheck,
-    /// A hybrid model's analytic part: the state the network's output is added to.
-    pub(crate) physics: Option<HybridBase>,
+    /// A hybrid model's analytic part, whose step the network's output is added to
+    /// (docs/MODEL.md section 13); in `f64` whatever `T` is.
+    pub(crate) physics: Option<Rk4Vehicle>,
     /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
     pub(crate) cpu: Option<Avx2Fma>,
 }
@@ -95,7 +96,7 @@ impl<T: Real> Predictor<T> {
             net,
             output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: true },
             dt: model.dt,
-            physics: HybridBase::of(model),
+            physics: model.hybrid_vehicle(),
             cpu: Avx2Fma::detect(),
         }
     }
@@ -139,9 +140,9 @@ impl<T: Real> Predictor<T> {
         self.physics.is_some()
     }
 
-    /// A hybrid model's physics: its vehicle and RK4 sub-steps per step.
-    pub fn hybrid_physics(&self) -> Option<(&crate::vehicle::VehicleParams, usize)> {
-        self.physics.as_ref().map(|p| (p.params(), p.substeps()))
+    /// A hybrid model's physics: its vehicle and RK4 sub-steps over the model's period.
+    pub fn hybrid_vehicle(&self) -> Option<&Rk4Vehicle> {
+        self.physics.as_ref()
     }
 
     /// Indices of the 9-state components the network sees.

@@ -7,59 +7,49 @@
 
 use super::net::to_f32;
 use crate::types::{Input, NU, NX, State};
-use crate::vehicle::{Rk4Vehicle, VehicleParams};
+use crate::vehicle::Rk4Vehicle;
 use burn::prelude::*;
 use rayon::prelude::*;
 
-/// The vehicle a hybrid network corrects, and its RK4 sub-steps per step.
-#[derive(Debug, Clone, Copy)]
-pub struct HybridStep {
-    /// The vehicle's coefficients.
-    pub params: VehicleParams,
-    /// RK4 sub-steps over any step length.
-    pub substeps: usize,
-}
-
-impl HybridStep {
-    /// `Phi_t(x, u)` per row; with `tracked`, the gradient flows into `x` through the step's
-    /// Jacobian (`x` is then a prediction, not data).
-    ///
-    /// # Shapes
-    /// - `x`: `[N, 9]`, `u`: `[N, 4]`, `t`: `[N, 1]`; returns `[N, 9]`
-    pub fn step(&self, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tracked: bool) -> Tensor<2> {
-        let device = x.device();
-        let [n, _] = x.dims();
-        let (xs, us, ts) = (to_f32(x.clone().detach()), to_f32(u), to_f32(t));
-        let row = |i: usize| {
-            let xi = State::from_fn(|c, _| f64::from(xs[i * NX + c]));
-            let ui = Input::from_fn(|c, _| f64::from(us[i * NU + c]));
-            (Rk4Vehicle { params: self.params, dt: f64::from(ts[i]), substeps: self.substeps }, xi, ui)
-        };
-        if !tracked {
-            let next: Vec<f32> = (0..n)
-                .into_par_iter()
-                .flat_map_iter(|i| {
-                    let (v, xi, ui) = row(i);
-                    v.step_network(&xi, &ui).iter().map(|&c| c as f32).collect::<Vec<_>>()
-                })
-                .collect();
-            return Tensor::from_data(TensorData::new(next, [n, NX]), &device);
-        }
-        let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..n)
+/// `Phi_t(x, u)` per row: `vehicle` with its sub-step count over each row's `t`; with
+/// `tracked`, the gradient flows into `x` through the step's Jacobian (`x` is then a
+/// prediction, not data).
+///
+/// # Shapes
+/// - `x`: `[N, 9]`, `u`: `[N, 4]`, `t`: `[N, 1]`; returns `[N, 9]`
+pub fn physics_step(vehicle: &Rk4Vehicle, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tracked: bool) -> Tensor<2> {
+    let device = x.device();
+    let [n, _] = x.dims();
+    let (xs, us, ts) = (to_f32(x.clone().detach()), to_f32(u), to_f32(t));
+    let row = |i: usize| {
+        let xi = State::from_fn(|c, _| f64::from(xs[i * NX + c]));
+        let ui = Input::from_fn(|c, _| f64::from(us[i * NU + c]));
+        (vehicle.over(f64::from(ts[i])), xi, ui)
+    };
+    if !tracked {
+        let next: Vec<f32> = (0..n)
             .into_par_iter()
-            .map(|i| {
+            .flat_map_iter(|i| {
                 let (v, xi, ui) = row(i);
-                let (next, a, _) = v.step_with_jacobians(&xi, &ui);
-                // Row-major: a[(r, c)] at r * 9 + c.
-                let jac = (0..NX * NX).map(|k| a[(k / NX, k % NX)] as f32).collect();
-                (next.iter().map(|&c| c as f32).collect(), jac)
+                v.step_network(&xi, &ui).iter().map(|&c| c as f32).collect::<Vec<_>>()
             })
             .collect();
-        let (next, jac): (Vec<Vec<f32>>, Vec<Vec<f32>>) = rows.into_iter().unzip();
-        let value = Tensor::<2>::from_data(TensorData::new(next.concat(), [n, NX]), &device);
-        let jac = Tensor::<3>::from_data(TensorData::new(jac.concat(), [n, NX, NX]), &device);
-        // Zero in value; its gradient is d Phi / d x applied to the gradient arriving here.
-        let deviation = (x.clone() - x.detach()).unsqueeze_dim::<3>(1); // [N, 1, 9]
-        value + (jac * deviation).sum_dim(2).reshape([n, NX])
+        return Tensor::from_data(TensorData::new(next, [n, NX]), &device);
     }
+    let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (v, xi, ui) = row(i);
+            let (next, a, _) = v.step_with_jacobians(&xi, &ui);
+            // Row-major: a[(r, c)] at r * 9 + c.
+            let jac = (0..NX * NX).map(|k| a[(k / NX, k % NX)] as f32).collect();
+            (next.iter().map(|&c| c as f32).collect(), jac)
+        })
+        .collect();
+    let (next, jac): (Vec<Vec<f32>>, Vec<Vec<f32>>) = rows.into_iter().unzip();
+    let value = Tensor::<2>::from_data(TensorData::new(next.concat(), [n, NX]), &device);
+    let jac = Tensor::<3>::from_data(TensorData::new(jac.concat(), [n, NX, NX]), &device);
+    // Zero in value; its gradient is d Phi / d x applied to the gradient arriving here.
+    let deviation = (x.clone() - x.detach()).unsqueeze_dim::<3>(1); // [N, 1, 9]
+    value + (jac * deviation).sum_dim(2).reshape([n, NX])
 }

@@ -13,7 +13,7 @@ mod trainer;
 
 pub use config::{Backend, LossKind, LrSchedule, TrainConfig};
 pub use grad_combine::{GradCombine, clip_global_norm, coefficients, combine, weighted_sum};
-pub use hybrid::HybridStep;
+pub use hybrid::physics_step;
 pub use losses::{Batch, RolloutBatch, joint_losses, loss};
 pub use members::{MembersOutcome, member_seed, train_members};
 pub use net::{LAYER_NORM_EPS, PincNet, Prediction};

@@ -2,10 +2,11 @@
 //! every layer as ordinary tensor ops (burn has no double backward, so reverse mode must
 //! differentiate through the tangent for the physics loss).
 
-use super::hybrid::HybridStep;
+use super::hybrid::physics_step;
 use super::physics::rhs;
 use crate::model::{Activation, Architecture, HiddenLayer, LayerNormWeights, Linear, PincModel, Weights};
 use crate::types::NX;
+use crate::vehicle::Rk4Vehicle;
 use burn::module::{Module, Param};
 use burn::prelude::*;
 use burn::tensor::activation;
@@ -34,7 +35,7 @@ pub struct PincNet {
     arch: Architecture,
     /// A hybrid's physics: the network's output corrects its step instead of the state.
     #[module(skip)]
-    hybrid: Option<HybridStep>,
+    hybrid: Option<Rk4Vehicle>,
 }
 
 /// A forward pass: the prediction and, if asked for, its time derivative.
@@ -97,7 +98,7 @@ impl PincNet {
     /// # Panics
     /// If the architecture is not residual (a hybrid's correction adds to the physics' step).
     #[must_use]
-    pub fn into_hybrid(mut self, physics: HybridStep) -> Self {
+    pub fn into_hybrid(mut self, physics: Rk4Vehicle) -> Self {
         assert!(self.arch.residual, "a hybrid network is residual");
         let device = self.out_b.val().device();
         let w = self.arch.width;
@@ -108,7 +109,7 @@ impl PincNet {
     }
 
     /// The hybrid's physics, if this network corrects one.
-    pub fn hybrid(&self) -> Option<&HybridStep> {
+    pub fn hybrid(&self) -> Option<&Rk4Vehicle> {
         self.hybrid.as_ref()
     }
 
@@ -137,7 +138,7 @@ impl PincNet {
             out_w: param2(transpose(&m.weights.output), [m.weights.output.cols, NX], device),
             out_b: param1(m.weights.output.bias.clone(), device),
             arch: m.architecture.clone(),
-            hybrid: m.hybrid.map(|h| HybridStep { params: m.vehicle, substeps: h.substeps as usize }),
+            hybrid: m.hybrid_vehicle(),
         }
     }
 
@@ -196,7 +197,7 @@ impl PincNet {
     pub fn forward_from(&self, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tangent: bool, tracked: bool) -> Prediction {
         // A hybrid's base: the physics over `t` and, for the tangent, its rate f(Phi_t, u).
         let base = self.hybrid.as_ref().map(|h| {
-            let phi = h.step(x.clone(), u.clone(), t.clone(), tracked);
+            let phi = physics_step(h, x.clone(), u.clone(), t.clone(), tracked);
             let rate = tangent.then(|| rhs(&h.params, phi.clone(), u.clone()));
             (phi, rate)
         });

@@ -5,7 +5,6 @@
 use super::GradCombine;
 use super::config::{Backend, LossKind, LrSchedule, TrainConfig};
 use super::grad_combine::{clip_global_norm, coefficients, weighted_sum};
-use super::hybrid::HybridStep;
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
@@ -13,7 +12,7 @@ use crate::eval::{mean, one_step_mse, rollout_mse_per_trajectory, vpt};
 use crate::model::{Envelope, HybridPhysics, PincModel, Provenance};
 use crate::runtime::Predictor;
 use crate::types::{NU, NX};
-use crate::vehicle::VehicleParams;
+use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -269,7 +268,7 @@ pub fn train(
     let run = Run::new(cfg, train_set, dev, source);
     let mut net = PincNet::init(&cfg.architecture, cfg.seed, &run.device);
     if let Some(h) = cfg.hybrid {
-        net = net.into_hybrid(HybridStep { params: cfg.vehicle, substeps: h.substeps as usize });
+        net = net.into_hybrid(Rk4Vehicle { params: cfg.vehicle, dt: train_set.dt, substeps: h.substeps as usize });
     }
     let mut optim =
         AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();

@@ -54,6 +54,13 @@ impl Rk4Vehicle {
         Self { dt, substeps, ..Self::default() }
     }
 
+    /// The same vehicle and sub-step count over a step of `dt` (each sub-step `dt / substeps`):
+    /// how a hybrid model integrates its physics over whatever step it is asked for.
+    #[must_use]
+    pub fn over(&self, dt: f64) -> Self {
+        Self { dt, ..*self }
+    }
+
     fn h(&self) -> f64 {
         self.dt / self.substeps as f64
     }

@@ -6,7 +6,7 @@ use crate::common;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use pinc::runtime::Predictor;
-use pinc::train::{HybridStep, PincNet};
+use pinc::train::PincNet;
 use pinc::vehicle::Rk4Vehicle;
 use pinc::{Input, State};
 
@@ -40,8 +40,7 @@ const W: [f64; 9] = [1.0, -0.5, 2.0, 0.3, 0.7, 3.0, -2.0, 1.5, 4.0];
 fn a_fresh_hybrid_network_is_its_physics() {
     let device = Device::flex();
     let model = common::hybrid(common::paper_4x32(5), 16);
-    let physics = HybridStep { params: model.vehicle, substeps: 16 };
-    let net = PincNet::init(&model.architecture, 3, &device).into_hybrid(physics);
+    let net = PincNet::init(&model.architecture, 3, &device).into_hybrid(model.hybrid_vehicle().unwrap());
     let (x0, u) = start();
     let got: Vec<f32> = burn_rollout(&net, &x0, &u, &device).try_into_vec_as::<f32>().unwrap();
     let vehicle = Rk4Vehicle { params: model.vehicle, dt: 0.08, substeps: 16 };

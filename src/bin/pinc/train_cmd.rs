@@ -273,11 +273,7 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let source = match &a.data {
         Some(d) => format!("pinc train --data {}", d.display()),
         None => format!("pinc train --preset {}", preset.name),
-    };
-    let source = match a.hybrid {
-        true => format!("{source} --hybrid"),
-        false => source,
-    };
+    } + if a.hybrid { " --hybrid" } else { "" };
     let all = train_with_progress(&a, &cfg, &train_set, &dev, &source, &interrupt, &csv_path)?;
     let outcome = all.best();
     report_stop(outcome);
