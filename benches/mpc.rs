@@ -21,7 +21,7 @@ use criterion::{Criterion, criterion_group};
 #[path = "common/mod.rs"]
 mod common;
 use common::median_ns;
-use pinc::estimation::{Measurement, NoiseSettings, Tracker};
+use pinc::estimation::{Measurement, NoiseSettings, Estimator};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig, Reference};
 use pinc::runtime::Predictor;
@@ -70,11 +70,11 @@ fn mpc_iteration(c: &mut Criterion) {
 
 /// One estimator sample: the model step with its Jacobians and three scalar updates.
 fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M) {
-    let mut tracker = Tracker::new(model, NoiseSettings::default());
+    let mut tracker = Estimator::new(model, NoiseSettings::default());
     let x0 = SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]);
     let u = Input::new(10.0, 0.0, 20.0, 1.0);
     let mut t = 0.0;
-    let feed = |tracker: &mut Tracker<M>, t: f64| {
+    let feed = |tracker: &mut Estimator<M>, t: f64| {
         tracker.measure(Measurement::Depth { t, z: x0[2] });
         tracker.measure(Measurement::Heading { t, psi: x0[3] });
         tracker.measure(Measurement::YawRate { t, r: x0[7] });

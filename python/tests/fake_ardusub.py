@@ -21,6 +21,12 @@ describes ArduSub's simulator and its logs):
   own log sitl_excite_1.BIN: docs/VEHICLE.md);
 - RC_CHANNELS_OVERRIDE as per-thruster commands (outputs set to RC pass-through): channel i is
   thruster i's PWM (0 or 65535 releases it);
+- PARAM_REQUEST_READ by name, answered by PARAM_VALUE for the parameters pinc reads:
+  SERVO1..8_FUNCTION (``--outputs motors``, the default: 33-38, the autopilot's own motors as
+  on a stock BlueROV2; ``passthrough``: 51-56, RCIN1-6), JS_GAIN_DEFAULT, COMPASS_DEC (0) and
+  COMPASS_AUTODEC (1); other names get no answer, as ArduPilot gives none;
+- EKF_STATUS_REPORT at its requested interval: attitude, velocity and vertical position good,
+  and the horizontal position (absolute and relative) while LOCAL_POSITION_NED is sent;
 - the thruster model of ArduSub's simulator: s = (PWM - 1500) / 400, zero within +-25 us of
   1500, thrust 51.48 s|s| N along the factors' directions (forward, lateral, -throttle), the yaw
   moment 0.25 m times the yaw-factor sum (the README's 51.5 N m at full yaw);
@@ -90,6 +96,7 @@ STATE_IDS = {
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED",
     mav.MAVLINK_MSG_ID_SCALED_PRESSURE2: "SCALED_PRESSURE2",
     mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: "SERVO_OUTPUT_RAW",
+    mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT: "EKF_STATUS_REPORT",
 }
 
 
@@ -246,6 +253,22 @@ class FakeArduSub:
         elif mid == mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             p = self.pwm
             self.mav.servo_output_raw_send((ms * 1000) % (1 << 32), 0, *p, 0, 0)
+        elif mid == mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
+            flags = mav.EKF_ATTITUDE | mav.EKF_VELOCITY_HORIZ | mav.EKF_VELOCITY_VERT | mav.EKF_POS_VERT_ABS
+            if self.position_available():
+                flags |= mav.EKF_POS_HORIZ_REL | mav.EKF_POS_HORIZ_ABS
+            else:
+                flags |= mav.EKF_CONST_POS_MODE
+            self.mav.ekf_status_report_send(flags, 0.05, 0.02, 0.01, 0.05, 0.0)
+
+    def param(self, name: str):
+        """The value of a parameter pinc reads, or None (no answer)."""
+        if name.startswith("SERVO") and name.endswith("_FUNCTION"):
+            n = int(name[5:-9])
+            if 1 <= n <= 6:
+                return float((50 if self.args.outputs == "passthrough" else 32) + n)
+            return 0.0
+        return {"JS_GAIN_DEFAULT": self.args.gain, "COMPASS_DEC": 0.0, "COMPASS_AUTODEC": 1.0}.get(name)
 
     # ---- incoming -------------------------------------------------------------------------
     def ack(self, command: int, result: int = mav.MAV_RESULT_ACCEPTED):
@@ -325,6 +348,11 @@ class FakeArduSub:
                     self.ack(cmd, mav.MAV_RESULT_UNSUPPORTED)
             else:
                 self.ack(cmd, mav.MAV_RESULT_UNSUPPORTED)
+        elif kind == "PARAM_REQUEST_READ":
+            name = m.param_id if isinstance(m.param_id, str) else m.param_id.decode()
+            value = self.param(name.rstrip("\x00"))
+            if value is not None:
+                self.mav.param_value_send(name.encode(), value, mav.MAV_PARAM_TYPE_REAL32, 0, 65535)
         elif kind == "SET_MODE":
             self.mode = int(m.custom_mode)
         elif kind == "MANUAL_CONTROL":
@@ -465,6 +493,8 @@ def main(argv=None):
                    help="seconds after arming before LOCAL_POSITION_NED (inf: never, as without a DVL)")
     p.add_argument("--default-rate", type=float, default=4.0, help="stream rate before SET_MESSAGE_INTERVAL (Hz)")
     p.add_argument("--gain", type=float, default=1.0, help="JS_GAIN_DEFAULT")
+    p.add_argument("--outputs", choices=["motors", "passthrough"], default="motors",
+                   help="SERVO1..6_FUNCTION: the autopilot's motors (33-38) or RC pass-through (51-56)")
     p.add_argument("--gcs-timeout", type=float, default=5.0, help="GCS heartbeat failsafe (s, 0: off)")
     p.add_argument("--pilot-timeout", type=float, default=3.0, help="pilot input failsafe (s, 0: off)")
     p.add_argument("--water-density", type=float, default=1000.0)

@@ -76,7 +76,7 @@ def test_each_fault_stops_with_the_neutral_command_within_one_sample(fake_factor
                                                                        way):
     log = tmp_path / "commands.jsonl"
     fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--commands", str(log),
-                        "--fault", fault, "--fault-after", "1.0")
+                        "--fault", fault, "--fault-after", "1.0", "--outputs", "passthrough" if way == "thrusters" else "motors")
     r, out = excite(fake, tmp_path, excitation(tmp_path, 10), "--command", way)
     assert r.returncode == 1, (r.stdout, r.stderr)
     assert f"safety stop [{key}]" in r.stderr, r.stderr
@@ -190,7 +190,7 @@ def test_mpc_track_without_the_estimator_refuses_without_body_velocities(fake_fa
     summary = json.loads(r.stdout)
     assert summary["samples"] == 0 and summary["rms_depth_m"] is None and summary["rms_heading_deg"] is None
     fake.stop()
-    pilot = [c for c in commands(log) if c["kind"] == "RC_CHANNELS_OVERRIDE"]
+    pilot = [c for c in commands(log) if c["kind"] in ("RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL")]
     assert pilot and all(is_neutral(c) for c in pilot)
 
 
@@ -232,7 +232,8 @@ def test_excite_then_import_then_identify_recovers_the_fakes_drag(fake_factory, 
     truth.update({k: 0.8 * bluerov2[k] for k in ["x_ud", "y_vd", "z_wd", "n_rd"]})
     params = tmp_path / "truth.toml"
     params.write_text("".join(f"{k} = {v}\n" for k, v in truth.items()))
-    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--vehicle-params", str(params))
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--vehicle-params", str(params),
+                        "--outputs", "passthrough")
     r, out = excite(fake, tmp_path, excitation(tmp_path, 30), "--command", "thrusters")
     assert r.returncode == 0, r.stderr
     fake.stop()
@@ -290,3 +291,23 @@ def test_record_with_a_vehicle_file_rebuilds_the_fakes_input(fake_factory, tmp_p
         compared += 1
         moving += any(abs(w) > 5 for w in want)
     assert compared >= 30 and moving >= 10, (compared, moving)
+
+
+def test_per_thruster_commands_are_refused_on_a_stock_autopilots_outputs(fake_factory, tmp_path):
+    # The fake's outputs are its own motors (SERVOn_FUNCTION 33-38), as on a stock BlueROV2:
+    # per-thruster PWMs on RC channels 1-6 would be read as pilot axes. pinc reads the outputs'
+    # functions first and refuses, naming each output, before arming or sending anything.
+    log = tmp_path / "commands.jsonl"
+    fake = fake_factory("--position-delay", "0", "--commands", str(log))
+    r, out = excite(fake, tmp_path, excitation(tmp_path, 5), "--command", "thrusters")
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert "safety stop [refused]" in r.stderr, r.stderr
+    for n in range(1, 7):
+        assert f"SERVO{n}_FUNCTION is {32 + n} (Motor{n})" in r.stderr, r.stderr
+    assert "--command manual" in r.stderr, r.stderr
+    fake.stop()
+    kinds = {c["kind"] for c in commands(log)}
+    assert not kinds & {"ARM", "RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL"}, kinds
+    # The recording says why.
+    lines = [m["message"] for _, m in read_mcap(out)["/log"]]
+    assert any("safety stop [refused]" in line for line in lines), lines

@@ -3,6 +3,7 @@
 //! states, and scalar measurement updates in Joseph form. Fixed-size matrices: nothing is
 //! allocated after [`Ekf::new`].
 
+use super::health::{Health, Sensor};
 use super::measurement::{Measurement, NoiseSettings};
 use crate::runtime::{HorizonLinearisation, RuntimeError};
 use crate::traits::DiscreteModel;
@@ -79,12 +80,25 @@ pub struct Ekf<M: DiscreteModel> {
     /// Whether the horizontal disturbance `dX dY` is estimated (only while something observes
     /// the horizontal motion: otherwise nothing can tell it from a wrong `u v`).
     horizontal_disturbance: bool,
+    /// The innovations' figures per sensor.
+    health: Health,
+    /// Factor on each state's process variance, adapted to the innovations (1: as set).
+    q_scale: [f64; NS],
 }
 
 /// After this many consecutive rejections of one component, the estimate of what it measures
 /// is taken as lost (a jump: the autopilot's heading realigned, a position source came back
 /// elsewhere): its variance grows by the innovation's square and the measurement is fused.
 pub const REACQUIRE_AFTER: u32 = 3;
+
+/// Above this mean NIS (two seconds) the process variance of the motion a sensor observes
+/// grows; between 1 and it, it holds (a sensor noisier than set, not a wrong model).
+pub const ADAPT_HIGH: f64 = 2.0;
+/// Exponent of each step's change of the process variance: at a NIS of 20 it grows tenfold in
+/// about 1.6 s (20 steps of 0.08 s).
+const ADAPT_GAIN: f64 = 0.05;
+/// The most the process variance grows.
+const ADAPT_MAX: f64 = 1e4;
 
 /// The simulator state's `psi` into the network's `(cos, sin)`: `d net / d sim` (9 x 8).
 fn sim_to_net_jacobian(psi: f64) -> SMatrix<f64, 9, NS> {
@@ -140,6 +154,49 @@ impl<M: DiscreteModel> Ekf<M> {
             rejected_run: [0; NS],
             last_f: FilterCovariance::identity(),
             horizontal_disturbance: true,
+            health: Health::default(),
+            q_scale: [1.0; NS],
+        }
+    }
+
+    /// The innovations' figures per sensor since the last [`Ekf::reset`].
+    pub fn health(&self) -> &Health {
+        &self.health
+    }
+
+    /// The factor on each state's process variance the innovations led to (1: as set).
+    pub fn process_scale(&self) -> [f64; NS] {
+        self.q_scale
+    }
+
+    /// Adapts the process variance of the motion each sensor observes to its innovations: it
+    /// grows while their mean NIS over the last two seconds stays above [`ADAPT_HIGH`] (the
+    /// model moves the vehicle other than it moves) and shrinks back while it stays below 1.
+    fn adapt(&mut self) {
+        let nis = |s: Sensor| {
+            let h = self.health.sensor(s);
+            h.warm().then_some(h.nis_fast)
+        };
+        let yaw = match (nis(Sensor::Heading), nis(Sensor::YawRate)) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        };
+        let horizontal = match (nis(Sensor::Position), nis(Sensor::Velocity)) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        };
+        for (states, nis) in [(&[6][..], nis(Sensor::Depth)), (&[7][..], yaw), (&[4, 5][..], horizontal)] {
+            let Some(nis) = nis else { continue };
+            let factor = if nis > ADAPT_HIGH {
+                (nis / ADAPT_HIGH).powf(ADAPT_GAIN)
+            } else if nis < 1.0 {
+                nis.max(1e-3).powf(ADAPT_GAIN)
+            } else {
+                1.0
+            };
+            for &i in states {
+                self.q_scale[i] = (self.q_scale[i] * factor).clamp(1.0, ADAPT_MAX);
+            }
         }
     }
 
@@ -197,6 +254,8 @@ impl<M: DiscreteModel> Ekf<M> {
         }
         self.counts = FilterCounts::default();
         self.rejected_run = [0; NS];
+        self.health = Health::default();
+        self.q_scale = [1.0; NS];
         if !self.horizontal_disturbance {
             self.clear_horizontal_disturbance();
         }
@@ -263,7 +322,12 @@ impl<M: DiscreteModel> Ekf<M> {
         for i in 0..NU {
             f[(NS + i, NS + i)] = self.decay;
         }
-        self.p = f * self.p * f.transpose() + self.q;
+        self.adapt();
+        let mut q = self.q;
+        for i in 0..NS {
+            q[(i, i)] *= self.q_scale[i];
+        }
+        self.p = f * self.p * f.transpose() + q;
         self.p = (self.p + self.p.transpose()) * 0.5;
         if !self.horizontal_disturbance {
             self.clear_horizontal_disturbance();
@@ -275,17 +339,20 @@ impl<M: DiscreteModel> Ekf<M> {
     }
 
     /// Fuses one scalar: measurement `z` of `h(x)` with row `h` of `dh/dx`, innovation
-    /// `y = z - h(x)` already formed (wrapped where it is an angle), variance `r`. Left out
-    /// beyond the gate.
-    fn scalar(&mut self, y: f64, h: &SMatrix<f64, 1, NE>, r: f64) -> bool {
+    /// `y = z - h(x)` already formed (wrapped where it is an angle), variance `r`, from
+    /// `sensor`. Left out beyond the gate where `gated`.
+    fn scalar(&mut self, y: f64, h: &SMatrix<f64, 1, NE>, r: f64, sensor: Sensor, gated: bool) -> bool {
         // The state a row measures most directly, for the count of consecutive rejections.
         let main = (0..NS).max_by(|&a, &b| h[(0, a)].abs().total_cmp(&h[(0, b)].abs())).unwrap_or(0);
         let mut s = (h * self.p * h.transpose())[(0, 0)] + r;
         if !(s > 0.0 && y.is_finite()) {
             self.counts.rejected += 1;
+            self.health.add(sensor, f64::INFINITY, true);
             return false;
         }
-        if y * y > self.noise.gate * self.noise.gate * s {
+        let beyond = y * y > self.noise.gate * self.noise.gate * s;
+        self.health.add(sensor, y * y / s, beyond);
+        if beyond && gated {
             self.rejected_run[main] += 1;
             if self.rejected_run[main] < REACQUIRE_AFTER {
                 self.counts.rejected += 1;
@@ -326,17 +393,23 @@ impl<M: DiscreteModel> Ekf<M> {
             Measurement::Depth { z, .. } => {
                 // A sensor that lags by `delay` reads z(t - delay) ~ z(t) - delay w(t).
                 let delay = n.depth_delay;
-                self.scalar(z - (self.x[2] - delay * self.x[6]), &Self::row(&[(2, 1.0), (6, -delay)]), sd * sd)
+                let h = Self::row(&[(2, 1.0), (6, -delay)]);
+                self.scalar(z - (self.x[2] - delay * self.x[6]), &h, sd * sd, Sensor::Depth, true)
             }
             Measurement::Heading { psi, .. } => {
-                self.scalar(wrap_angle(psi - self.x[3]), &Self::row(&[(3, 1.0)]), sh * sh)
+                self.scalar(wrap_angle(psi - self.x[3]), &Self::row(&[(3, 1.0)]), sh * sh, Sensor::Heading, true)
             }
-            Measurement::YawRate { r, .. } => self.scalar(r - self.x[7], &Self::row(&[(7, 1.0)]), sr * sr),
+            // The gyro measures the turn directly: gating it out would leave the turn to the
+            // model alone, which is how an estimate loses a vehicle whose model is wrong.
+            Measurement::YawRate { r, .. } => {
+                self.scalar(r - self.x[7], &Self::row(&[(7, 1.0)]), sr * sr, Sensor::YawRate, false)
+            }
             Measurement::Position { x, y, z, .. } => {
-                let a = self.scalar(x - self.x[0], &Self::row(&[(0, 1.0)]), sp * sp);
-                let b = self.scalar(y - self.x[1], &Self::row(&[(1, 1.0)]), sp * sp);
+                let p = Sensor::Position;
+                let a = self.scalar(x - self.x[0], &Self::row(&[(0, 1.0)]), sp * sp, p, true);
+                let b = self.scalar(y - self.x[1], &Self::row(&[(1, 1.0)]), sp * sp, p, true);
                 // A NaN depth: the position source's depth is left to the depth sensor.
-                let c = !z.is_finite() || self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sp * sp);
+                let c = !z.is_finite() || self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sp * sp, p, true);
                 a && b && c
             }
             Measurement::VelocityNed { vn, ve, vd, .. } => {
@@ -350,14 +423,15 @@ impl<M: DiscreteModel> Ekf<M> {
                     } else {
                         (s * u + c * v, ve, Self::row(&[(4, s), (5, c), (3, c * u - s * v)]))
                     };
-                    ok &= self.scalar(z - pred, &h, sv * sv);
+                    ok &= self.scalar(z - pred, &h, sv * sv, Sensor::Velocity, true);
                 }
-                ok & self.scalar(vd - self.x[6], &Self::row(&[(6, 1.0)]), sv * sv)
+                ok & self.scalar(vd - self.x[6], &Self::row(&[(6, 1.0)]), sv * sv, Sensor::Velocity, true)
             }
             Measurement::VelocityBody { u, v, w, .. } => {
-                let a = self.scalar(u - self.x[4], &Self::row(&[(4, 1.0)]), sb * sb);
-                let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb);
-                let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb);
+                let v_ = Sensor::Velocity;
+                let a = self.scalar(u - self.x[4], &Self::row(&[(4, 1.0)]), sb * sb, v_, true);
+                let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb, v_, true);
+                let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb, v_, true);
                 a && b && c
             }
         };

@@ -1,20 +1,23 @@
 //! State estimation on the model: an extended Kalman filter whose process model is the
 //! controller's own ([`ekf`]), the measurements a vehicle gives and their noise
 //! ([`measurement`]), the filter fed in time as a controller or a log replay feeds it
-//! ([`tracker`]), ArduSub's MAVLink messages turned into measurements ([`mavlink`]), and a
-//! smoother for recorded logs ([`smoother`]).
+//! ([`estimator`]), what its innovations say of the model ([`health`]: the adaptation of its
+//! process noise, the live stop on a lost vehicle), ArduSub's MAVLink messages turned into
+//! measurements ([`mavlink`]), and a smoother for recorded logs ([`smoother`]).
 //!
 //! A stock BlueROV2 measures depth (pressure), heading and yaw rate, and knows the thrust it
 //! commands; with the model that is enough to estimate its body velocities, which the MPC
 //! needs. `docs/MODEL.md` (section "State estimation") gives the equations.
 
 pub mod ekf;
+pub mod health;
 #[cfg(feature = "tools")]
 pub mod mavlink;
 pub mod measurement;
 pub mod smoother;
-pub mod tracker;
+pub mod estimator;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
+pub use health::{Health, Lost, Sensor};
 pub use measurement::{Measurement, NoiseSettings};
-pub use tracker::Tracker;
+pub use estimator::Estimator;

@@ -3,10 +3,10 @@
 
 use super::command::{CommandWay, Commander};
 use super::drive::DriveSettings;
-use super::link::{Autopilot, LinkConfig, LinkError, Received, VehicleLink};
+use super::link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
 use super::safety::SafetyLimits;
 use super::signing::SigningKey;
-use super::state::{StateConfig, StateEstimator};
+use super::state::{StateConfig, StateAssembler};
 use super::url::LinkAddress;
 use crate::estimation::NoiseSettings;
 use crate::vehicle::Thrusters;
@@ -63,14 +63,16 @@ pub struct LinkOptions {
 /// How to command the vehicle, and the safety limits.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DriveArgs {
-    /// manual: MANUAL_CONTROL pilot axes in MANUAL mode (through ArduSub's mixer and
-    /// JS_GAIN); thrusters: one PWM per thruster in RC_CHANNELS_OVERRIDE (outputs set to
-    /// SERVOn_FUNCTION = RCINn).
-    #[arg(long = "command", value_parser = ["manual", "thrusters"], default_value = "thrusters")]
+    /// manual: MANUAL_CONTROL pilot axes in MANUAL mode, through ArduSub's mixer and pilot
+    /// gain (a stock vehicle); thrusters: one PWM per thruster in RC_CHANNELS_OVERRIDE, only
+    /// where every thruster's output passes its RC channel through (SERVOn_FUNCTION = RCINn),
+    /// which pinc checks before sending anything.
+    #[arg(long = "command", value_parser = ["manual", "thrusters"], default_value = "manual")]
     pub command_way: String,
-    /// ArduSub's JS_GAIN_DEFAULT (the gain on MANUAL_CONTROL).
-    #[arg(long, default_value_t = 1.0)]
-    pub js_gain: f64,
+    /// The gain on MANUAL_CONTROL [default: the autopilot's JS_GAIN_DEFAULT, read at connect;
+    /// 1 where it does not answer].
+    #[arg(long)]
+    pub js_gain: Option<f64>,
     /// Arm the vehicle (pinc never arms without it; it disarms on a stop if it armed).
     #[arg(long)]
     pub arm: bool,
@@ -90,6 +92,9 @@ pub struct DriveArgs {
     /// (ArduSub repeats the last reading when its depth sensor is gone).
     #[arg(long, default_value_t = 1.0)]
     pub max_frozen: f64,
+    /// Stop when no depth or heading measurement came for this long (s).
+    #[arg(long, default_value_t = 0.5)]
+    pub max_sensor_silence: f64,
     /// Stop after more than this many malformed frames.
     #[arg(long, default_value_t = 0)]
     pub max_malformed: u64,
@@ -143,7 +148,8 @@ impl DriveArgs {
     /// The file cannot be read or cannot command this way.
     pub fn commander(&self, vehicle_file: &Path) -> Result<Commander, String> {
         let thrusters = Thrusters::load(vehicle_file).map_err(|e| e.to_string())?;
-        Commander::new(thrusters, self.way(), self.js_gain).map_err(|e| format!("{}: {e}", vehicle_file.display()))
+        Commander::new(thrusters, self.way(), self.js_gain.unwrap_or(1.0))
+            .map_err(|e| format!("{}: {e}", vehicle_file.display()))
     }
 
     /// The session's settings: limits, arming, notes echoed on stderr.
@@ -156,6 +162,10 @@ impl DriveArgs {
             arm: self.arm,
             arm_timeout: positive("--arm-timeout", self.arm_timeout)?,
             echo_notes: true,
+            mode: SubMode::Manual,
+            js_gain_from_autopilot: self.js_gain.is_none(),
+            sensor_silence: positive("--max-sensor-silence", self.max_sensor_silence)?.as_secs_f64(),
+            frozen_depth: positive("--max-frozen", self.max_frozen)?.as_secs_f64(),
         })
     }
 
@@ -191,7 +201,7 @@ pub fn open(
     connect: &str,
     a: &LinkOptions,
     seen: impl FnMut(&Received),
-) -> Result<(VehicleLink, Autopilot, StateEstimator), String> {
+) -> Result<(VehicleLink, Autopilot, StateAssembler), String> {
     let address: LinkAddress = connect.parse().map_err(|e| format!("--connect: {e}"))?;
     let timeout = positive("--timeout", a.timeout)?;
     if !(a.rate.is_finite() && a.rate > 0.0) {
@@ -215,7 +225,7 @@ pub fn open(
     };
     let autopilot = link.wait_for_autopilot(timeout, seen).map_err(|e| e.to_string())?;
     link.request_state_streams(a.rate).map_err(|e| e.to_string())?;
-    let estimator = StateEstimator::new(StateConfig {
+    let estimator = StateAssembler::new(StateConfig {
         max_age: a.max_age,
         surface_pressure_hpa: a.surface_pressure,
         water_density: a.water_density,

@@ -139,6 +139,19 @@ impl Commander {
         Ok(Self { thrusters, way, js_gain, axes_from_outputs })
     }
 
+    /// The same commander with pilot gain `js_gain` (the autopilot's `JS_GAIN_DEFAULT`).
+    ///
+    /// # Errors
+    /// The gain is outside ArduSub's range.
+    pub fn with_js_gain(&self, js_gain: f64) -> Result<Self, CommandError> {
+        Self::new(self.thrusters.clone(), self.way, js_gain)
+    }
+
+    /// The pilot gain the axes are scaled by.
+    pub fn js_gain(&self) -> f64 {
+        self.js_gain
+    }
+
     /// The way this commander commands.
     pub fn way(&self) -> CommandWay {
         self.way

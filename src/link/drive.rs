@@ -4,11 +4,15 @@
 //! passes the [`Safety`] watchdog, and any trigger sends the neutral command at once and
 //! disarms if the session armed.
 
+use super::autopilot_estimate::EkfStatus;
 use super::command::{Command, CommandWay, Commander};
 use super::link::{Autopilot, LinkError, Received, SubMode, VehicleLink, is_ground_station};
-use super::safety::{Safety, SafetyLimits, Trigger};
-use super::state::{StateEstimate, StateEstimator, message_time};
+use super::outputs::{OutputFunctions, function_params};
+use super::params::{Params, read_params};
+use super::safety::{Safety, SafetyLimits, SensorWatch, Trigger};
+use super::state::{RawState, StateAssembler, message_time};
 use crate::closed_loop::Level;
+use crate::estimation::Measurement;
 use crate::estimation::mavlink::{MavlinkMeasurements, Observation};
 use crate::types::Input;
 use mavlink::dialects::ardupilotmega::{MavCmd, MavMessage, MavResult, MavSeverity, STATUSTEXT_DATA};
@@ -21,7 +25,7 @@ use std::time::{Duration, Instant};
 #[derive(Debug, Clone)]
 pub struct Fresh {
     /// The state.
-    pub state: StateEstimate,
+    pub state: RawState,
     /// Host time it arrived.
     pub arrived: Instant,
 }
@@ -57,7 +61,7 @@ pub struct Stopped {
 pub struct Drive {
     link: VehicleLink,
     autopilot: Autopilot,
-    estimator: StateEstimator,
+    assembler: StateAssembler,
     commander: Commander,
     safety: Safety,
     stop: Arc<AtomicBool>,
@@ -74,6 +78,18 @@ pub struct Drive {
     arm_text: Option<String>,
     measurements: MavlinkMeasurements,
     observations: Vec<Observation>,
+    /// The autopilot's parameters read at the start.
+    params: Params,
+    /// The newest `EKF_STATUS_REPORT`.
+    ekf_status: Option<EkfStatus>,
+    /// The flight mode of the autopilot's newest heartbeat (`custom_mode`).
+    mode: u32,
+    /// The newest `GPS_RAW_INT` fix type.
+    gps_fix: Option<u8>,
+    watch: SensorWatch,
+    /// Silence (s) of depth or heading, and how long (s) a live depth reading may stay the same.
+    sensor_silence: f64,
+    frozen_depth: f64,
 }
 
 /// How often an arm command is repeated while the autopilot refuses it (ground stations
@@ -81,6 +97,16 @@ pub struct Drive {
 const ARM_RETRY: Duration = Duration::from_secs(1);
 /// The longest one wait for a message lasts, so that a trigger is seen within it.
 const POLL: Duration = Duration::from_millis(5);
+/// How long the parameters pinc needs may take to answer (ArduSub answers within a few tens
+/// of milliseconds; requests are repeated every half second).
+const PARAM_TIMEOUT: Duration = Duration::from_secs(3);
+/// `EKF_STATUS_REPORT`'s id, and the rate it is asked for.
+const EKF_STATUS_REPORT_ID: u32 = 193;
+const EKF_STATUS_RATE_HZ: f64 = 2.0;
+/// The parameters every session reads besides the outputs' functions.
+const SESSION_PARAMS: [&str; 4] = ["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC", "EK3_SRC1_POSXY"];
+/// `GPS_RAW_INT`'s id: its fix says when a GPS position source is lost.
+const GPS_RAW_INT_ID: u32 = 24;
 
 /// How a session starts and what it runs under.
 #[derive(Debug, Clone)]
@@ -94,11 +120,30 @@ pub struct DriveSettings {
     pub arm_timeout: Duration,
     /// Print each note of level warning or above on stderr as it comes.
     pub echo_notes: bool,
+    /// The flight mode the session runs in: MANUAL for pinc's own commands, ALT_HOLD or
+    /// GUIDED where the autopilot's controller flies.
+    pub mode: SubMode,
+    /// Take the pilot gain from the autopilot's `JS_GAIN_DEFAULT` (the commander's is only a
+    /// fallback where the autopilot does not answer it).
+    pub js_gain_from_autopilot: bool,
+    /// Depth or heading silent this long (s) stops the session.
+    pub sensor_silence: f64,
+    /// A live depth reading unchanged this long (s) stops the session.
+    pub frozen_depth: f64,
 }
 
 impl Default for DriveSettings {
     fn default() -> Self {
-        Self { limits: SafetyLimits::default(), arm: false, arm_timeout: Duration::from_secs(30), echo_notes: false }
+        Self {
+            limits: SafetyLimits::default(),
+            arm: false,
+            arm_timeout: Duration::from_secs(30),
+            echo_notes: false,
+            mode: SubMode::Manual,
+            js_gain_from_autopilot: false,
+            sensor_silence: 0.5,
+            frozen_depth: 1.0,
+        }
     }
 }
 
@@ -149,24 +194,25 @@ impl Drive {
     pub fn start(
         link: VehicleLink,
         autopilot: Autopilot,
-        estimator: StateEstimator,
+        assembler: StateAssembler,
         commander: Commander,
         settings: DriveSettings,
         stop: Arc<AtomicBool>,
         mut seen: impl FnMut(&Received, f64),
     ) -> Result<Self, Stopped> {
         let now = Instant::now();
+        let mode = autopilot.heartbeat.custom_mode;
         let mut safety = Safety::new(settings.limits.clone(), now);
         safety.heartbeat(now, Autopilot::armed(&autopilot.heartbeat));
         let measurements = MavlinkMeasurements::new(
-            estimator.config().surface_pressure_hpa,
-            estimator.config().water_density,
+            assembler.config().surface_pressure_hpa,
+            assembler.config().water_density,
             Some(commander.thrusters().clone()),
         );
         let mut d = Self {
             link,
             autopilot,
-            estimator,
+            assembler,
             commander,
             safety,
             stop,
@@ -180,8 +226,51 @@ impl Drive {
             arm_text: None,
             measurements,
             observations: Vec::with_capacity(64),
+            params: Params::default(),
+            ekf_status: None,
+            mode,
+            gps_fix: None,
+            watch: SensorWatch::default(),
+            sensor_silence: settings.sensor_silence,
+            frozen_depth: settings.frozen_depth,
         };
-        if let Err(e) = d.link.set_mode(SubMode::Manual) {
+        // The autopilot's configuration first: nothing is sent to the thrusters unless its
+        // outputs take commands the way asked.
+        let mut names = function_params();
+        names.extend(SESSION_PARAMS.iter().map(|s| s.to_string()));
+        let mut early = Vec::new();
+        match read_params(&mut d.link, &d.autopilot, &names, PARAM_TIMEOUT, |r| early.push(r.clone())) {
+            Ok(p) => d.params = p,
+            Err(e) => return Err(d.refuse(Trigger::Link(e.to_string()))),
+        }
+        for r in &early {
+            d.assembler.update(r);
+            let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
+            seen(r, t);
+        }
+        let outputs = OutputFunctions::from_params(&d.params);
+        if let Err(refused) = outputs.check(d.commander.way(), d.commander.thrusters()) {
+            return Err(d.refuse(Trigger::Refused(refused.to_string())));
+        }
+        if settings.js_gain_from_autopilot
+            && let Some(gain) = d.params.get("JS_GAIN_DEFAULT")
+            && d.commander.way() == CommandWay::Manual
+        {
+            let t = d.now_t();
+            match d.commander.with_js_gain(gain) {
+                Ok(c) => {
+                    d.commander = c;
+                    d.note(t, Level::Info, format!("pilot gain {gain} from the autopilot (JS_GAIN_DEFAULT)"));
+                }
+                Err(e) => return Err(d.refuse(Trigger::Refused(format!("the autopilot's JS_GAIN_DEFAULT: {e}")))),
+            }
+        }
+        for (id, rate) in [(EKF_STATUS_REPORT_ID, EKF_STATUS_RATE_HZ), (GPS_RAW_INT_ID, EKF_STATUS_RATE_HZ)] {
+            if let Err(e) = d.link.set_message_rate(id, rate) {
+                return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
+            }
+        }
+        if let Err(e) = d.link.set_mode(settings.mode) {
             return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
         }
         if !d.safety.armed() {
@@ -270,14 +359,41 @@ impl Drive {
         self.observations.drain(..)
     }
 
+    /// The autopilot.
+    pub fn autopilot(&self) -> &Autopilot {
+        &self.autopilot
+    }
+
     /// The link.
     pub fn link(&self) -> &VehicleLink {
         &self.link
     }
 
-    /// The state estimator.
-    pub fn estimator(&self) -> &StateEstimator {
-        &self.estimator
+    /// The raw state's assembler.
+    pub fn assembler(&self) -> &StateAssembler {
+        &self.assembler
+    }
+
+    /// The autopilot's parameters read at the start (its outputs' functions, pilot gain and
+    /// declination).
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
+    /// Whether the autopilot's position is a measurement now (not dead-reckoned or held):
+    /// [`super::autopilot_estimate::position_measured`].
+    pub fn position_measured(&self) -> bool {
+        super::autopilot_estimate::position_measured(self.ekf_status.as_ref(), &self.params, self.gps_fix)
+    }
+
+    /// The flight mode of the autopilot's newest heartbeat (ArduSub's `custom_mode`).
+    pub fn mode(&self) -> u32 {
+        self.mode
+    }
+
+    /// The newest `EKF_STATUS_REPORT`, if one came.
+    pub fn ekf_status(&self) -> Option<&EkfStatus> {
+        self.ekf_status.as_ref()
     }
 
     /// The commander.
@@ -298,7 +414,7 @@ impl Drive {
 
     /// Autopilot time now (s).
     pub fn now_t(&self) -> f64 {
-        self.estimator.autopilot_time(Instant::now()).unwrap_or(0.0)
+        self.assembler.autopilot_time(Instant::now()).unwrap_or(0.0)
     }
 
     /// Handles one message (or a short silence): the watchdog, the state.
@@ -320,16 +436,28 @@ impl Drive {
                     }
                     *newest = newest.max(t);
                 }
-                self.estimator.update(&r)
+                self.assembler.update(&r)
             } else {
                 None
             };
-            let t = self.estimator.autopilot_time(r.at).unwrap_or(0.0);
+            let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(&r, t);
             if from_autopilot {
-                let observations = &mut self.observations;
-                self.measurements.observe(t, &r.message, |o| observations.push(o));
+                let (observations, watch) = (&mut self.observations, &mut self.watch);
+                self.measurements.observe(t, &r.message, |o| {
+                    match o {
+                        Observation::Measured(Measurement::Depth { t, z }) => watch.depth(t, z, true),
+                        Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => {
+                            watch.depth(t, z, false);
+                        }
+                        Observation::Measured(Measurement::Heading { t, .. }) => watch.heading(t),
+                        _ => {}
+                    }
+                    observations.push(o);
+                });
                 match &r.message {
+                    MavMessage::EKF_STATUS_REPORT(e) => self.ekf_status = Some(EkfStatus::new(t, e)),
+                    MavMessage::GPS_RAW_INT(g) => self.gps_fix = Some(g.fix_type as u8),
                     MavMessage::STATUSTEXT(s) => {
                         let text = statustext(s);
                         if text.starts_with("PreArm") || text.starts_with("Arm") {
@@ -350,12 +478,19 @@ impl Drive {
                 }
                 if let MavMessage::HEARTBEAT(h) = &r.message
                     && !is_ground_station(h)
-                    && let Some(trigger) = self.safety.heartbeat(r.at, Autopilot::armed(h))
                 {
-                    return Err(trigger);
+                    self.mode = h.custom_mode;
+                    if let Some(trigger) = self.safety.heartbeat(r.at, Autopilot::armed(h)) {
+                        return Err(trigger);
+                    }
                 }
                 if let Some(s) = state {
                     if let Some(trigger) = self.safety.state(r.at, s.sim[2], s.sim[7]) {
+                        return Err(trigger);
+                    }
+                    // Depth and heading are what a controller cannot do without: their silence
+                    // stops it (the state sample's own clock goes on while either keeps coming).
+                    if let Some(trigger) = self.watch.check(s.t, self.sensor_silence, self.frozen_depth) {
                         return Err(trigger);
                     }
                     fresh = Some(Fresh { state: s, arrived: r.at });
@@ -405,7 +540,7 @@ impl Drive {
         self.commander.send(&self.link, &command).map_err(|e| Trigger::Link(e.to_string()))?;
         let at = Instant::now();
         self.last_sent = Some(fresh.state.t);
-        Ok(Sent { command, at, autopilot_t: self.estimator.autopilot_time(at).unwrap_or(fresh.state.t) })
+        Ok(Sent { command, at, autopilot_t: self.assembler.autopilot_time(at).unwrap_or(fresh.state.t) })
     }
 
     /// Stops on `trigger`: the neutral command at once, then a disarm if the session armed.
@@ -420,6 +555,12 @@ impl Drive {
 
     fn stop_with_trigger(&mut self, trigger: Trigger) -> Stopped {
         self.stop(Some(trigger))
+    }
+
+    /// Ends a session that has sent nothing yet (a refusal of the autopilot's configuration):
+    /// no command goes out.
+    fn refuse(&mut self, trigger: Trigger) -> Stopped {
+        Stopped { trigger: Some(trigger), t: self.now_t(), neutral_t: None, disarm_sent: false, notes: std::mem::take(&mut self.notes) }
     }
 
     fn stop(&mut self, trigger: Option<Trigger>) -> Stopped {
@@ -443,7 +584,7 @@ impl Drive {
         while Instant::now() < until {
             match self.link.recv_timeout(POLL) {
                 Ok(Some(r)) => {
-                    let t = self.estimator.autopilot_time(r.at).unwrap_or(0.0);
+                    let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
                     seen(&r, t);
                 }
                 Ok(None) => {}

@@ -5,22 +5,29 @@
 //! ([`command`]), the safety watchdog ([`safety`]) and a command session driven by the
 //! state's arrival ([`drive`]). `docs/VEHICLE.md` is the user's guide.
 
+pub mod autopilot_estimate;
 pub mod cli;
 pub mod command;
 pub mod drive;
 #[allow(clippy::module_inception)]
 pub mod link;
+pub mod outputs;
+pub mod params;
 pub mod record;
 pub mod safety;
+pub mod session;
 pub mod signing;
 pub mod state;
 pub mod url;
 
+pub use autopilot_estimate::{EkfStatus, HeadingReference};
 pub use command::{Command, CommandError, CommandWay, Commander};
 pub use drive::{Drive, DriveSettings, Fresh, Note, Sent, Stopped};
 pub use link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
+pub use outputs::{OutputFunctions, WayRefused};
+pub use params::{Params, read_params};
 pub use record::{InputsFromOutputs, RecordError, RecordStats, Recorder};
-pub use safety::{Safety, SafetyLimits, Trigger};
+pub use safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 pub use signing::{SigningError, SigningKey};
-pub use state::{Capability, Part, PartStatus, StateConfig, StateEstimate, StateEstimator};
+pub use state::{Capability, Part, PartStatus, StateConfig, RawState, StateAssembler};
 pub use url::{LinkAddress, UrlError};

@@ -16,7 +16,7 @@
 //! (`RUN.mcap.partial`) and renamed when finished, so an interrupted run leaves no half file.
 
 use super::link::Received;
-use super::state::{Capability, DepthSource, StateEstimate};
+use super::state::{Capability, DepthSource, RawState};
 use crate::closed_loop::Level;
 use crate::estimation::Estimate;
 use crate::estimation::mavlink::{outputs_time, servo_pwm};
@@ -195,7 +195,7 @@ impl Recorder {
     ///
     /// # Errors
     /// Writing fails.
-    pub fn state(&mut self, s: &StateEstimate, input: Option<&Input>) -> Result<(), RecordError> {
+    pub fn state(&mut self, s: &RawState, input: Option<&Input>) -> Result<(), RecordError> {
         let t = s.t;
         let sim: Map<String, Value> =
             s.named().map(|(k, v)| (k.to_owned(), v.map_or(Value::Null, Value::from))).collect();
@@ -327,7 +327,7 @@ pub struct InputsFromOutputs {
     max_gap: f64,
     /// (autopilot time s, input) of each output message, in time order.
     outputs: VecDeque<(f64, Input)>,
-    pending: VecDeque<StateEstimate>,
+    pending: VecDeque<RawState>,
 }
 
 impl InputsFromOutputs {
@@ -352,12 +352,12 @@ impl InputsFromOutputs {
     }
 
     /// A state sample whose input is wanted.
-    pub fn state(&mut self, s: StateEstimate) {
+    pub fn state(&mut self, s: RawState) {
         self.pending.push_back(s);
     }
 
     /// The states whose input is known or will never be (autopilot time `now`), in order.
-    pub fn ready(&mut self, now: f64) -> Vec<(StateEstimate, Option<Input>)> {
+    pub fn ready(&mut self, now: f64) -> Vec<(RawState, Option<Input>)> {
         let eps = 1e-4;
         let mut out = Vec::new();
         while let Some(s) = self.pending.front() {
@@ -378,7 +378,7 @@ impl InputsFromOutputs {
     }
 
     /// Every pending state, with what is known (at the end of a recording).
-    pub fn flush(&mut self) -> Vec<(StateEstimate, Option<Input>)> {
+    pub fn flush(&mut self) -> Vec<(RawState, Option<Input>)> {
         self.ready(f64::INFINITY)
     }
 
@@ -413,9 +413,9 @@ mod tests {
     use crate::dataset::import::{McapTopics, read_mcap};
     use crate::link::state::{Part, PartStatus};
 
-    fn estimate(t: f64, sim: [f64; 8]) -> StateEstimate {
+    fn estimate(t: f64, sim: [f64; 8]) -> RawState {
         let part = |part| PartStatus { part, stamp: Some(t), age: Some(0.0), fresh: true };
-        StateEstimate {
+        RawState {
             t,
             sim,
             parts: Part::ALL.map(part),

@@ -100,6 +100,15 @@ pub enum Trigger {
     },
     /// The autopilot disarmed on its own (a failsafe, the pilot).
     Disarmed,
+    /// The state estimate no longer follows what the vehicle measures (its measurements gated
+    /// out, or far beyond the spread its model predicts): the controller would steer a
+    /// vehicle it has lost.
+    EstimateLost(String),
+    /// The autopilot's configuration does not take the commands asked for (checked before
+    /// anything is sent).
+    Refused(String),
+    /// The autopilot's own estimate did not become usable within the wait.
+    NotReady(String),
     /// Frames that could not be parsed arrived.
     Malformed {
         /// How many so far.
@@ -113,7 +122,8 @@ pub enum Trigger {
 
 impl Trigger {
     /// A short key for logs and tests: `interrupted`, `stale_state`, `heartbeat_lost`, `depth`,
-    /// `yaw_rate`, `sensor_lost`, `disarmed`, `malformed`, `link`, `error`.
+    /// `yaw_rate`, `sensor_lost`, `disarmed`, `estimate_lost`, `refused`, `not_ready`, `malformed`,
+    /// `link`, `error`.
     pub fn key(&self) -> &'static str {
         match self {
             Trigger::Interrupted => "interrupted",
@@ -123,6 +133,9 @@ impl Trigger {
             Trigger::YawRate { .. } => "yaw_rate",
             Trigger::SensorLost { .. } => "sensor_lost",
             Trigger::Disarmed => "disarmed",
+            Trigger::EstimateLost(_) => "estimate_lost",
+            Trigger::Refused(_) => "refused",
+            Trigger::NotReady(_) => "not_ready",
             Trigger::Malformed { .. } => "malformed",
             Trigger::Link(_) => "link",
             Trigger::Error(_) => "error",
@@ -151,9 +164,75 @@ impl fmt::Display for Trigger {
                 "the {sensor} reading has not changed for {age:.3} s (limit {limit:.3} s): the sensor is frozen or gone"
             ),
             Trigger::Disarmed => write!(f, "the autopilot disarmed on its own"),
+            Trigger::EstimateLost(why) | Trigger::Refused(why) | Trigger::NotReady(why) => write!(f, "{why}"),
             Trigger::Malformed { count } => write!(f, "{count} malformed MAVLink frame(s) received"),
             Trigger::Link(e) => write!(f, "link error: {e}"),
             Trigger::Error(e) => write!(f, "error: {e}"),
+        }
+    }
+}
+
+/// The sensors a controller cannot do without, watched for silence and for a frozen reading:
+/// depth (its sensor, or a position source's depth) and heading.
+#[derive(Debug, Clone, Default)]
+pub struct SensorWatch {
+    last_depth: Option<f64>,
+    last_heading: Option<f64>,
+    /// The depth reading and the autopilot time it last changed: a pressure sensor in water
+    /// never repeats the same value for long; ArduSub repeats the last one when its sensor is
+    /// gone.
+    depth_changed: Option<(f64, f64)>,
+    /// Which of the last 25 readings changed.
+    depth_changes: u32,
+    /// Whether the current run of repeats began on a live sensor (one whose readings changed
+    /// on at least 20 of the 25 before): a simulator without sensor noise repeats its depth at
+    /// rest and is not taken as frozen.
+    frozen_from_live: bool,
+}
+
+const LIVE_WINDOW_MASK: u32 = (1 << 25) - 1;
+const LIVE_CHANGES: u32 = 20;
+
+impl SensorWatch {
+    /// A depth reading at autopilot time `t` from the depth sensor (`from_sensor`; a position
+    /// source's depth counts for silence only).
+    pub fn depth(&mut self, t: f64, z: f64, from_sensor: bool) {
+        self.last_depth = Some(self.last_depth.map_or(t, |l| l.max(t)));
+        if !from_sensor {
+            return;
+        }
+        let changed = self.depth_changed.is_none_or(|(value, _)| value != z);
+        if changed {
+            self.depth_changed = Some((z, t));
+            self.frozen_from_live = false;
+        } else if self.depth_changes.count_ones() >= LIVE_CHANGES {
+            // The first repeat of a sensor that was changing on nearly every reading: if the
+            // repeats go on, it froze.
+            self.frozen_from_live = true;
+        }
+        self.depth_changes = (self.depth_changes << 1 | u32::from(changed)) & LIVE_WINDOW_MASK;
+    }
+
+    /// A heading at autopilot time `t`.
+    pub fn heading(&mut self, t: f64) {
+        self.last_heading = Some(self.last_heading.map_or(t, |l| l.max(t)));
+    }
+
+    /// At autopilot time `now`: a sensor seen before and silent for longer than `silence`, or
+    /// a live depth reading unchanged for longer than `frozen`.
+    pub fn check(&self, now: f64, silence: f64, frozen: f64) -> Option<Trigger> {
+        for (sensor, last) in [("depth", self.last_depth), ("heading", self.last_heading)] {
+            if let Some(l) = last
+                && now - l > silence
+            {
+                return Some(Trigger::SensorLost { sensor, age: now - l, limit: silence, frozen: false });
+            }
+        }
+        match self.depth_changed {
+            Some((_, since)) if self.frozen_from_live && now - since > frozen => {
+                Some(Trigger::SensorLost { sensor: "depth", age: now - since, limit: frozen, frozen: true })
+            }
+            _ => None,
         }
     }
 }
@@ -255,5 +334,38 @@ mod tests {
         assert_eq!(s.check(ms(3000), 0).unwrap().key(), "heartbeat_lost");
         assert_eq!(s.heartbeat(ms(3000), false), Some(Trigger::Disarmed));
         assert_eq!(s.check(ms(3100), 1).unwrap().key(), "malformed");
+    }
+
+    #[test]
+    fn a_silent_sensor_and_a_live_depth_that_froze_trigger_and_a_still_noiseless_one_does_not() {
+        let mut w = SensorWatch::default();
+        assert_eq!(w.check(100.0, 0.5, 1.0), None, "nothing seen: nothing to miss");
+        // A noisy live sensor at 12.5 Hz, then the same reading over and over.
+        for k in 0..40 {
+            let t = f64::from(k) * 0.08;
+            w.depth(t, 1.0 + 0.01 * f64::from(k % 7), true);
+            w.heading(t);
+        }
+        let last_change = 39.0 * 0.08;
+        for k in 40..60 {
+            let t = f64::from(k) * 0.08;
+            w.depth(t, 1.0 + 0.01 * f64::from(39 % 7), true);
+            w.heading(t);
+            let frozen = w.check(t, 0.5, 1.0);
+            if t - last_change > 1.0 + 1e-9 {
+                assert!(matches!(frozen, Some(Trigger::SensorLost { frozen: true, .. })), "{t}: {frozen:?}");
+            } else {
+                assert_eq!(frozen, None, "{t}");
+            }
+        }
+        // A depth that never changed (a simulator without noise, at rest) is not frozen.
+        let mut still = SensorWatch::default();
+        for k in 0..100 {
+            still.depth(f64::from(k) * 0.08, 0.13, true);
+            still.heading(f64::from(k) * 0.08);
+        }
+        assert_eq!(still.check(99.0 * 0.08, 0.5, 1.0), None);
+        let silent = still.check(99.0 * 0.08 + 0.6, 0.5, 1.0).expect("silent");
+        assert!(matches!(silent, Trigger::SensorLost { sensor: "depth", frozen: false, .. }), "{silent:?}");
     }
 }

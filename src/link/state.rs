@@ -36,7 +36,7 @@ pub enum Part {
 }
 
 impl Part {
-    /// Every part, in the order of [`StateEstimate::parts`].
+    /// Every part, in the order of [`RawState::parts`].
     pub const ALL: [Part; 5] = [Part::Heading, Part::YawRate, Part::Position, Part::Velocity, Part::Depth];
 
     /// Its name in output (`heading`, `yaw_rate`, `position`, `velocity`, `depth`).
@@ -122,7 +122,7 @@ pub enum DepthSource {
 
 /// The state at one autopilot time.
 #[derive(Debug, Clone, PartialEq)]
-pub struct StateEstimate {
+pub struct RawState {
     /// Autopilot time (s since its boot).
     pub t: f64,
     /// `x y z psi u v w r` (m, rad, m/s, rad/s), `NaN` where a part is stale or missing.
@@ -135,7 +135,7 @@ pub struct StateEstimate {
     pub capability: Capability,
 }
 
-impl StateEstimate {
+impl RawState {
     /// The status of one part.
     pub fn part(&self, part: Part) -> &PartStatus {
         &self.parts[Part::ALL.iter().position(|p| *p == part).expect("every part is listed")]
@@ -166,9 +166,9 @@ const ATTITUDE_HISTORY: usize = 32;
 /// A time stamp this far before the newest is a reboot of the autopilot (s).
 const REBOOT_STEP: f64 = 5.0;
 
-/// Builds [`StateEstimate`]s from the messages of one autopilot.
+/// Builds [`RawState`]s from the messages of one autopilot.
 #[derive(Debug, Clone, Default)]
-pub struct StateEstimator {
+pub struct StateAssembler {
     config: StateConfig,
     attitudes: VecDeque<Attitude>,
     local: Option<Local>,
@@ -177,7 +177,7 @@ pub struct StateEstimator {
     external_pressure_seen: bool,
     /// The newest autopilot time seen and when it was received.
     clock: Option<(f64, Instant)>,
-    /// Time of the last sample returned by [`StateEstimator::update`]: samples never go back.
+    /// Time of the last sample returned by [`StateAssembler::update`]: samples never go back.
     last_sample: Option<f64>,
     /// When the newest position arrived (host clock).
     local_arrival: Option<Instant>,
@@ -203,7 +203,7 @@ pub fn message_time(message: &MavMessage) -> Option<f64> {
     Some(f64::from(ms) * 1e-3)
 }
 
-impl StateEstimator {
+impl StateAssembler {
     /// An estimator with `config`.
     pub fn new(config: StateConfig) -> Self {
         Self { config, ..Self::default() }
@@ -227,7 +227,7 @@ impl StateEstimator {
     /// `LOCAL_POSITION_NED` while positions keep coming (so position and velocity are those of
     /// the sample's own time), `ATTITUDE` otherwise, from one and a half attitude periods after
     /// the last position on (a position source lost mid-run leaves no gap in the samples).
-    pub fn update(&mut self, r: &Received) -> Option<StateEstimate> {
+    pub fn update(&mut self, r: &Received) -> Option<RawState> {
         let sample = self.take(r)?;
         // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants, and a
         // position can carry a stamp older than the newest attitude: when the clock passes from
@@ -239,7 +239,7 @@ impl StateEstimator {
         Some(sample)
     }
 
-    fn take(&mut self, r: &Received) -> Option<StateEstimate> {
+    fn take(&mut self, r: &Received) -> Option<RawState> {
         let t = message_time(&r.message)?;
         match self.clock {
             Some((newest, _)) if t < newest - REBOOT_STEP => {
@@ -312,17 +312,17 @@ impl StateEstimator {
     }
 
     /// The state now, by the host clock (for a controller's cycle).
-    pub fn estimate_now(&self, now: Instant) -> StateEstimate {
+    pub fn estimate_now(&self, now: Instant) -> RawState {
         self.estimate_at(self.autopilot_time(now).unwrap_or(0.0))
     }
 
     /// The state at autopilot time `t` (s) from the newest sample of each part.
-    pub fn estimate_at(&self, t: f64) -> StateEstimate {
+    pub fn estimate_at(&self, t: f64) -> RawState {
         self.estimate_with(t, self.config.max_age)
     }
 
     /// The state at `t`, a position counting as fresh up to `position_max_age` (s).
-    fn estimate_with(&self, t: f64, position_max_age: f64) -> StateEstimate {
+    fn estimate_with(&self, t: f64, position_max_age: f64) -> RawState {
         let max_age = self.config.max_age;
         let status_within = |part, stamp: Option<f64>, limit: f64| {
             let age = stamp.map(|s| (t - s).max(0.0));
@@ -372,7 +372,7 @@ impl StateEstimator {
         } else {
             Capability::None
         };
-        StateEstimate { t, sim, parts, depth_source, capability }
+        RawState { t, sim, parts, depth_source, capability }
     }
 }
 
@@ -413,7 +413,7 @@ mod tests {
     #[test]
     fn surge_while_heading_east_is_an_east_velocity_turned_into_u() {
         // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         assert!(e.update(&attitude(960, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
         let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
         assert_eq!(s.capability, Capability::Full);
@@ -437,9 +437,9 @@ mod tests {
         // position stamped 68 ms before the attitude of its burst, as the firmware sends them.
         let t0 = Instant::now();
         let at = |r: Received, ms: u64| Received { at: t0 + std::time::Duration::from_millis(ms), ..r };
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         let mut times = Vec::new();
-        let mut feed = |e: &mut StateEstimator, r: Received| {
+        let mut feed = |e: &mut StateAssembler, r: Received| {
             times.extend(e.update(&r).map(|s| (s.t * 1e3).round() as i64));
             times.clone()
         };
@@ -471,7 +471,7 @@ mod tests {
 
     #[test]
     fn heading_is_unwrapped_across_pi() {
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         e.update(&attitude(0, 3.1, 0.0));
         let s = e.update(&attitude(40, -3.1, 0.0)).unwrap();
         assert!((s.sim[3] - (3.1 + (std::f64::consts::TAU - 6.2))).abs() < 1e-5, "{}", s.sim[3]);
@@ -479,7 +479,7 @@ mod tests {
 
     #[test]
     fn without_a_position_depth_comes_from_pressure_and_velocities_are_missing() {
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         // 2 m of fresh water: 2 * 1000 * 9.80665 Pa = 196.133 hPa above the surface.
         e.update(&pressure(900, 1013.25 + 196.133));
         let s = e.update(&attitude(1000, 0.5, 0.0)).unwrap();
@@ -494,7 +494,7 @@ mod tests {
 
     #[test]
     fn stale_parts_are_missing_not_held() {
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         e.update(&attitude(1000, 0.0, 0.0));
         e.update(&local(1000, [1.0, 1.0, 1.0], [0.0; 3]));
         // 0.6 s later only attitudes arrive: the position is stale and the attitude is the clock.
@@ -511,7 +511,7 @@ mod tests {
 
     #[test]
     fn a_reboot_clears_the_state() {
-        let mut e = StateEstimator::default();
+        let mut e = StateAssembler::default();
         e.update(&attitude(60_000, 1.0, 0.0));
         e.update(&local(60_000, [5.0; 3], [0.0; 3]));
         let s = e.update(&attitude(100, 0.2, 0.0)).unwrap();

@@ -71,10 +71,10 @@ fn analytic_vehicle_hot_calls_do_not_allocate() {
 /// the analytic vehicle.
 #[test]
 fn estimator_samples_do_not_allocate() {
-    use pinc::estimation::{Measurement, NoiseSettings, Tracker};
+    use pinc::estimation::{Measurement, NoiseSettings, Estimator};
     fn check<M: DiscreteModel>(name: &str, model: M) {
-        let mut tr = Tracker::new(model, NoiseSettings::default());
-        let feed = |tr: &mut Tracker<M>, t: f64| {
+        let mut tr = Estimator::new(model, NoiseSettings::default());
+        let feed = |tr: &mut Estimator<M>, t: f64| {
             tr.measure(Measurement::Depth { t, z: 1.0 });
             tr.measure(Measurement::Heading { t, psi: 0.3 });
             tr.measure(Measurement::YawRate { t, r: 0.01 });

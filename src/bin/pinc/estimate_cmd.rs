@@ -5,7 +5,7 @@
 use mavlink::dialects::ardupilotmega::MavMessage;
 use pinc::dataset::import::{TlogMessages, tlog_messages};
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{NoiseSettings, Tracker};
+use pinc::estimation::{NoiseSettings, Estimator};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::json;
 use std::io::Write;
@@ -112,7 +112,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
         .ok_or_else(|| format!("{}: no ATTITUDE message: no heading, no clock to estimate on", a.log.display()))?;
     let mut measurements = MavlinkMeasurements::new(a.surface_pressure, a.water_density, Some(thrusters));
     let model = Rk4Vehicle { params, ..Rk4Vehicle::with_dt(a.dt) };
-    let mut tracker = Tracker::new(model, noise).keep_history();
+    let mut estimator = Estimator::new(model, noise).keep_history();
     let (mut now, mut next_sample, mut horizontal) = (0.0f64, f64::NEG_INFINITY, false);
     for (_, sys, message) in &log.messages {
         if *sys != autopilot || (a.ignore_position && matches!(message, MavMessage::LOCAL_POSITION_NED(_))) {
@@ -125,20 +125,20 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
                 if let pinc::estimation::Measurement::Heading { t, .. } = m {
                     attitude_t = Some(t);
                 }
-                tracker.measure(m);
+                estimator.measure(m);
             }
-            Observation::Applied(t, u) => tracker.applied(t, u),
+            Observation::Applied(t, u) => estimator.applied(t, u),
         });
         // ATTITUDE is the clock: a sample every dt of its time.
         if let Some(t) = attitude_t {
             now = t;
             if t >= next_sample - 1e-9 {
-                tracker.advance(t).map_err(|e| format!("{}: the estimator at {t:.3} s: {e}", a.log.display()))?;
-                next_sample = if tracker.started() { tracker.ekf().t() + a.dt } else { t };
+                estimator.advance(t).map_err(|e| format!("{}: the estimator at {t:.3} s: {e}", a.log.display()))?;
+                next_sample = if estimator.started() { estimator.ekf().t() + a.dt } else { t };
             }
         }
     }
-    let steps = if a.no_smooth { tracker.filtered() } else { tracker.smoothed() };
+    let steps = if a.no_smooth { estimator.filtered() } else { estimator.smoothed() };
     if steps.is_empty() {
         return Err(format!(
             "{}: the estimator never started (it needs ATTITUDE and a depth: SCALED_PRESSURE2, SCALED_PRESSURE or LOCAL_POSITION_NED)",
@@ -171,7 +171,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     let report = json!({
         "log": a.log.display().to_string(), "out": a.out.display().to_string(), "samples": steps.len(),
         "span_s": [steps[0].t, steps[steps.len() - 1].t], "smoothed": !a.no_smooth,
-        "position_source": horizontal, "restarts": tracker.restarts(), "late": tracker.late(),
+        "position_source": horizontal, "restarts": estimator.restarts(), "late": estimator.late(),
         "damaged_frames": log.damaged, "torn_last_frame": log.torn,
         "mean_std": {"z": mean_std(2), "u": mean_std(4), "v": mean_std(5), "w": mean_std(6), "r": mean_std(7)},
         "identifiable": can, "not_identifiable": cannot,

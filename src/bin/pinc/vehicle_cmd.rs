@@ -4,11 +4,13 @@
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{NoiseSettings, Tracker};
+use pinc::estimation::{NoiseSettings, Estimator};
 use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
 use pinc::link::drive::{severity_level, statustext};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
+use pinc::link::outputs::{OutputFunctions, function_name, function_params};
+use pinc::link::{EkfStatus, HeadingReference, read_params};
 use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
@@ -59,6 +61,10 @@ pub struct StatusArgs {
     /// Seconds over which the message rates are measured.
     #[arg(long, default_value_t = 3.0)]
     window: f64,
+    /// Vehicle file: which ways of commanding reach its thrusters' outputs [default: a
+    /// BlueROV2's six thrusters on outputs 1-6].
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -149,6 +155,9 @@ fn from_autopilot(r: &Received, ap: &Autopilot) -> bool {
     r.header.system_id as u8 == ap.system_id && r.header.component_id == ap.component_id
 }
 
+/// `EKF_STATUS_REPORT`'s id.
+const EKF_STATUS_REPORT_ID: u32 = 193;
+
 /// `MAV_TYPE_SUBMARINE` -> `SUBMARINE`.
 fn enum_name(v: &impl std::fmt::Debug, prefix: &str) -> String {
     let s = format!("{v:?}");
@@ -195,8 +204,17 @@ impl Arrivals {
 
 fn run_status(a: StatusArgs) -> Result<(), String> {
     let window = positive("--window", a.window)?;
+    let thrusters = a.vehicle.as_ref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?;
     let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |_| {})?;
     link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
+    link.set_message_rate(EKF_STATUS_REPORT_ID, 2.0).map_err(|e| e.to_string())?;
+    let mut names = function_params();
+    names.extend(["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC"].map(String::from));
+    let params = read_params(&mut link, &autopilot, &names, Duration::from_secs(3), |r| {
+        estimator.update(r);
+    })
+    .map_err(|e| e.to_string())?;
+    let mut ekf: Option<EkfStatus> = None;
     let mut heartbeat = autopilot.heartbeat.clone();
     let mut version: Option<AUTOPILOT_VERSION_DATA> = None;
     let mut arrivals: BTreeMap<&'static str, Arrivals> = BTreeMap::new();
@@ -217,9 +235,19 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
         match &r.message {
             MavMessage::HEARTBEAT(h) if !is_ground_station(h) => heartbeat = h.clone(),
             MavMessage::AUTOPILOT_VERSION(v) => version = Some(v.clone()),
+            MavMessage::EKF_STATUS_REPORT(e) => ekf = Some(EkfStatus::new(0.0, e)),
             _ => {}
         }
     }
+    // Which ways of commanding reach the thrusters, from the outputs' functions.
+    let functions = OutputFunctions::from_params(&params);
+    let outputs: Vec<(String, u8)> = match &thrusters {
+        Some(t) => t.list.iter().map(|t| (format!("thruster {}", t.name), t.channel)).collect(),
+        None => (1..=6).map(|n| (format!("thruster {n}"), n)).collect(),
+    };
+    let ways = functions.ways(&outputs);
+    let heading = HeadingReference::of(&params, ekf.is_some_and(|e| e.absolute_position()));
+    let not_ready = ekf.map_or_else(|| vec!["no EKF_STATUS_REPORT answered".to_string()], |e| e.not_ready());
     let now = estimator.estimate_now(Instant::now());
     let rate_of = |name: &str| arrivals.get(name).and_then(Arrivals::rate);
     let pressure_rate = rate_of("SCALED_PRESSURE2").or_else(|| rate_of("SCALED_PRESSURE"));
@@ -258,6 +286,13 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
             "parts": parts, "messages": messages, "capability": capability_key(now.capability),
             "capability_text": now.capability.to_string(), "window_s": a.window,
             "malformed_frames": link.malformed(),
+            "outputs": functions.by_output.iter().map(|(n, f)| (n.to_string(), json!({"function": f, "name": function_name(*f)}))).collect::<serde_json::Map<_, _>>(),
+            "command_ways": ways.iter().map(|(w, r)| (w.name().to_string(), json!({"allowed": r.is_ok(), "why_not": r.as_ref().err().map(ToString::to_string)}))).collect::<serde_json::Map<_, _>>(),
+            "js_gain": params.get("JS_GAIN_DEFAULT"),
+            "heading_reference": heading.key(), "heading_reference_text": heading.describe(),
+            "compass_dec_rad": params.get("COMPASS_DEC"), "compass_autodec": params.get("COMPASS_AUTODEC"),
+            "ekf_flags": ekf.map(|e| e.flags), "ekf_not_ready": not_ready,
+            "ekf_position_measured": ekf.map(|e| e.position_measured()),
         });
         println!("{}", serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?);
         return Ok(());
@@ -279,6 +314,27 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
         println!("  {:<9} {what}", p.part.name());
     }
     println!("controller  {}", now.capability);
+    let outputs_line: Vec<String> =
+        functions.by_output.iter().map(|(n, f)| format!("{n} {}", function_name(*f))).collect();
+    println!(
+        "outputs     {}",
+        if outputs_line.is_empty() { "unknown (SERVOn_FUNCTION not answered)".to_string() } else { outputs_line.join(", ") }
+    );
+    for (way, r) in &ways {
+        match r {
+            Ok(()) => println!("command     --command {}: reaches every thruster", way.name()),
+            Err(e) => println!("command     --command {}: refused: {e}", way.name()),
+        }
+    }
+    if let Some(g) = params.get("JS_GAIN_DEFAULT") {
+        println!("pilot gain  {g} (JS_GAIN_DEFAULT: pinc's --command manual uses it)");
+    }
+    println!("{}", heading.describe());
+    if not_ready.is_empty() {
+        println!("estimate    the autopilot's attitude and heading are usable (EKF_STATUS_REPORT)");
+    } else {
+        println!("estimate    not ready: {}", not_ready.join("; "));
+    }
     if link.malformed() > 0 {
         println!("malformed   {} frames could not be parsed", link.malformed());
     }
@@ -321,7 +377,7 @@ fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
 /// message; its estimate is written beside each raw state sample.
 struct Estimation {
     measurements: MavlinkMeasurements,
-    tracker: Tracker<Rk4Vehicle>,
+    filter: Estimator<Rk4Vehicle>,
 }
 
 impl Estimation {
@@ -330,7 +386,7 @@ impl Estimation {
         let thrusters = Thrusters::load(vehicle).ok();
         Ok(Self {
             measurements: MavlinkMeasurements::new(link.surface_pressure, link.water_density, thrusters),
-            tracker: Tracker::new(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) }, NoiseSettings::default()),
+            filter: Estimator::new(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) }, NoiseSettings::default()),
         })
     }
 }
@@ -375,10 +431,10 @@ impl Writer {
         if let Some(e) = &mut self.estimation
             && from_autopilot(r, &self.autopilot)
         {
-            let tracker = &mut e.tracker;
+            let filter = &mut e.filter;
             e.measurements.observe(t, &r.message, |o| match o {
-                Observation::Measured(m) => tracker.measure(m),
-                Observation::Applied(t, u) => tracker.applied(t, u),
+                Observation::Measured(m) => filter.measure(m),
+                Observation::Applied(t, u) => filter.applied(t, u),
             });
         }
         if let (Some(p), MavMessage::SERVO_OUTPUT_RAW(o)) = (&mut self.inputs, &r.message)
@@ -393,10 +449,10 @@ impl Writer {
     }
 
     /// A fresh state sample.
-    fn state(&mut self, s: &pinc::link::StateEstimate) -> Result<(), String> {
+    fn state(&mut self, s: &pinc::link::RawState) -> Result<(), String> {
         self.notes.note_capability(s.t, s.capability);
         if let Some(e) = &mut self.estimation {
-            match e.tracker.advance(s.t) {
+            match e.filter.advance(s.t) {
                 Ok(Some(estimate)) => self.rec.estimate(&estimate).map_err(|e| e.to_string())?,
                 Ok(None) => {}
                 Err(err) => self.notes.log.push((s.t, Level::Warning, format!("state estimator: {err}"))),

@@ -22,7 +22,7 @@ pub const HORIZONTAL_FRESH_S: f64 = 1.0;
 const QUEUE: usize = 256;
 
 /// The state estimator of a vehicle: an [`Ekf`] fed in time.
-pub struct Tracker<M: DiscreteModel> {
+pub struct Estimator<M: DiscreteModel> {
     ekf: Ekf<M>,
     started: bool,
     pending: Vec<Measurement>,
@@ -37,11 +37,11 @@ pub struct Tracker<M: DiscreteModel> {
     last_horizontal: Option<f64>,
     late: u64,
     restarts: u64,
-    /// The forward pass, kept for a smoother when asked for ([`Tracker::keep_history`]).
+    /// The forward pass, kept for a smoother when asked for ([`Estimator::keep_history`]).
     history: Option<Vec<ForwardStep>>,
 }
 
-impl<M: DiscreteModel> Tracker<M> {
+impl<M: DiscreteModel> Estimator<M> {
     /// An estimator on `model` with `noise`.
     pub fn new(model: M, noise: NoiseSettings) -> Self {
         Self {
@@ -60,14 +60,14 @@ impl<M: DiscreteModel> Tracker<M> {
     }
 
     /// Keeps every step of the forward pass (a recorded log's replay), for
-    /// [`Tracker::smoothed`]. Allocates as it goes: not for a control loop.
+    /// [`Estimator::smoothed`]. Allocates as it goes: not for a control loop.
     pub fn keep_history(mut self) -> Self {
         self.history = Some(Vec::new());
         self
     }
 
     /// The smoothed estimates of every step kept so far (each unbroken run smoothed on its
-    /// own); empty without [`Tracker::keep_history`].
+    /// own); empty without [`Estimator::keep_history`].
     pub fn smoothed(&self) -> Vec<Smoothed> {
         let Some(h) = &self.history else { return Vec::new() };
         let mut out = Vec::with_capacity(h.len());
@@ -82,7 +82,7 @@ impl<M: DiscreteModel> Tracker<M> {
     }
 
     /// The filter's own estimates of every step kept so far (what it knew at each step, before
-    /// smoothing); empty without [`Tracker::keep_history`].
+    /// smoothing); empty without [`Estimator::keep_history`].
     pub fn filtered(&self) -> Vec<Smoothed> {
         let Some(h) = &self.history else { return Vec::new() };
         h.iter()
@@ -269,7 +269,7 @@ mod tests {
     #[test]
     fn starts_on_heading_yaw_rate_and_depth_then_steps_on_the_grid() {
         let model = Rk4Vehicle::with_dt(0.08);
-        let mut tr = Tracker::new(model, NoiseSettings::default());
+        let mut tr = Estimator::new(model, NoiseSettings::default());
         tr.measure(Measurement::Heading { t: 10.0, psi: 0.5 });
         assert!(tr.advance(10.0).unwrap().is_none(), "no depth yet");
         tr.measure(Measurement::Heading { t: 10.08, psi: 0.5 });
