@@ -11,9 +11,17 @@ use crate::types::{Input, NS, NU, SimState};
 use crate::vehicle::{to_network, wrap_angle};
 use nalgebra::{SMatrix, SVector};
 
-/// Filter state size: the simulator state `x y z psi u v w r` and the disturbance
-/// `dX dY dZ dMz` added to the applied input.
-pub const NE: usize = NS + NU;
+/// Filter state size: the simulator state `x y z psi u v w r`, the disturbance `dX dY dZ dMz`
+/// added to the applied input, and the heave gain `gZ`: the fraction of the applied heave
+/// force the model misses (the applied `Z` acts as `(1 + gZ) Z`), which a model of another
+/// vehicle's mass and thrusters gets wrong in proportion to the force, not as an offset.
+pub const NE: usize = NS + NU + 1;
+/// Index of the heave gain `gZ` in the filter state.
+pub const HEAVE_GAIN: usize = NS + NU;
+/// Prior spread of the heave gain, and its random walk per step (it drifts only as the
+/// vehicle's trim or thrusters change).
+const HEAVE_GAIN_STD: f64 = 1.0;
+const HEAVE_GAIN_STEP_STD: f64 = 0.004;
 
 /// The filter's state vector.
 pub type FilterState = SVector<f64, NE>;
@@ -34,6 +42,9 @@ pub struct Estimate {
     pub disturbance: Input,
     /// Its standard deviations.
     pub disturbance_std: [f64; NU],
+    /// The heave gain `gZ` (the applied heave force acts as `(1 + gZ) Z`) and its standard
+    /// deviation.
+    pub heave_gain: (f64, f64),
 }
 
 /// How one measurement was taken.
@@ -140,6 +151,7 @@ impl<M: DiscreteModel> Ekf<M> {
             let s = noise.disturbance_std[i];
             q[(NS + i, NS + i)] = s * s * (1.0 - decay * decay);
         }
+        q[(HEAVE_GAIN, HEAVE_GAIN)] = HEAVE_GAIN_STEP_STD * HEAVE_GAIN_STEP_STD;
         Self {
             model,
             ws,
@@ -252,6 +264,7 @@ impl<M: DiscreteModel> Ekf<M> {
             let s = self.noise.disturbance_std[i];
             self.p[(NS + i, NS + i)] = s * s;
         }
+        self.p[(HEAVE_GAIN, HEAVE_GAIN)] = HEAVE_GAIN_STD * HEAVE_GAIN_STD;
         self.counts = FilterCounts::default();
         self.rejected_run = [0; NS];
         self.health = Health::default();
@@ -287,7 +300,8 @@ impl<M: DiscreteModel> Ekf<M> {
         let std = std::array::from_fn(|i| self.p[(i, i)].max(0.0).sqrt());
         let disturbance = Input::from_fn(|i, _| self.x[NS + i]);
         let disturbance_std = std::array::from_fn(|i| self.p[(NS + i, NS + i)].max(0.0).sqrt());
-        Estimate { t: self.t, sim, std, disturbance, disturbance_std }
+        let heave_gain = (self.x[HEAVE_GAIN], self.p[(HEAVE_GAIN, HEAVE_GAIN)].max(0.0).sqrt());
+        Estimate { t: self.t, sim, std, disturbance, disturbance_std, heave_gain }
     }
 
     /// One step of the model's sample period under the applied input `u` (plus the
@@ -298,7 +312,8 @@ impl<M: DiscreteModel> Ekf<M> {
     pub fn predict(&mut self, u: &Input) -> Result<(), RuntimeError> {
         let sim = SimState::from_fn(|i, _| self.x[i]);
         let d = Input::from_fn(|i, _| self.x[NS + i]);
-        let total = u + d;
+        let mut total = u + d;
+        total[2] += self.x[HEAVE_GAIN] * u[2];
         let x0 = to_network(&sim);
         self.model.linearise_horizon(&mut self.ws, &x0, std::slice::from_ref(&total), &mut self.lin)?;
         let next = self.lin.trajectory()[1];
@@ -322,6 +337,9 @@ impl<M: DiscreteModel> Ekf<M> {
         for i in 0..NU {
             f[(NS + i, NS + i)] = self.decay;
         }
+        // The heave gain acts through the input's heave column, scaled by the applied force.
+        f.fixed_view_mut::<NS, 1>(0, HEAVE_GAIN).copy_from(&(b_sim.column(2) * u[2]));
+        f[(HEAVE_GAIN, HEAVE_GAIN)] = 1.0;
         self.adapt();
         let mut q = self.q;
         for i in 0..NS {
@@ -470,8 +488,8 @@ mod tests {
         let step = |x: &FilterState| {
             let mut e = Ekf::new(model, noise.clone());
             e.reset(0.0, &SimState::from_fn(|i, _| x[i]), &[1.0; NS]);
-            for i in 0..NU {
-                e.x[NS + i] = x[NS + i];
+            for i in NS..NE {
+                e.x[i] = x[i];
             }
             e.predict(&u).unwrap();
             (e.x, e.p)
@@ -479,12 +497,15 @@ mod tests {
         let mut base = FilterState::zeros();
         base.fixed_rows_mut::<NS>(0).copy_from(&x0);
         base[NS + 2] = 2.0;
-        // P after one step from P0 = I (the disturbance's prior too) minus Q is F F'.
+        base[HEAVE_GAIN] = 0.3;
+        // P after one step from P0 = I (the disturbance's and heave gain's prior too) minus Q
+        // is F F'.
         let mut e = Ekf::new(model, noise.clone());
         e.reset(0.0, &x0, &[1.0; NS]);
-        for i in 0..NU {
-            e.p[(NS + i, NS + i)] = 1.0;
+        for i in NS..NE {
+            e.p[(i, i)] = 1.0;
         }
+        e.x[HEAVE_GAIN] = 0.3;
         e.x[NS + 2] = 2.0;
         e.predict(&u).unwrap();
         let ff = e.p - e.q;

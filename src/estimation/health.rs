@@ -76,7 +76,7 @@ pub struct SensorHealth {
     pub nis_slow: f64,
     /// Fraction gated out, about the last two seconds.
     pub rejected_fast: f64,
-    /// The largest slow mean NIS of the run (after the warm-up).
+    /// The largest slow mean NIS of the run (once the slow mean spans its window).
     pub nis_slow_max: f64,
 }
 
@@ -97,7 +97,9 @@ impl SensorHealth {
         }
         self.count += 1;
         self.rejected += u64::from(rejected);
-        if self.count >= WARM_UP {
+        // The slow mean's largest value once it spans its whole window: a start-up transient
+        // (the autopilot aligning its heading) is not a model that fits badly.
+        if self.count as f64 >= 1.0 / SLOW {
             self.nis_slow_max = self.nis_slow_max.max(self.nis_slow);
         }
     }

@@ -156,14 +156,10 @@ impl OutputFunctions {
 mod tests {
     use super::*;
 
+    /// ArduSub's simulator's vectored frame: six thrusters on outputs 1-6.
     fn six_thrusters() -> Thrusters {
-        let mut text = String::new();
-        for n in 1..=6 {
-            text += &format!(
-                "[[thruster]]\nname = \"t{n}\"\nchannel = {n}\nposition = [0.0, 0.0, 0.0]\ndirection = [1.0, 0.0, 0.0]\ncurve = \"lin\"\n"
-            );
-        }
-        Thrusters::from_toml(&text, std::path::Path::new("test.toml")).expect("valid thrusters").expect("thrusters present")
+        Thrusters::load(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/ardusub/sitl_vectored.toml"))
+            .expect("the fixture's thrusters")
     }
 
     fn functions(f: impl Fn(u8) -> f64) -> OutputFunctions {

@@ -705,7 +705,7 @@ pub fn run<M: DiscreteModel + Clone>(
             let m = json!({
                 "t_autopilot_s": e.t, "estimate": e.sim.as_slice(), "std": e.std,
                 "disturbance": e.disturbance.as_slice(), "disturbance_std": e.disturbance_std, "raw": raw,
-                "position_source": horizontal, "process_noise_scale": scale,
+                "position_source": horizontal, "process_noise_scale": scale, "heave_gain": e.heave_gain.0,
             });
             if log_error.is_none() {
                 log_error = log.live("/estimate", "pinc.Estimate", t, m).err();
