@@ -21,7 +21,7 @@ use criterion::{Criterion, criterion_group};
 #[path = "common/mod.rs"]
 mod common;
 use common::median_ns;
-use pinc::estimation::{Measurement, NoiseSettings, Estimator};
+use pinc::estimation::{Estimator, Measurement, NoiseSettings};
 use pinc::model::PincModel;
 use pinc::mpc::{Mpc, MpcConfig, Reference};
 use pinc::runtime::Predictor;

@@ -190,8 +190,9 @@ fn try_main(a: Args) -> Result<(), String> {
     // nothing and leaves no log.
     #[cfg(feature = "vehicle")]
     let live_run = match &a.connect {
-        Some(link) => Some(live(&a, link, Mpc::new(predictor.clone(), cfg.clone()), scenario, &vehicle, &mut log))
-            .transpose(),
+        Some(link) => {
+            Some(live(&a, link, Mpc::new(predictor.clone(), cfg.clone()), scenario, &vehicle, &mut log)).transpose()
+        }
         None => Ok(None),
     }
     .inspect_err(|_| {

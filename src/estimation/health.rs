@@ -27,7 +27,8 @@ pub const SENSORS: usize = 5;
 
 impl Sensor {
     /// Every sensor, in index order.
-    pub const ALL: [Sensor; SENSORS] = [Sensor::Depth, Sensor::Heading, Sensor::YawRate, Sensor::Position, Sensor::Velocity];
+    pub const ALL: [Sensor; SENSORS] =
+        [Sensor::Depth, Sensor::Heading, Sensor::YawRate, Sensor::Position, Sensor::Velocity];
 
     /// Its index in the health arrays.
     pub fn index(self) -> usize {

@@ -10,14 +10,14 @@
 //! needs. `docs/MODEL.md` (section "State estimation") gives the equations.
 
 pub mod ekf;
+pub mod estimator;
 pub mod health;
 #[cfg(feature = "tools")]
 pub mod mavlink;
 pub mod measurement;
 pub mod smoother;
-pub mod estimator;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
+pub use estimator::Estimator;
 pub use health::{Health, Lost, Sensor};
 pub use measurement::{Measurement, NoiseSettings};
-pub use estimator::Estimator;

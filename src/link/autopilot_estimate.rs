@@ -169,11 +169,13 @@ impl HeadingReference {
                 "heading: true north by the declination set by hand (COMPASS_DEC {declination_deg:.2} deg); without a \
                  position the autopilot cannot check it"
             ),
-            HeadingReference::Magnetic => "heading: MAGNETIC north: COMPASS_DEC is 0 and the autopilot has no position \
+            HeadingReference::Magnetic => {
+                "heading: MAGNETIC north: COMPASS_DEC is 0 and the autopilot has no position \
                                            to look the declination up, so every heading (references included) is off \
                                            true north by the local declination; set COMPASS_DEC (radians) to steer by \
                                            true north"
-                .into(),
+                    .into()
+            }
             HeadingReference::Unknown => {
                 "heading: reference unknown (the autopilot did not answer COMPASS_DEC / COMPASS_AUTODEC)".into()
             }
@@ -228,7 +230,9 @@ mod tests {
         assert_eq!(HeadingReference::of(&p(0.2007, 1.0), true), HeadingReference::TrueLookedUp);
         assert_eq!(HeadingReference::of(&p(0.0, 1.0), false), HeadingReference::Magnetic);
         let set = HeadingReference::of(&p(0.2007, 1.0), false);
-        assert!(matches!(set, HeadingReference::TrueBySetting { declination_deg } if (declination_deg - 11.5).abs() < 0.01));
+        assert!(
+            matches!(set, HeadingReference::TrueBySetting { declination_deg } if (declination_deg - 11.5).abs() < 0.01)
+        );
         assert_eq!(HeadingReference::of(&Params::default(), true).key(), "unknown");
         assert!(HeadingReference::Magnetic.describe().contains("COMPASS_DEC"));
     }

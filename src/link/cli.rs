@@ -6,7 +6,7 @@ use super::drive::DriveSettings;
 use super::link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
 use super::safety::SafetyLimits;
 use super::signing::SigningKey;
-use super::state::{StateConfig, StateAssembler};
+use super::state::{StateAssembler, StateConfig};
 use super::url::LinkAddress;
 use crate::estimation::NoiseSettings;
 use crate::vehicle::Thrusters;

@@ -560,7 +560,13 @@ impl Drive {
     /// Ends a session that has sent nothing yet (a refusal of the autopilot's configuration):
     /// no command goes out.
     fn refuse(&mut self, trigger: Trigger) -> Stopped {
-        Stopped { trigger: Some(trigger), t: self.now_t(), neutral_t: None, disarm_sent: false, notes: std::mem::take(&mut self.notes) }
+        Stopped {
+            trigger: Some(trigger),
+            t: self.now_t(),
+            neutral_t: None,
+            disarm_sent: false,
+            notes: std::mem::take(&mut self.notes),
+        }
     }
 
     fn stop(&mut self, trigger: Option<Trigger>) -> Stopped {

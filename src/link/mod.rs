@@ -29,5 +29,5 @@ pub use params::{Params, read_params};
 pub use record::{InputsFromOutputs, RecordError, RecordStats, Recorder};
 pub use safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 pub use signing::{SigningError, SigningKey};
-pub use state::{Capability, Part, PartStatus, StateConfig, RawState, StateAssembler};
+pub use state::{Capability, Part, PartStatus, RawState, StateAssembler, StateConfig};
 pub use url::{LinkAddress, UrlError};

@@ -68,9 +68,8 @@ pub struct WayRefused {
 impl OutputFunctions {
     /// The functions among `params` ([`function_params`]).
     pub fn from_params(params: &Params) -> Self {
-        let by_output = (1..=OUTPUTS)
-            .filter_map(|n| params.get(&function_param(n)).map(|v| (n, v.round() as i64)))
-            .collect();
+        let by_output =
+            (1..=OUTPUTS).filter_map(|n| params.get(&function_param(n)).map(|v| (n, v.round() as i64))).collect();
         Self { by_output }
     }
 
@@ -99,7 +98,8 @@ impl OutputFunctions {
     /// The outputs that do not, each named with its function, what commanding that way would
     /// do, and what to do instead.
     pub fn check(&self, way: CommandWay, thrusters: &Thrusters) -> Result<(), WayRefused> {
-        let named: Vec<(String, u8)> = thrusters.list.iter().map(|t| (format!("thruster {}", t.name), t.channel)).collect();
+        let named: Vec<(String, u8)> =
+            thrusters.list.iter().map(|t| (format!("thruster {}", t.name), t.channel)).collect();
         self.check_outputs(way, &named)
     }
 
@@ -164,7 +164,9 @@ mod tests {
 
     fn functions(f: impl Fn(u8) -> f64) -> OutputFunctions {
         let names = function_params();
-        OutputFunctions::from_params(&Params::from_pairs(names.iter().zip(1..=OUTPUTS).map(|(k, n)| (k.as_str(), f(n)))))
+        OutputFunctions::from_params(&Params::from_pairs(
+            names.iter().zip(1..=OUTPUTS).map(|(k, n)| (k.as_str(), f(n))),
+        ))
     }
 
     #[test]

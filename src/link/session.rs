@@ -556,10 +556,8 @@ pub fn run<M: DiscreteModel + Clone>(
                         from_autopilot: false,
                     });
                 }
-                let reference = HeadingReference::of(
-                    drive.params(),
-                    drive.ekf_status().is_some_and(|s| s.absolute_position()),
-                );
+                let reference =
+                    HeadingReference::of(drive.params(), drive.ekf_status().is_some_and(|s| s.absolute_position()));
                 let level = if reference == HeadingReference::Magnetic { Level::Warning } else { Level::Info };
                 if level == Level::Warning {
                     eprintln!("{}", reference.describe());

@@ -71,7 +71,7 @@ fn analytic_vehicle_hot_calls_do_not_allocate() {
 /// the analytic vehicle.
 #[test]
 fn estimator_samples_do_not_allocate() {
-    use pinc::estimation::{Measurement, NoiseSettings, Estimator};
+    use pinc::estimation::{Estimator, Measurement, NoiseSettings};
     fn check<M: DiscreteModel>(name: &str, model: M) {
         let mut tr = Estimator::new(model, NoiseSettings::default());
         let feed = |tr: &mut Estimator<M>, t: f64| {

@@ -5,7 +5,7 @@
 use mavlink::dialects::ardupilotmega::MavMessage;
 use pinc::dataset::import::{TlogMessages, tlog_messages};
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{NoiseSettings, Estimator};
+use pinc::estimation::{Estimator, NoiseSettings};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::json;
 use std::io::Write;

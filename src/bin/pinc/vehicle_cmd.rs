@@ -4,17 +4,17 @@
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{NoiseSettings, Estimator};
+use pinc::estimation::{Estimator, NoiseSettings};
 use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
 use pinc::link::drive::{severity_level, statustext};
 use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
 use pinc::link::outputs::{OutputFunctions, function_name, function_params};
-use pinc::link::{EkfStatus, HeadingReference, read_params};
 use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
+use pinc::link::{EkfStatus, HeadingReference, read_params};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::{Value, json};
 use std::cell::RefCell;
@@ -318,7 +318,11 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
         functions.by_output.iter().map(|(n, f)| format!("{n} {}", function_name(*f))).collect();
     println!(
         "outputs     {}",
-        if outputs_line.is_empty() { "unknown (SERVOn_FUNCTION not answered)".to_string() } else { outputs_line.join(", ") }
+        if outputs_line.is_empty() {
+            "unknown (SERVOn_FUNCTION not answered)".to_string()
+        } else {
+            outputs_line.join(", ")
+        }
     );
     for (way, r) in &ways {
         match r {
