@@ -122,6 +122,12 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[arg(long, value_parser = ["althold", "guided"], requires = "connect")]
     autopilot_hold: Option<String>,
+    /// Serve the run live over Foxglove's WebSocket protocol at [HOST:]PORT (loopback unless a
+    /// host is given; port 0 picks a free one): the MCAP log's topics as they are written, to
+    /// open in Foxglove without a file. A simulated run then goes in real time.
+    #[cfg(feature = "live-view")]
+    #[arg(long, value_name = "[HOST:]PORT")]
+    foxglove: Option<String>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -184,7 +190,23 @@ fn try_main(a: Args) -> Result<(), String> {
     let mcap = a.out_dir.join(format!("{name}.mcap"));
     let info =
         RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
+    #[cfg(feature = "live-view")]
+    let mut log = match &a.foxglove {
+        Some(address) => {
+            let view = pinc::closed_loop::live_view::LiveView::start(address).map_err(|e| e.to_string())?;
+            // Scripts (and the tests) read the port from this line.
+            eprintln!("live view: ws://127.0.0.1:{} (open it in Foxglove)", view.port());
+            McapLog::create_with_view(&mcap, &info, view).map_err(|e| e.to_string())?
+        }
+        None => McapLog::create(&mcap, &info).map_err(|e| e.to_string())?,
+    };
+    #[cfg(not(feature = "live-view"))]
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
+    // A run watched live goes at the vehicle's pace.
+    #[cfg(feature = "live-view")]
+    let real_time = a.foxglove.is_some();
+    #[cfg(not(feature = "live-view"))]
+    let real_time = false;
     // On a live vehicle (--connect) the plant is the vehicle (pinc::link::session); otherwise
     // the simulator. A run that cannot start (no link, no autopilot, a bad option) commanded
     // nothing and leaves no log.
@@ -209,7 +231,7 @@ fn try_main(a: Args) -> Result<(), String> {
                     Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?,
                     scenario,
                     &vehicle,
-                    a.json,
+                    (a.json, real_time),
                     &mut log,
                 )
             } else {
@@ -217,7 +239,7 @@ fn try_main(a: Args) -> Result<(), String> {
                     Mpc::new(predictor, cfg.clone()).map_err(|e| e.to_string())?,
                     scenario,
                     &vehicle,
-                    a.json,
+                    (a.json, real_time),
                     &mut log,
                 )
             };
@@ -315,9 +337,10 @@ fn closed_loop<M: DiscreteModel>(
     mut mpc: Mpc<M>,
     scenario: &Scenario,
     vehicle: &VehicleParams,
-    quiet: bool,
+    (quiet, real_time): (bool, bool),
     log: &mut McapLog,
 ) -> (Vec<Sample>, Option<LogError>) {
+    let started = std::time::Instant::now();
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
@@ -335,6 +358,10 @@ fn closed_loop<M: DiscreteModel>(
         }
         bar.set_message(format!("{:5.1} s  z {:5.2} m  solve {:5.2} ms", s.t, s.state[2], s.cycle.solve_us / 1e3));
         bar.inc(1);
+        if real_time {
+            let due = started + std::time::Duration::from_secs_f64(s.t);
+            std::thread::sleep(due.saturating_duration_since(std::time::Instant::now()));
+        }
         !stop.load(Ordering::Relaxed)
     });
     bar.finish_and_clear();

@@ -23,8 +23,9 @@ describes ArduSub's simulator and its logs):
   thruster i's PWM (0 or 65535 releases it);
 - PARAM_REQUEST_READ by name, answered by PARAM_VALUE for the parameters pinc reads:
   SERVO1..8_FUNCTION (``--outputs motors``, the default: 33-38, the autopilot's own motors as
-  on a stock BlueROV2; ``passthrough``: 51-56, RCIN1-6), JS_GAIN_DEFAULT, COMPASS_DEC (0) and
-  COMPASS_AUTODEC (1); other names get no answer, as ArduPilot gives none;
+  on a stock BlueROV2; ``passthrough``: 51-56, RCIN1-6), JS_GAIN_DEFAULT, COMPASS_DEC (0),
+  COMPASS_AUTODEC (1) and EK3_SRC1_POSXY (3, GPS); other names get no answer, as ArduPilot
+  gives none;
 - EKF_STATUS_REPORT at its requested interval: attitude, velocity and vertical position good,
   and the horizontal position (absolute and relative) while LOCAL_POSITION_NED is sent;
 - the thruster model of ArduSub's simulator: s = (PWM - 1500) / 400, zero within +-25 us of
@@ -268,7 +269,8 @@ class FakeArduSub:
             if 1 <= n <= 6:
                 return float((50 if self.args.outputs == "passthrough" else 32) + n)
             return 0.0
-        return {"JS_GAIN_DEFAULT": self.args.gain, "COMPASS_DEC": 0.0, "COMPASS_AUTODEC": 1.0}.get(name)
+        return {"JS_GAIN_DEFAULT": self.args.gain, "COMPASS_DEC": 0.0, "COMPASS_AUTODEC": 1.0,
+                "EK3_SRC1_POSXY": 3.0}.get(name)
 
     # ---- incoming -------------------------------------------------------------------------
     def ack(self, command: int, result: int = mav.MAV_RESULT_ACCEPTED):

@@ -49,6 +49,9 @@ pub enum LogError {
     /// A message could not be encoded.
     #[error("JSON: {0}")]
     Json(#[from] serde_json::Error),
+    /// The live view refused a channel.
+    #[error("{0}")]
+    View(String),
 }
 
 /// Severity of a `/log` message (Foxglove's levels).
@@ -126,6 +129,9 @@ pub struct McapLog<W: Write + Seek = BufWriter<File>> {
     was_on_circle: bool,
     /// The channels of a live run (`/link/cycle`, `/estimate`), each created on first use.
     live_channels: BTreeMap<&'static str, u16>,
+    /// Every message also served as it is written (`--foxglove`).
+    #[cfg(feature = "live-view")]
+    view: Option<super::live_view::LiveView>,
 }
 
 /// Foxglove's `time` type.
@@ -162,6 +168,16 @@ impl McapLog {
         let file = File::create(path).map_err(|source| LogError::Io { path: path.to_owned(), source })?;
         Self::new(BufWriter::new(file), info)
     }
+
+    /// As [`McapLog::create`], every message also served on `view` as it is written.
+    ///
+    /// # Errors
+    /// As [`McapLog::create`]; the view refuses a channel.
+    #[cfg(feature = "live-view")]
+    pub fn create_with_view(path: &Path, info: &RunInfo, view: super::live_view::LiveView) -> Result<Self, LogError> {
+        let file = File::create(path).map_err(|source| LogError::Io { path: path.to_owned(), source })?;
+        Self::start(BufWriter::new(file), info, Some(view))
+    }
 }
 
 impl<W: Write + Seek> McapLog<W> {
@@ -170,6 +186,17 @@ impl<W: Write + Seek> McapLog<W> {
     /// # Errors
     /// Writing fails, or the model file cannot be hashed.
     pub fn new(out: W, info: &RunInfo) -> Result<Self, LogError> {
+        #[cfg(feature = "live-view")]
+        return Self::start(out, info, None);
+        #[cfg(not(feature = "live-view"))]
+        Self::start(out, info)
+    }
+
+    fn start(
+        out: W,
+        info: &RunInfo,
+        #[cfg(feature = "live-view")] mut view: Option<super::live_view::LiveView>,
+    ) -> Result<Self, LogError> {
         let options = mcap::WriteOptions::new().library(concat!("pinc ", env!("CARGO_PKG_VERSION")));
         let mut writer = options.create(out)?;
         let mut channels = [0u16; TOPICS.len()];
@@ -177,6 +204,10 @@ impl<W: Write + Seek> McapLog<W> {
             let data = serde_json::to_vec(&schema_of(schema))?;
             let schema_id = writer.add_schema(schema, "jsonschema", &data)?;
             channels[i] = writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
+            #[cfg(feature = "live-view")]
+            if let Some(v) = &mut view {
+                v.add_channel(channels[i], topic, schema, &data).map_err(LogError::View)?;
+            }
         }
         writer.write_metadata(&Metadata { name: "run".into(), metadata: run_metadata(info)? })?;
         let mut log = Self {
@@ -188,6 +219,8 @@ impl<W: Write + Seek> McapLog<W> {
             was_inside: true,
             was_on_circle: true,
             live_channels: BTreeMap::new(),
+            #[cfg(feature = "live-view")]
+            view,
         };
         // NED seen from a z-up world: a half turn about x.
         log.write(
@@ -241,8 +274,13 @@ impl<W: Write + Seek> McapLog<W> {
                 let schema_json = object(json!({
                     "timestamp": object(json!({"sec": {"type": "integer"}, "nsec": {"type": "integer"}})),
                 }));
-                let schema_id = self.writer.add_schema(schema, "jsonschema", &serde_json::to_vec(&schema_json)?)?;
+                let data = serde_json::to_vec(&schema_json)?;
+                let schema_id = self.writer.add_schema(schema, "jsonschema", &data)?;
                 let id = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
+                #[cfg(feature = "live-view")]
+                if let Some(v) = &mut self.view {
+                    v.add_channel(id, topic, schema, &data).map_err(LogError::View)?;
+                }
                 self.live_channels.insert(topic, id);
                 id
             }
@@ -268,6 +306,10 @@ impl<W: Write + Seek> McapLog<W> {
         let header = MessageHeader { channel_id, sequence: self.sequence, log_time: nanos(t), publish_time: nanos(t) };
         self.sequence = self.sequence.wrapping_add(1);
         self.writer.write_to_known_channel(&header, &data)?;
+        #[cfg(feature = "live-view")]
+        if let Some(v) = &self.view {
+            v.log(channel_id, header.log_time, &data);
+        }
         Ok(())
     }
 
@@ -441,6 +483,10 @@ impl<W: Write + Seek> McapLog<W> {
         // with its error (dropping a `BufWriter` would swallow it).
         self.writer.into_inner().flush().map_err(mcap::McapError::from)?;
         let messages = written.stats.map_or(0, |s| s.message_count);
+        #[cfg(feature = "live-view")]
+        if let Some(v) = self.view.take() {
+            v.stop();
+        }
         Ok(LogStats { messages, log_messages: self.log_messages })
     }
 }

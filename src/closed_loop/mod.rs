@@ -1,9 +1,12 @@
 //! The closed loop: the analytic vehicle as the plant (inputs held over each sample, RK4
 //! with 16 sub-steps), an [`Mpc`](crate::mpc::Mpc) on any model, the tracking scenarios,
 //! the summary of a run (tracking errors, overshoot, settling, solver timing, fallbacks,
-//! bound violations) and its MCAP log for Foxglove.
+//! bound violations) and its MCAP log for Foxglove, also served live over Foxglove's WebSocket
+//! protocol with feature `live-view`.
 
 pub mod campaign;
+#[cfg(feature = "live-view")]
+pub mod live_view;
 mod log;
 pub mod monte_carlo;
 mod run;

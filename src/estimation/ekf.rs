@@ -401,21 +401,27 @@ impl<M: DiscreteModel> Ekf<M> {
         h
     }
 
-    /// Fuses `m` into the estimate now (its stamp is not used: the caller fuses measurements
-    /// at the sample they belong to).
+    /// Fuses `m` into the estimate now. Depth and heading are compared with the state at the
+    /// measurement's own stamp, to first order (`z(t_m) ~ z - (t - t_m) w`, likewise `psi` with
+    /// `r`): measurements are fused at the sample after they arrive, up to a sample later, and
+    /// a heave estimate that took them as of now would lag by half a sample on average.
     pub fn update(&mut self, m: &Measurement) -> Update {
         let n = &self.noise;
         let (sd, sh, sr, sp, sv, sb) =
             (n.depth_std, n.heading_std, n.yaw_rate_std, n.position_std, n.velocity_ned_std, n.velocity_body_std);
+        // How far the measurement's stamp lies behind the estimate (within a few samples).
+        let age = (self.t - m.t()).clamp(-0.25, 0.25);
         let all = match *m {
             Measurement::Depth { z, .. } => {
                 // A sensor that lags by `delay` reads z(t - delay) ~ z(t) - delay w(t).
-                let delay = n.depth_delay;
+                let delay = n.depth_delay + age;
                 let h = Self::row(&[(2, 1.0), (6, -delay)]);
                 self.scalar(z - (self.x[2] - delay * self.x[6]), &h, sd * sd, Sensor::Depth, true)
             }
             Measurement::Heading { psi, .. } => {
-                self.scalar(wrap_angle(psi - self.x[3]), &Self::row(&[(3, 1.0)]), sh * sh, Sensor::Heading, true)
+                let h = Self::row(&[(3, 1.0), (7, -age)]);
+                let y = wrap_angle(psi - (self.x[3] - age * self.x[7]));
+                self.scalar(y, &h, sh * sh, Sensor::Heading, true)
             }
             // The gyro measures the turn directly: gating it out would leave the turn to the
             // model alone, which is how an estimate loses a vehicle whose model is wrong.
