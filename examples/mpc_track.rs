@@ -130,6 +130,9 @@ struct Args {
     foxglove: Option<String>,
 }
 
+/// A run's samples, a log write error, why it stopped early, and (on a vehicle) the live figures.
+type RunOutcome = (Vec<Sample>, Option<LogError>, Option<String>, Option<serde_json::Value>);
+
 #[derive(Clone, Copy, ValueEnum)]
 enum ScenarioName {
     Default,
@@ -221,7 +224,7 @@ fn try_main(a: Args) -> Result<(), String> {
         let _ = std::fs::remove_file(&mcap);
     })?;
     #[cfg(not(feature = "vehicle"))]
-    let live_run: Option<(Vec<Sample>, Option<LogError>, Option<String>, Option<serde_json::Value>)> = None;
+    let live_run: Option<RunOutcome> = None;
     let (samples, log_error, stopped, live) = match live_run {
         Some(run) => run,
         None => {
@@ -537,7 +540,7 @@ fn live(
     scenario: &Scenario,
     vehicle: &VehicleParams,
     log: &mut McapLog,
-) -> Result<(Vec<Sample>, Option<LogError>, Option<String>, Option<serde_json::Value>), String> {
+) -> Result<RunOutcome, String> {
     use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
     let options = SessionOptions {
         connect,
@@ -556,13 +559,13 @@ fn live(
         let oracle = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(mpc.model().dt()) };
         let flyer = match hold {
             Some(hold) => Flyer::Autopilot { hold, model: oracle },
-            None => Flyer::Mpc(Mpc::new(oracle, mpc.config().clone()).map_err(|e| e.to_string())?),
+            None => Flyer::Mpc(Box::new(Mpc::new(oracle, mpc.config().clone()).map_err(|e| e.to_string())?)),
         };
         run(flyer, scenario, &options, log)?
     } else {
         let flyer = match hold {
             Some(hold) => Flyer::Autopilot { hold, model: mpc.model().clone() },
-            None => Flyer::Mpc(mpc),
+            None => Flyer::Mpc(Box::new(mpc)),
         };
         run(flyer, scenario, &options, log)?
     };

@@ -192,8 +192,8 @@ impl Health {
                 seen_motion.push(s.motion());
                 Some(format!(
                     "the model gets the vehicle's {} wrong: {} measurements fell up to {:.1} standard deviations from \
-                     its predictions (20 s mean), so the estimator raised its process noise; fit a model to this \
-                     vehicle (pinc identify on its recordings, then a hybrid) to cure it",
+                     its predictions (20 s mean); fit a model to this vehicle (pinc identify on its recordings, then \
+                     a hybrid) to cure it",
                     s.motion(),
                     s.name(),
                     h.nis_slow_max.sqrt()

@@ -73,7 +73,7 @@ impl EkfStatus {
         if !self.has(flags::ATTITUDE) {
             why.push("the autopilot's attitude estimate is not good yet (EKF_ATTITUDE unset)".to_string());
         }
-        if !(self.compass_variance < BAD_VARIANCE) {
+        if !self.compass_variance.is_finite() || self.compass_variance >= BAD_VARIANCE {
             why.push(format!(
                 "the autopilot's heading is not usable: compass variance {:.2} (bad from {BAD_VARIANCE})",
                 self.compass_variance

@@ -69,7 +69,7 @@ impl AutopilotHold {
 /// Who flies the references.
 pub enum Flyer<M: DiscreteModel> {
     /// pinc's MPC on its model.
-    Mpc(Mpc<M>),
+    Mpc(Box<Mpc<M>>),
     /// The autopilot's own controller; `model` is the estimator's (the estimate is logged as
     /// in an MPC run, for the same figures).
     Autopilot {
@@ -254,7 +254,6 @@ fn send_targets(
                 body_pitch_rate: 0.0,
                 body_yaw_rate: 0.0,
                 thrust: 0.5,
-                ..Default::default()
             });
             link.send(&depth_target).and_then(|()| link.send(&heading_target))
         }
