@@ -14,46 +14,31 @@ simulator's truth (SIM_STATE) is read only to check the figures.
 - a vehicle file identified from 86 s of stock excitation (the owner's path followed as a new
   user would: it spun the vehicle through the estimator before) tracks or stops within a turn.
 
-$PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
+$PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip
+(test_ardusub_sitl.py holds the firmware's location and the skip).
 """
 
 import json
 import math
-import os
-import subprocess
 from pathlib import Path
 
 import pytest
 
-from test_vehicle_link import ROOT, pinc_binary, read_mcap
+# The firmware's location, its run script and the skip where it is missing: one home.
+from test_ardusub_sitl import FIXTURES, JS_GAIN, NO_POSITION, run_on_firmware
+from test_vehicle_link import pinc_binary, read_mcap
 from test_vehicle_drive import mpc_track_binary
 
-SITL_DIR = os.environ.get("PINC_ARDUSUB_SITL")
-if not SITL_DIR:
-    pytest.skip("PINC_ARDUSUB_SITL is not set: the firmware tests need ArduSub's simulator "
-                "(../shared/ardusub_sitl; .ci/run sets it)", allow_module_level=True)
-SITL = Path(SITL_DIR)
-RUN = SITL / "run_in_netns.sh"
-if not (SITL / "ardusub").is_file():
-    pytest.skip(f"{SITL}/ardusub is missing", allow_module_level=True)
-
-FIXTURES = ROOT / "tests" / "fixtures" / "ardusub"
 OWNER_VEHICLE = FIXTURES / "sitl_vectored.toml"
 IDENTIFIED_86S = FIXTURES / "sitl_identified_86s.toml"
-STOCK = [SITL / "no_position_source.parm", SITL / "js_gain_full.parm"]
-
-
-def on_firmware(run_dir, parms, client, timeout=300):
-    """Runs `client` (a list) beside the firmware, as its first client (port 5760)."""
-    cmd = [str(RUN), "-d", str(run_dir), "-p", ",".join(str(p) for p in parms), "--", *map(str, client)]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+STOCK = [NO_POSITION, JS_GAIN]
 
 
 def fly(out_dir, *extra, vehicle=OWNER_VEHICLE, parms=STOCK):
     """60 s of the default references on the stock firmware; the summary (JSON) and the run."""
     client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--vehicle", vehicle, "--arm", "--sim-truth",
               "--json", "--out-dir", out_dir, "--timeout", "30", *extra]
-    r = on_firmware(out_dir / "sitl", parms, client)
+    r = run_on_firmware(out_dir, parms, client)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
     s = json.loads(r.stdout)
     live = s["live"]
@@ -92,7 +77,7 @@ def test_per_thruster_commands_are_refused_on_the_stock_outputs_and_status_says_
         "sleep 5",
         f"{' '.join(status)} --window 3 > '{tmp_path}/late.json' 2> '{tmp_path}/late.err'",
     ]) + "\n")
-    r = on_firmware(tmp_path / "sitl", STOCK, ["bash", script], timeout=120)
+    r = run_on_firmware(tmp_path, STOCK, ["bash", script], timeout=120)
     assert r.returncode == 0, r.stderr
     early = json.loads((tmp_path / "early.json").read_text())
     assert early["ekf_not_ready"], early

@@ -311,3 +311,27 @@ def test_per_thruster_commands_are_refused_on_a_stock_autopilots_outputs(fake_fa
     # The recording says why.
     lines = [m["message"] for _, m in read_mcap(out)["/log"]]
     assert any("safety stop [refused]" in line for line in lines), lines
+
+
+def test_excite_keeps_a_held_dive_inside_the_depth_band(fake_factory, tmp_path):
+    # 40 s of a held dive (30 N down, with surge and yaw steps): open loop it would sink far past
+    # 2.5 m. With --depth-band 0.5,2.5 the band's feedback takes the heave each time the
+    # vehicle leaves the band's inner part, gives it back in the middle, and the recording says
+    # which samples it set.
+    inputs = tmp_path / "dive.csv"
+    rows = [f"{20 if (k // 50) % 2 else -20},0,30,{2 if (k // 75) % 2 else -2}" for k in range(500)]
+    inputs.write_text("X,Y,Z,Mz\n" + "\n".join(rows) + "\n")
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--x0", "0", "0", "1.5", *["0"] * 5)
+    r, out = excite(fake, tmp_path, inputs, "--depth-band", "0.5,2.5", "--max-depth", "4", timeout=90)
+    assert r.returncode == 0, r.stderr
+    fake.stop()
+    topics = read_mcap(out)
+    depths = [s["sim"]["z"] for _, s in topics["/vehicle/state"] if s["sim"]["z"] is not None]
+    heave = [m for _, m in topics["/excite/heave"]]
+    under = sum(m["feedback"] for m in heave)
+    print(f"depth {min(depths):.2f}..{max(depths):.2f} m; {under} of {len(heave)} samples under feedback")
+    assert len(heave) >= 450 and 0 < under < len(heave)
+    assert min(depths) >= 0.4 and max(depths) <= 2.6, (min(depths), max(depths))
+    lines = [m["message"] for _, m in topics["/log"]]
+    assert any("the band's feedback takes the heave" in line for line in lines), lines
+    assert any("the excitation takes the heave again" in line for line in lines), lines

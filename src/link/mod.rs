@@ -8,6 +8,7 @@
 pub mod autopilot_estimate;
 pub mod cli;
 pub mod command;
+pub mod depth_band;
 pub mod drive;
 #[allow(clippy::module_inception)]
 pub mod link;
@@ -22,6 +23,7 @@ pub mod url;
 
 pub use autopilot_estimate::{EkfStatus, HeadingReference};
 pub use command::{Command, CommandError, CommandWay, Commander};
+pub use depth_band::{BandHeave, DepthBand};
 pub use drive::{Drive, DriveSettings, Fresh, Note, Sent, Stopped};
 pub use link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
 pub use outputs::{OutputFunctions, WayRefused};

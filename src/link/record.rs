@@ -266,6 +266,17 @@ impl Recorder {
         self.write("/vehicle/outputs", "pinc.ThrusterOutputs", json!({}), t, &m)
     }
 
+    /// One excitation sample's heave on `/excite/heave`: what the excitation asked, what was
+    /// sent, and whether the depth band's feedback set it (`pinc vehicle excite --depth-band`):
+    /// a fit can tell closed-loop heave from open-loop heave.
+    ///
+    /// # Errors
+    /// Writing fails.
+    pub fn excite_heave(&mut self, t: f64, excitation: f64, sent: f64, feedback: bool) -> Result<(), RecordError> {
+        let m = json!({"timestamp": stamp(t), "excitation_z": excitation, "sent_z": sent, "feedback": feedback});
+        self.write("/excite/heave", "pinc.ExciteHeave", json!({}), t, &m)
+    }
+
     /// A `/log` line at autopilot time `t`.
     ///
     /// # Errors

@@ -4,7 +4,7 @@
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
 use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{Estimator, NoiseSettings};
+use pinc::estimation::{Estimate, Estimator, NoiseSettings};
 use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
 use pinc::link::drive::{severity_level, statustext};
@@ -14,7 +14,7 @@ use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
-use pinc::link::{EkfStatus, HeadingReference, read_params};
+use pinc::link::{DepthBand, EkfStatus, HeadingReference, read_params};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::{Value, json};
 use std::cell::RefCell;
@@ -111,6 +111,17 @@ pub struct ExciteArgs {
     /// Output MCAP file (written as OUT.partial and renamed when complete).
     #[arg(long)]
     out: PathBuf,
+    /// Keep the depth inside TOP,BOTTOM (m): where the vehicle leaves the band less its outer
+    /// eighths, a depth feedback sets the heave force (surge, sway and yaw go on exciting)
+    /// until it is back in the middle half; `/excite/heave` says which samples it set.
+    #[arg(long, value_name = "TOP,BOTTOM", value_delimiter = ',', num_args = 2)]
+    depth_band: Option<Vec<f64>>,
+    /// The band feedback's gain on the depth error (N/m).
+    #[arg(long, default_value_t = 60.0)]
+    band_kp: f64,
+    /// The band feedback's gain on the heave rate (N per m/s).
+    #[arg(long, default_value_t = 40.0)]
+    band_kd: f64,
 }
 
 pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
@@ -453,11 +464,16 @@ impl Writer {
     }
 
     /// A fresh state sample.
-    fn state(&mut self, s: &pinc::link::RawState) -> Result<(), String> {
+    /// A fresh state sample; the state estimate at it, once the estimator runs.
+    fn state(&mut self, s: &pinc::link::RawState) -> Result<Option<Estimate>, String> {
         self.notes.note_capability(s.t, s.capability);
+        let mut out = None;
         if let Some(e) = &mut self.estimation {
             match e.filter.advance(s.t) {
-                Ok(Some(estimate)) => self.rec.estimate(&estimate).map_err(|e| e.to_string())?,
+                Ok(Some(estimate)) => {
+                    self.rec.estimate(&estimate).map_err(|e| e.to_string())?;
+                    out = Some(estimate);
+                }
                 Ok(None) => {}
                 Err(err) => self.notes.log.push((s.t, Level::Warning, format!("state estimator: {err}"))),
             }
@@ -471,7 +487,8 @@ impl Writer {
                 }
             }
         }
-        self.flush_log()
+        self.flush_log()?;
+        Ok(out)
     }
 
     fn flush_log(&mut self) -> Result<(), String> {
@@ -578,6 +595,12 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
         return Err(format!("{}: no input rows", a.inputs.display()));
     }
     let commander = a.drive.commander(&a.vehicle)?;
+    // The band's force limit: the largest heave the excitation itself asks for.
+    let heave_limit = inputs.iter().map(|u| u[2].abs()).fold(0.0, f64::max).max(1.0);
+    let mut band = match &a.depth_band {
+        Some(b) => Some(DepthBand::new(b[0], b[1], a.band_kp, a.band_kd, heave_limit)?),
+        None => None,
+    };
     let settings = a.drive.settings()?;
     let limits = settings.limits.clone();
     let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
@@ -629,7 +652,10 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
             if let Some(e) = write_error.borrow().as_ref() {
                 return Err(Trigger::Error(e.clone()));
             }
-            keep(w.borrow_mut().state(&fresh.state));
+            let estimate = match w.borrow_mut().state(&fresh.state) {
+                Ok(e) => e,
+                Err(e) => return Err(Trigger::Error(e)),
+            };
             if t0.is_none() {
                 if fresh.state.capability != Capability::Full && waited.elapsed() < wait_position {
                     drive.send_neutral(&fresh)?;
@@ -646,7 +672,23 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
             }
             let k = ((fresh.state.t - t0.expect("set")) / dt).round() as usize;
             let Some(u) = inputs.get(k) else { return Ok(()) };
-            drive.send(&fresh, u)?;
+            let mut u = *u;
+            if let Some(b) = &mut band {
+                // The estimate's depth and heave rate; the raw depth at rest before it starts.
+                let (z, w_rate) = estimate.map_or((fresh.state.sim[2], 0.0), |e| (e.sim[2], e.sim[6]));
+                let h = b.heave(z, w_rate, u[2]);
+                if h.switched {
+                    let line = if h.feedback {
+                        format!("depth {z:.2} m: the band's feedback takes the heave")
+                    } else {
+                        format!("depth {z:.2} m: back in the band's middle, the excitation takes the heave again")
+                    };
+                    keep(w.borrow_mut().log(fresh.state.t, Level::Info, &line));
+                }
+                keep(w.borrow_mut().rec.excite_heave(fresh.state.t, u[2], h.z, h.feedback).map_err(|e| e.to_string()));
+                u[2] = h.z;
+            }
+            drive.send(&fresh, &u)?;
             played = k + 1;
         }
     };
