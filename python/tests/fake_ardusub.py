@@ -10,8 +10,9 @@ describes ArduSub's simulator and its logs):
 - COMMAND_LONG from the ground station's system id only (``--gcs-sysid``, 255 by default, as
   ArduSub's SYSID_MYGCS): arm/disarm, DO_SET_MODE, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE
   (AUTOPILOT_VERSION), each answered with COMMAND_ACK; SET_MODE too;
-- ATTITUDE, LOCAL_POSITION_NED, SCALED_PRESSURE2 and SERVO_OUTPUT_RAW at the requested
-  intervals (all in the same 50 Hz tick share one time stamp); LOCAL_POSITION_NED only from
+- ATTITUDE, LOCAL_POSITION_NED, SCALED_PRESSURE2 (with ``--pressure-noise``, 0.2 hPa: a real
+  sensor's reading never repeats for long, and pinc takes one that does as frozen) and
+  SERVO_OUTPUT_RAW at the requested intervals (all in the same 50 Hz tick share one time stamp); LOCAL_POSITION_NED only from
   ``--position-delay`` seconds after arming (the real EKF's first position came about 20 s after
   arming in the simulator logs);
 - MANUAL_CONTROL in MANUAL mode through ArduSub's mixer for the vectored (BlueROV2) frame:
@@ -179,6 +180,7 @@ class FakeArduSub:
         self.last_sent = (0, self.state.copy())  # the newest state message's stamp and state
         self.held = []  # packets held back by drop-reorder: [packets still to pass, bytes]
         self.fault_rng = random.Random(args.seed + 1)
+        self.noise_rng = random.Random(args.seed + 2)
         raw_write = self.conn.write
 
         def write(buf):
@@ -250,6 +252,8 @@ class FakeArduSub:
                 self.mav.local_position_ned_send(ms, x, y, z, c * u - s * v, s * u + c * v, w)
         elif mid == mav.MAVLINK_MSG_ID_SCALED_PRESSURE2:
             hpa = SURFACE_HPA + max(z, 0.0) * self.args.water_density * GRAVITY / 100.0
+            if self.frozen is None:
+                hpa += self.noise_rng.gauss(0.0, self.args.pressure_noise)
             self.mav.scaled_pressure2_send(ms, hpa, 0.0, 1500)
         elif mid == mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             p = self.pwm
@@ -500,6 +504,8 @@ def main(argv=None):
     p.add_argument("--gcs-timeout", type=float, default=5.0, help="GCS heartbeat failsafe (s, 0: off)")
     p.add_argument("--pilot-timeout", type=float, default=3.0, help="pilot input failsafe (s, 0: off)")
     p.add_argument("--water-density", type=float, default=1000.0)
+    p.add_argument("--pressure-noise", type=float, default=0.2,
+                   help="standard deviation of SCALED_PRESSURE2 (hPa; 0.2, about 2 mm: a Bar30's resolution)")
     p.add_argument("--firmware", default="4.1.2")
     p.add_argument("--dt", type=float, default=0.02, help="physics step (s)")
     p.add_argument("--x0", type=float, nargs=8, default=[0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0])

@@ -1,5 +1,5 @@
 """The live view (`mpc_track --foxglove`, feature `live-view`): a client of Foxglove's WebSocket
-protocol (the `websockets` package, speaking `foxglove.websocket.v1` as the Foxglove app does)
+protocol (the `websockets` package, speaking `foxglove.sdk.v1`, the SDK server's version of it)
 connects while a run goes, subscribes to every topic the server advertises, and checks each
 message it receives against the MCAP log the same run wrote: same topic, same log time, same
 content.
@@ -18,7 +18,7 @@ from test_vehicle_drive import mpc_track_binary
 
 sync_client = pytest.importorskip("websockets.sync.client", reason="pip install './python[test]' (websockets)")
 
-PROTOCOL = "foxglove.websocket.v1"
+PROTOCOL = "foxglove.sdk.v1"  # the SDK server's name for the protocol (inline schemas)
 MESSAGE_DATA = 0x01
 
 

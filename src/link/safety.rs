@@ -191,6 +191,8 @@ pub struct SensorWatch {
 }
 
 const LIVE_WINDOW_MASK: u32 = (1 << 25) - 1;
+/// Depth (m) at or above which a repeated reading is not taken as frozen.
+const SURFACE_M: f64 = 0.05;
 const LIVE_CHANGES: u32 = 20;
 
 impl SensorWatch {
@@ -201,7 +203,9 @@ impl SensorWatch {
         if !from_sensor {
             return;
         }
-        let changed = self.depth_changed.is_none_or(|(value, _)| value != z);
+        // At the surface a reading may be pinned (a sensor in air, or a simulator that clamps
+        // at the surface), and a frozen sensor there endangers nothing: it counts as changing.
+        let changed = z <= SURFACE_M || self.depth_changed.is_none_or(|(value, _)| value != z);
         if changed {
             self.depth_changed = Some((z, t));
             self.frozen_from_live = false;
@@ -365,6 +369,14 @@ mod tests {
             still.heading(f64::from(k) * 0.08);
         }
         assert_eq!(still.check(99.0 * 0.08, 0.5, 1.0), None);
+        // A live sensor pinned at the surface is not frozen either.
+        let mut surfaced = SensorWatch::default();
+        for k in 0..100 {
+            let z = if k < 40 { 0.5 - 0.01 * f64::from(k) } else { 0.0 };
+            surfaced.depth(f64::from(k) * 0.08, z, true);
+            surfaced.heading(f64::from(k) * 0.08);
+        }
+        assert_eq!(surfaced.check(99.0 * 0.08, 0.5, 1.0), None);
         let silent = still.check(99.0 * 0.08 + 0.6, 0.5, 1.0).expect("silent");
         assert!(matches!(silent, Trigger::SensorLost { sensor: "depth", frozen: false, .. }), "{silent:?}");
     }

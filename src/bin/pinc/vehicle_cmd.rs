@@ -114,7 +114,7 @@ pub struct ExciteArgs {
     /// Keep the depth inside TOP,BOTTOM (m): where the vehicle leaves the band less its outer
     /// eighths, a depth feedback sets the heave force (surge, sway and yaw go on exciting)
     /// until it is back in the middle half; `/excite/heave` says which samples it set.
-    #[arg(long, value_name = "TOP,BOTTOM", value_delimiter = ',', num_args = 2)]
+    #[arg(long, value_name = "TOP,BOTTOM", value_delimiter = ',')]
     depth_band: Option<Vec<f64>>,
     /// The band feedback's gain on the depth error (N/m).
     #[arg(long, default_value_t = 60.0)]
@@ -597,8 +597,9 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let commander = a.drive.commander(&a.vehicle)?;
     // The band's force limit: the largest heave the excitation itself asks for.
     let heave_limit = inputs.iter().map(|u| u[2].abs()).fold(0.0, f64::max).max(1.0);
-    let mut band = match &a.depth_band {
-        Some(b) => Some(DepthBand::new(b[0], b[1], a.band_kp, a.band_kd, heave_limit)?),
+    let mut band = match a.depth_band.as_deref() {
+        Some(&[top, bottom]) => Some(DepthBand::new(top, bottom, a.band_kp, a.band_kd, heave_limit)?),
+        Some(other) => return Err(format!("--depth-band: two depths TOP,BOTTOM (m), got {other:?}")),
         None => None,
     };
     let settings = a.drive.settings()?;
