@@ -3,7 +3,7 @@
 
 use super::command::{CommandWay, Commander};
 use super::drive::DriveSettings;
-use super::link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
+use super::link::{Autopilot, LinkConfig, LinkError, Received, VehicleLink};
 use super::safety::SafetyLimits;
 use super::signing::SigningKey;
 use super::state::{StateAssembler, StateConfig};
@@ -162,7 +162,6 @@ impl DriveArgs {
             arm: self.arm,
             arm_timeout: positive("--arm-timeout", self.arm_timeout)?,
             echo_notes: true,
-            mode: SubMode::Manual,
             js_gain_from_autopilot: self.js_gain.is_none(),
             sensor_silence: positive("--max-sensor-silence", self.max_sensor_silence)?.as_secs_f64(),
             frozen_depth: positive("--max-frozen", self.max_frozen)?.as_secs_f64(),

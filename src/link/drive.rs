@@ -6,7 +6,9 @@
 
 use super::autopilot_estimate::EkfStatus;
 use super::command::{Command, CommandWay, Commander};
-use super::link::{Autopilot, LinkError, Received, SubMode, VehicleLink, is_ground_station};
+use super::link::{
+    Autopilot, EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID, LinkError, Received, SubMode, VehicleLink, is_ground_station,
+};
 use super::outputs::{OutputFunctions, function_params};
 use super::params::{Params, read_params};
 use super::safety::{Safety, SafetyLimits, SensorWatch, Trigger};
@@ -97,16 +99,29 @@ pub struct Drive {
 const ARM_RETRY: Duration = Duration::from_secs(1);
 /// The longest one wait for a message lasts, so that a trigger is seen within it.
 const POLL: Duration = Duration::from_millis(5);
-/// How long the parameters pinc needs may take to answer (ArduSub answers within a few tens
-/// of milliseconds; requests are repeated every half second).
+/// How long the parameters pinc needs may take to answer (ArduSub answers within 0.35 s;
+/// requests are repeated every half second).
 const PARAM_TIMEOUT: Duration = Duration::from_secs(3);
-/// `EKF_STATUS_REPORT`'s id, and the rate it is asked for.
-const EKF_STATUS_REPORT_ID: u32 = 193;
-const EKF_STATUS_RATE_HZ: f64 = 2.0;
+/// The rate `EKF_STATUS_REPORT` and `GPS_RAW_INT` are asked for.
+pub const AUTOPILOT_ESTIMATE_RATE_HZ: f64 = 2.0;
 /// The parameters every session reads besides the outputs' functions.
 const SESSION_PARAMS: [&str; 4] = ["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC", "EK3_SRC1_POSXY"];
-/// `GPS_RAW_INT`'s id: its fix says when a GPS position source is lost.
-const GPS_RAW_INT_ID: u32 = 24;
+
+/// Reads what a session needs of the autopilot's configuration: its outputs' functions, pilot
+/// gain, declination parameters and horizontal position source (a name it does not answer
+/// within the wait is absent). Every message received meanwhile goes to `seen`.
+///
+/// # Errors
+/// The link breaks.
+pub fn read_autopilot_config(
+    link: &mut VehicleLink,
+    autopilot: &Autopilot,
+    seen: impl FnMut(&Received),
+) -> Result<Params, LinkError> {
+    let mut names = function_params();
+    names.extend(SESSION_PARAMS.iter().map(|s| s.to_string()));
+    read_params(link, autopilot, &names, PARAM_TIMEOUT, seen)
+}
 
 /// How a session starts and what it runs under.
 #[derive(Debug, Clone)]
@@ -120,9 +135,6 @@ pub struct DriveSettings {
     pub arm_timeout: Duration,
     /// Print each note of level warning or above on stderr as it comes.
     pub echo_notes: bool,
-    /// The flight mode the session runs in: MANUAL for pinc's own commands, ALT_HOLD or
-    /// GUIDED where the autopilot's controller flies.
-    pub mode: SubMode,
     /// Take the pilot gain from the autopilot's `JS_GAIN_DEFAULT` (the commander's is only a
     /// fallback where the autopilot does not answer it).
     pub js_gain_from_autopilot: bool,
@@ -139,7 +151,6 @@ impl Default for DriveSettings {
             arm: false,
             arm_timeout: Duration::from_secs(30),
             echo_notes: false,
-            mode: SubMode::Manual,
             js_gain_from_autopilot: false,
             sensor_silence: 0.5,
             frozen_depth: 1.0,
@@ -236,10 +247,8 @@ impl Drive {
         };
         // The autopilot's configuration first: nothing is sent to the thrusters unless its
         // outputs take commands the way asked.
-        let mut names = function_params();
-        names.extend(SESSION_PARAMS.iter().map(|s| s.to_string()));
         let mut early = Vec::new();
-        match read_params(&mut d.link, &d.autopilot, &names, PARAM_TIMEOUT, |r| early.push(r.clone())) {
+        match read_autopilot_config(&mut d.link, &d.autopilot, |r| early.push(r.clone())) {
             Ok(p) => d.params = p,
             Err(e) => return Err(d.refuse(Trigger::Link(e.to_string()))),
         }
@@ -265,12 +274,12 @@ impl Drive {
                 Err(e) => return Err(d.refuse(Trigger::Refused(format!("the autopilot's JS_GAIN_DEFAULT: {e}")))),
             }
         }
-        for (id, rate) in [(EKF_STATUS_REPORT_ID, EKF_STATUS_RATE_HZ), (GPS_RAW_INT_ID, EKF_STATUS_RATE_HZ)] {
-            if let Err(e) = d.link.set_message_rate(id, rate) {
+        for id in [EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID] {
+            if let Err(e) = d.link.set_message_rate(id, AUTOPILOT_ESTIMATE_RATE_HZ) {
                 return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
             }
         }
-        if let Err(e) = d.link.set_mode(settings.mode) {
+        if let Err(e) = d.link.set_mode(SubMode::Manual) {
             return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
         }
         if !d.safety.armed() {

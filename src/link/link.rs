@@ -525,6 +525,12 @@ pub const STATE_MESSAGE_IDS: [u32; 5] = [30, 32, 29, 137, 36];
 /// Id of `AUTOPILOT_VERSION`.
 pub const AUTOPILOT_VERSION_ID: u32 = 148;
 
+/// Id of `EKF_STATUS_REPORT`: the autopilot's word on its own estimate.
+pub const EKF_STATUS_REPORT_ID: u32 = 193;
+
+/// Id of `GPS_RAW_INT`: its fix says when a GPS position source is lost.
+pub const GPS_RAW_INT_ID: u32 = 24;
+
 /// The heartbeat of a ground station.
 fn gcs_heartbeat() -> HEARTBEAT_DATA {
     HEARTBEAT_DATA {

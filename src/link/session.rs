@@ -432,8 +432,7 @@ pub fn run<M: DiscreteModel + Clone>(
             });
         }
         position_measured_before = Some(position_measured);
-        let observations: Vec<Observation> = drive.drain_observations().collect();
-        for ob in observations {
+        for ob in drive.drain_observations() {
             match ob {
                 Observation::Measured(Measurement::Position { .. } | Measurement::VelocityNed { .. })
                     if !position_measured =>

@@ -7,14 +7,14 @@ use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
 use pinc::estimation::{Estimate, Estimator, NoiseSettings};
 use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
-use pinc::link::drive::{severity_level, statustext};
-use pinc::link::link::{AUTOPILOT_VERSION_ID, is_ground_station};
-use pinc::link::outputs::{OutputFunctions, function_name, function_params};
+use pinc::link::drive::{AUTOPILOT_ESTIMATE_RATE_HZ, read_autopilot_config, severity_level, statustext};
+use pinc::link::link::{AUTOPILOT_VERSION_ID, EKF_STATUS_REPORT_ID, is_ground_station};
+use pinc::link::outputs::{OutputFunctions, function_name};
 use pinc::link::state::message_time;
 use pinc::link::{
     Autopilot, Capability, Drive, Fresh, InputsFromOutputs, Part, Received, Recorder, Stopped, SubMode, Trigger,
 };
-use pinc::link::{DepthBand, EkfStatus, HeadingReference, read_params};
+use pinc::link::{DepthBand, EkfStatus, HeadingReference};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::{Value, json};
 use std::cell::RefCell;
@@ -166,9 +166,6 @@ fn from_autopilot(r: &Received, ap: &Autopilot) -> bool {
     r.header.system_id as u8 == ap.system_id && r.header.component_id == ap.component_id
 }
 
-/// `EKF_STATUS_REPORT`'s id.
-const EKF_STATUS_REPORT_ID: u32 = 193;
-
 /// `MAV_TYPE_SUBMARINE` -> `SUBMARINE`.
 fn enum_name(v: &impl std::fmt::Debug, prefix: &str) -> String {
     let s = format!("{v:?}");
@@ -218,10 +215,8 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
     let thrusters = a.vehicle.as_ref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?;
     let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |_| {})?;
     link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
-    link.set_message_rate(EKF_STATUS_REPORT_ID, 2.0).map_err(|e| e.to_string())?;
-    let mut names = function_params();
-    names.extend(["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC"].map(String::from));
-    let params = read_params(&mut link, &autopilot, &names, Duration::from_secs(3), |r| {
+    link.set_message_rate(EKF_STATUS_REPORT_ID, AUTOPILOT_ESTIMATE_RATE_HZ).map_err(|e| e.to_string())?;
+    let params = read_autopilot_config(&mut link, &autopilot, |r| {
         estimator.update(r);
     })
     .map_err(|e| e.to_string())?;
