@@ -122,7 +122,7 @@ fn rk4_step(c: &mut Criterion) {
 fn hybrid(c: &mut Criterion) {
     let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/random_4x32.safetensors")).unwrap();
     let mut model = import_state_dict(&bytes, 0.08, Activation::Softplus).unwrap();
-    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16 });
+    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16, rest_anchored: false });
     let p = Predictor::new(&model);
     let mut ws = p.workspace();
     let (x, u) = (x0(), inputs(20));

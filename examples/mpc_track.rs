@@ -99,7 +99,7 @@ struct Args {
     jobs: Option<usize>,
     /// Vehicle file of the plant, and of the oracle's model (the oracle knows the plant)
     /// [default: the BlueROV2]; with --connect, its [[thruster]] tables turn the wrench into
-    /// commands.
+    /// commands (a model fitted by `pinc fit` carries its vehicle's: no file needed).
     #[arg(long)]
     vehicle: Option<PathBuf>,
     /// Run on a live ArduSub vehicle at this MAVLink address (udpin:HOST:PORT, udpout:...,
@@ -542,9 +542,12 @@ fn live(
     log: &mut McapLog,
 ) -> Result<RunOutcome, String> {
     use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
+    // A model fitted by `pinc fit` carries its vehicle's thrusters and sensors.
+    let fitted = pinc::model::PincModel::load(&a.model).map_err(|e| e.to_string())?.fitted;
     let options = SessionOptions {
         connect,
         vehicle: a.vehicle.as_deref(),
+        fitted: fitted.as_ref(),
         link: &a.link,
         drive: &a.drive,
         estimator: &a.estimator,

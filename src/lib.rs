@@ -12,6 +12,8 @@
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
 pub mod estimation;
+#[cfg(all(feature = "train", feature = "vehicle"))]
+pub mod fit;
 pub mod model;
 #[cfg(feature = "mpc")]
 pub mod mpc;

@@ -272,7 +272,7 @@ fn a_hybrid_model_runs_through_the_same_entry_points() {
     let mut model = PincModel::load(model_path().to_str().unwrap()).unwrap();
     model.vehicle = model.vehicle.with_damping_scaled(1.2);
     model.vehicle.m = 12.5;
-    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16 });
+    model.hybrid = Some(pinc::model::HybridPhysics { substeps: 16, rest_anchored: false });
     let bytes = model.to_bytes().unwrap();
     let p = pinc::runtime::Predictor::new(&model);
     let n = 6;

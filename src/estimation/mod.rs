@@ -3,7 +3,8 @@
 //! ([`measurement`]), the filter fed in time as a controller or a log replay feeds it
 //! ([`estimator`]), what its innovations say of the model ([`health`]: the adaptation of its
 //! process noise, the live stop on a lost vehicle), ArduSub's MAVLink messages turned into
-//! measurements ([`mavlink`]), and a smoother for recorded logs ([`smoother`]).
+//! measurements ([`mavlink`]), a smoother for recorded logs ([`smoother`]) and a recorded log
+//! replayed through the filter ([`replay`]).
 //!
 //! A stock BlueROV2 measures depth (pressure), heading and yaw rate, and knows the thrust it
 //! commands; with the model that is enough to estimate its body velocities, which the MPC
@@ -15,6 +16,8 @@ pub mod health;
 #[cfg(feature = "tools")]
 pub mod mavlink;
 pub mod measurement;
+#[cfg(feature = "tools")]
+pub mod replay;
 pub mod smoother;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};

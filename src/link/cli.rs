@@ -148,8 +148,15 @@ impl DriveArgs {
     /// The file cannot be read or cannot command this way.
     pub fn commander(&self, vehicle_file: &Path) -> Result<Commander, String> {
         let thrusters = Thrusters::load(vehicle_file).map_err(|e| e.to_string())?;
-        Commander::new(thrusters, self.way(), self.js_gain.unwrap_or(1.0))
-            .map_err(|e| format!("{}: {e}", vehicle_file.display()))
+        self.commander_of(thrusters, &vehicle_file.display().to_string())
+    }
+
+    /// The commander over `thrusters` (from `source`, named in errors).
+    ///
+    /// # Errors
+    /// Thrusters that cannot take the command way.
+    pub fn commander_of(&self, thrusters: Thrusters, source: &str) -> Result<Commander, String> {
+        Commander::new(thrusters, self.way(), self.js_gain.unwrap_or(1.0)).map_err(|e| format!("{source}: {e}"))
     }
 
     /// The session's settings: limits, arming, notes echoed on stderr.
@@ -243,18 +250,22 @@ pub struct EstimatorArgs {
     /// --vehicle.
     #[arg(long, value_parser = ["controller", "vehicle"], default_value = "controller")]
     pub estimator_model: String,
-    /// Standard deviation of the depth sensor (m) the estimator assumes.
-    #[arg(long, default_value_t = NoiseSettings::default().depth_std)]
-    pub depth_std: f64,
-    /// How long the depth sensor lags (s): its reading is taken as the depth that long ago.
-    #[arg(long, default_value_t = NoiseSettings::default().depth_delay)]
-    pub depth_delay: f64,
-    /// Standard deviation of the heading (rad) the estimator assumes.
-    #[arg(long, default_value_t = NoiseSettings::default().heading_std)]
-    pub heading_std: f64,
-    /// Standard deviation of the yaw rate (rad/s) the estimator assumes.
-    #[arg(long, default_value_t = NoiseSettings::default().yaw_rate_std)]
-    pub yaw_rate_std: f64,
+    /// Standard deviation of the depth sensor (m) the estimator assumes [default: the fitted
+    /// model's sensor model, else 0.1].
+    #[arg(long)]
+    pub depth_std: Option<f64>,
+    /// How long the depth sensor lags (s): its reading is taken as the depth that long ago
+    /// [default: the fitted model's, else 0.1].
+    #[arg(long)]
+    pub depth_delay: Option<f64>,
+    /// Standard deviation of the heading (rad) the estimator assumes [default: the fitted
+    /// model's, else 0.02].
+    #[arg(long)]
+    pub heading_std: Option<f64>,
+    /// Standard deviation of the yaw rate (rad/s) the estimator assumes [default: the fitted
+    /// model's, else 0.005].
+    #[arg(long)]
+    pub yaw_rate_std: Option<f64>,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]
@@ -262,17 +273,20 @@ pub struct EstimatorArgs {
 }
 
 impl EstimatorArgs {
-    /// The noise settings.
+    /// The noise settings: each flag given, else the fitted model's sensor model, else the
+    /// estimator's default.
     ///
     /// # Errors
     /// A value that is not a positive number.
-    pub fn noise(&self) -> Result<NoiseSettings, String> {
+    pub fn noise(&self, fitted: Option<&crate::model::SensorModel>) -> Result<NoiseSettings, String> {
+        let d = NoiseSettings::default();
+        let pick = |flag: Option<f64>, fit: Option<f64>, default: f64| flag.or(fit).unwrap_or(default);
         let noise = NoiseSettings {
-            depth_std: self.depth_std,
-            depth_delay: self.depth_delay,
-            heading_std: self.heading_std,
-            yaw_rate_std: self.yaw_rate_std,
-            ..NoiseSettings::default()
+            depth_std: pick(self.depth_std, fitted.map(|f| f.depth_std), d.depth_std),
+            depth_delay: pick(self.depth_delay, fitted.map(|f| f.depth_delay), d.depth_delay),
+            heading_std: pick(self.heading_std, fitted.map(|f| f.heading_std), d.heading_std),
+            yaw_rate_std: pick(self.yaw_rate_std, fitted.map(|f| f.yaw_rate_std), d.yaw_rate_std),
+            ..d
         };
         noise.validate()?;
         Ok(noise)

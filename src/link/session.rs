@@ -18,7 +18,7 @@ use crate::mpc::{CycleReport, Mpc};
 use crate::runtime::EnvelopeStatus;
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NU, SimState};
-use crate::vehicle::{Rk4Vehicle, VehicleParams, to_network};
+use crate::vehicle::{Rk4Vehicle, Thrusters, VehicleParams, to_network};
 use mavlink::dialects::ardupilotmega::{
     AttitudeTargetTypemask, MavFrame, MavMessage, PositionTargetTypemask, SET_ATTITUDE_TARGET_DATA,
     SET_POSITION_TARGET_GLOBAL_INT_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA, SIM_STATE_DATA,
@@ -95,6 +95,9 @@ pub struct SessionOptions<'a> {
     pub connect: &'a str,
     /// The vehicle file (its `[[thruster]]` tables turn the wrench into commands).
     pub vehicle: Option<&'a Path>,
+    /// What a model fitted by `pinc fit` carries of its vehicle: its thrusters where no
+    /// vehicle file is given, its sensor model where no noise flag is, its report's warnings.
+    pub fitted: Option<&'a crate::model::FittedVehicle>,
     /// The link.
     pub link: &'a LinkOptions,
     /// Commands and safety limits.
@@ -297,7 +300,22 @@ pub fn run<M: DiscreteModel + Clone>(
     o: &SessionOptions,
     log: &mut McapLog,
 ) -> Result<LiveRun, String> {
-    let vehicle_file = o.vehicle.ok_or("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables")?;
+    // The thrusters: the vehicle file's, else those the fitted model carries.
+    let thrusters = match (o.vehicle, o.fitted) {
+        (Some(file), _) => (Thrusters::load(file).map_err(|e| e.to_string())?, file.display().to_string()),
+        (None, Some(f)) => {
+            let source = "the model's fitted thrusters";
+            let t = Thrusters::from_toml(&f.thrusters_toml, Path::new(source))
+                .map_err(|e| e.to_string())?
+                .ok_or(format!("{source}: no [[thruster]] table"))?;
+            (t, source.to_string())
+        }
+        (None, None) => {
+            return Err("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables, or a model fitted \
+                        by `pinc fit` (it carries them)"
+                .into());
+        }
+    };
     let hold = match &flyer {
         Flyer::Autopilot { hold, .. } => Some(*hold),
         Flyer::Mpc(_) => None,
@@ -307,20 +325,21 @@ pub fn run<M: DiscreteModel + Clone>(
     if hold.is_some() {
         drive_args.command_way = CommandWay::Manual.name().into();
     }
-    let commander = drive_args.commander(vehicle_file)?;
+    let commander = drive_args.commander_of(thrusters.0, &thrusters.1)?;
     // The session arms and waits in MANUAL; the autopilot's own controller takes over when
     // control starts (GUIDED needs the position that may come only after arming).
     let settings = drive_args.settings()?;
     let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
     // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
     let give_up = if wait_position.is_zero() { Duration::from_secs(30) } else { wait_position };
-    let noise = o.estimator.noise()?;
+    let noise = o.estimator.noise(o.fitted.map(|f| &f.sensors))?;
     let model = flyer.model().clone();
     let dt = model.dt();
     let position_free = model.position_free();
     let estimator_model = match o.estimator.estimator_model.as_str() {
         "vehicle" => {
-            let params = VehicleParams::load(vehicle_file).map_err(|e| e.to_string())?;
+            let file = o.vehicle.ok_or("--estimator-model vehicle needs --vehicle V.toml")?;
+            let params = VehicleParams::load(file).map_err(|e| e.to_string())?;
             EstimatorModel::Vehicle(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) })
         }
         _ => EstimatorModel::Controller(model),
@@ -353,6 +372,12 @@ pub fn run<M: DiscreteModel + Clone>(
         settings.limits.describe()
     );
     log_error = log_error.or(log.log(0.0, Level::Info, &line).err());
+    // A fitted model whose report failed flies, but says why it may fly badly first.
+    for w in o.fitted.map_or(&[][..], |f| &f.warnings[..]) {
+        let line = format!("the model's fit report failed: {w}");
+        eprintln!("warning: {line}");
+        log_error = log_error.or(log.log(0.0, Level::Warning, &line).err());
+    }
     let truths: RefCell<Vec<Truth>> = RefCell::new(Vec::new());
     let seen = |r: &Received, t: f64| {
         if let MavMessage::SIM_STATE(s) = &r.message {

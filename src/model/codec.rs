@@ -1,6 +1,6 @@
 //! Bytes <-> [`PincModel`]: the fixed header, the checksum, bincode, and validation.
 
-use super::format::{PincModelV1, PincModelV2};
+use super::format::{PincModelV1, PincModelV2, PincModelV3};
 use super::{FORMAT_VERSION, HEADER_SIZE, MAGIC, MAX_FILE_BYTES, ModelError, OLDEST_READ_VERSION, PincModel, validate};
 use std::path::Path;
 
@@ -80,6 +80,11 @@ impl PincModel {
                 let (v2, used): (PincModelV2, usize) =
                     bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
                 (v2.into(), used)
+            }
+            3 => {
+                let (v3, used): (PincModelV3, usize) =
+                    bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?;
+                (v3.into(), used)
             }
             _ => bincode::serde::decode_from_slice(body, bincode_config()).map_err(decode_error)?,
         };

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 pub const MAGIC: [u8; 8] = *b"PINC\x00MDL";
 /// Version written by this build; readers refuse newer ones and read every older one from
 /// [`OLDEST_READ_VERSION`] on.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 /// The oldest version still read: version 1 files have no vehicle and were all trained on
 /// the BlueROV2.
 pub const OLDEST_READ_VERSION: u32 = 1;
@@ -189,6 +189,9 @@ pub struct PincModel {
     /// a PINC, the network's increment added to the current state. Files before version 3
     /// read as PINCs.
     pub hybrid: Option<HybridPhysics>,
+    /// Present in a model fitted to a vehicle by `pinc fit` (format version 4): what the
+    /// controller and the estimator need of that vehicle besides the dynamics.
+    pub fitted: Option<FittedVehicle>,
 }
 
 /// The analytic part of a hybrid model: how `vehicle` is integrated over a step.
@@ -197,6 +200,81 @@ pub struct HybridPhysics {
     /// Classic RK4 sub-steps per step (of whatever length the step is: `dt / substeps` each),
     /// as `pinc simulate` and the oracle integrate the vehicle.
     pub substeps: u32,
+    /// The network's correction is taken relative to its output at rest (zero body
+    /// velocities, zero input, the same step), so a vehicle at rest steps as its physics
+    /// alone (format version 4; earlier hybrids read as `false`). Needs a network that sees
+    /// no position or heading.
+    pub rest_anchored: bool,
+}
+
+impl HybridPhysics {
+    /// Sub-steps of at most the integrator's default 5 ms over a step of `dt`.
+    pub fn for_period(dt: f64, rest_anchored: bool) -> Self {
+        Self { substeps: crate::vehicle::Rk4Vehicle::with_dt(dt).substeps as u32, rest_anchored }
+    }
+}
+
+/// The sensors of a vehicle as a fit identified them: what its state estimator assumes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SensorModel {
+    /// Standard deviation of the depth reading (m).
+    pub depth_std: f64,
+    /// How long the depth reading lags the depth (s).
+    pub depth_delay: f64,
+    /// Standard deviation of the heading (rad).
+    pub heading_std: f64,
+    /// Standard deviation of the yaw rate (rad/s).
+    pub yaw_rate_std: f64,
+}
+
+/// What a model fitted to one vehicle carries of it (docs/FIT.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FittedVehicle {
+    /// The vehicle file's `[[thruster]]` and `[curve.*]` tables (TOML text): how a wrench
+    /// becomes that vehicle's commands.
+    pub thrusters_toml: String,
+    /// The sensors, identified from the same recordings.
+    pub sensors: SensorModel,
+    /// What the fit's report found the data could not determine, one line each (empty: the
+    /// fit passed); `mpc_track` prints them before it flies the model.
+    pub warnings: Vec<String>,
+}
+
+/// A version 3 hybrid: without the anchoring at rest.
+#[derive(Deserialize)]
+pub(crate) struct HybridPhysicsV3 {
+    substeps: u32,
+}
+
+/// A version 3 payload: [`PincModel`] without the fitted vehicle.
+#[derive(Deserialize)]
+pub(crate) struct PincModelV3 {
+    architecture: Architecture,
+    dt: f64,
+    input_scaling: Option<Affine>,
+    output_scaling: Option<Affine>,
+    envelope: Option<Envelope>,
+    provenance: Provenance,
+    weights: Weights,
+    vehicle: VehicleParams,
+    hybrid: Option<HybridPhysicsV3>,
+}
+
+impl From<PincModelV3> for PincModel {
+    fn from(v: PincModelV3) -> Self {
+        Self {
+            architecture: v.architecture,
+            dt: v.dt,
+            input_scaling: v.input_scaling,
+            output_scaling: v.output_scaling,
+            envelope: v.envelope,
+            provenance: v.provenance,
+            weights: v.weights,
+            vehicle: v.vehicle,
+            hybrid: v.hybrid.map(|h| HybridPhysics { substeps: h.substeps, rest_anchored: false }),
+            fitted: None,
+        }
+    }
 }
 
 /// A version 2 payload: [`PincModel`] without the hybrid part.
@@ -224,6 +302,7 @@ impl From<PincModelV2> for PincModel {
             weights: v.weights,
             vehicle: v.vehicle,
             hybrid: None,
+            fitted: None,
         }
     }
 }

@@ -134,6 +134,7 @@ pub fn import_state_dict(bytes: &[u8], dt: f64, activation: Activation) -> Resul
         weights: Weights { hidden, output },
         vehicle: crate::vehicle::VehicleParams::default(),
         hybrid: None,
+        fitted: None,
     };
     validate(&model).map_err(|e| err(format!("the imported network is inconsistent: {e}")))?;
     Ok(model)

@@ -11,9 +11,9 @@ mod validate;
 
 pub use error::ModelError;
 pub use format::{
-    Activation, Affine, Architecture, Envelope, FORMAT_VERSION, HEADER_SIZE, HiddenLayer, HybridPhysics,
+    Activation, Affine, Architecture, Envelope, FORMAT_VERSION, FittedVehicle, HEADER_SIZE, HiddenLayer, HybridPhysics,
     LayerNormWeights, Linear, MAGIC, MAX_FILE_BYTES, MAX_LAYERS, MAX_WIDTH, OLDEST_READ_VERSION, PincModel, Provenance,
-    Weights,
+    SensorModel, Weights,
 };
 #[cfg(feature = "tools")]
 pub use import_torch::import_state_dict;

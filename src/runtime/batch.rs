@@ -3,7 +3,9 @@
 
 use super::envelope::EnvelopeStatus;
 use super::error::{RuntimeError, check_dt, check_input, check_len, check_state};
-use super::kernels::{Dense, MulAdd, PACK, Pack, Portable, Real, Shape, activate, block_packs, matvec, matvec_rows};
+use super::kernels::{
+    Dense, MulAdd, NetScratch, PACK, Pack, Portable, Real, Shape, activate, block_packs, matvec, matvec_rows,
+};
 use super::predictor::Predictor;
 use crate::model::Activation;
 use crate::types::{Input, NU, NX, State};
@@ -34,6 +36,8 @@ pub struct BatchWorkspace<T: Real = f32> {
     /// Raw network output, component-major.
     net_output: Vec<Pack<T>>,
     envelope: EnvelopeStatus,
+    /// For a hybrid anchored at rest: where its output at rest over another period is computed.
+    rest_scratch: Option<NetScratch<T>>,
 }
 
 impl<T: Real> BatchWorkspace<T> {
@@ -49,6 +53,7 @@ impl<T: Real> BatchWorkspace<T> {
             states: vec![[0.0; LANES]; NX],
             net_output: vec![zero; NX * LANE_PACKS],
             envelope: EnvelopeStatus::default(),
+            rest_scratch: p.rest.map(|_| NetScratch::new(&p.net)),
         }
     }
 
@@ -138,6 +143,10 @@ impl<T: Real> Predictor<T> {
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
         let mut divergence = Divergence::default();
+        let rest = match &mut ws.rest_scratch {
+            Some(scratch) => self.rest_output::<F>(scratch, dt),
+            None => None,
+        };
         for start in (0..x0.len()).step_by(LANES) {
             let block = Block { start, lanes: LANES.min(x0.len() - start), steps };
             self.load_block(ws, &block, x0, dt, out);
@@ -149,8 +158,9 @@ impl<T: Real> Predictor<T> {
                 self.network_lanes::<F>(ws);
                 self.check_envelope_lanes(ws, &block, inputs, k, &u, &dead);
                 let o_flat = ws.net_output.as_flattened();
+                let at_rest = |c: usize| rest.map_or(0.0, |r| r[c]);
                 let o: [[f64; LANES]; NX] =
-                    std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * LANES + b].to_f64()));
+                    std::array::from_fn(|c| std::array::from_fn(|b| o_flat[c * LANES + b].to_f64() - at_rest(c)));
                 let x: &mut [[f64; LANES]; NX] = (&mut ws.states[..]).try_into().expect("NX components");
                 if let Some(p) = self.physics.map(|p| p.over(dt)) {
                     // A hybrid's output is added to the physics' step, lane by lane.

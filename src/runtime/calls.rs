@@ -4,7 +4,7 @@
 
 use super::error::{RuntimeError, check_dt, check_len};
 use super::horizon::HorizonLinearisation;
-use super::kernels::{MulAdd, Portable, Real};
+use super::kernels::{MulAdd, NetOut, Portable, Real};
 use super::predictor::{Predictor, Workspace};
 use crate::types::{Input, InputMatrix, State, StateMatrix};
 
@@ -137,10 +137,11 @@ impl<T: Real> Predictor<T> {
         out: &mut [State],
     ) -> Result<(), RuntimeError> {
         out[0] = *x0;
+        let rest = self.rest_output::<F>(&mut ws.net, dt);
         for (k, u) in inputs.iter().enumerate() {
             let x = out[k];
             self.check_args(ws, k, &x, u)?;
-            let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false);
+            let o = anchored(self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, dt, false), &rest);
             let base = match &self.physics {
                 Some(p) => p.over(dt).step_network(&x, u),
                 None => x,
@@ -167,10 +168,12 @@ impl<T: Real> Predictor<T> {
         a: &mut [StateMatrix],
         b: &mut [InputMatrix],
     ) -> Result<(), RuntimeError> {
+        let rest = self.rest_output::<F>(&mut ws.net, self.dt);
         for (k, u) in inputs.iter().enumerate() {
             let x = if k == 0 { *x0 } else { next[k - 1] };
             self.check_args(ws, k, &x, u)?;
-            let o = self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true);
+            // The output at rest is a constant: it shifts the value, not the Jacobians.
+            let o = anchored(self.net.forward::<F>(self.cpu, &mut ws.net, &x, u, self.dt, true), &rest);
             self.net.reverse::<F>(&mut ws.net);
             let physics = self.physics.map(|p| p.step_with_jacobians(&x, u));
             let (base, base_jacobians) = match &physics {
@@ -190,4 +193,15 @@ impl<T: Real> Predictor<T> {
         }
         Ok(())
     }
+}
+
+/// A network output taken relative to the output at rest, where the model anchors there.
+#[inline(always)]
+pub(crate) fn anchored(mut o: NetOut, rest: &Option<NetOut>) -> NetOut {
+    if let Some(r) = rest {
+        for (o, r) in o.iter_mut().zip(r) {
+            *o -= r;
+        }
+    }
+    o
 }

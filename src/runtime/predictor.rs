@@ -4,7 +4,7 @@
 
 use super::envelope::{EnvelopeCheck, EnvelopeStatus};
 use super::error::{RuntimeError, check_input, check_state};
-use super::kernels::{Avx2Fma, NetScratch, Network, Real};
+use super::kernels::{Avx2Fma, MulAdd, NetOut, NetScratch, Network, Portable, Real};
 use super::output_map::OutputMap;
 use crate::model::{Envelope, PincModel};
 use crate::types::{Input, State};
@@ -56,6 +56,9 @@ pub struct Predictor<T: Real = f32> {
     /// A hybrid model's analytic part, whose step the network's output is added to
     /// (docs/MODEL.md section 13); in `f64` whatever `T` is.
     pub(crate) physics: Option<Rk4Vehicle>,
+    /// A hybrid whose correction is anchored at rest: the network's output at rest over the
+    /// model's own period, subtracted from every output (other periods compute theirs).
+    pub(crate) rest: Option<(f64, NetOut)>,
     /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
     pub(crate) cpu: Option<Avx2Fma>,
 }
@@ -91,14 +94,33 @@ impl<T: Real> Predictor<T> {
     pub fn from_model(model: &PincModel) -> Self {
         let a = &model.architecture;
         let net = Network::new(model);
-        Self {
+        let mut p = Self {
             envelope: EnvelopeCheck::new(model.envelope.clone(), &net.seen),
             net,
             output: OutputMap { residual: a.residual, rotate: a.rotate_xy, renormalise_yaw: true },
             dt: model.dt,
             physics: model.hybrid_vehicle(),
+            rest: None,
             cpu: Avx2Fma::detect(),
+        };
+        if model.hybrid.is_some_and(|h| h.rest_anchored) {
+            let mut scratch = NetScratch::new(&p.net);
+            let out = p.net.forward::<Portable>(None, &mut scratch, &State::zeros(), &Input::zeros(), p.dt, false);
+            p.rest = Some((p.dt, out));
         }
+        p
+    }
+
+    /// A hybrid's output at rest over a step of `dt`, where its correction is anchored there
+    /// (what every output is taken relative to); `None` otherwise. Computed in `scratch`
+    /// unless `dt` is the model's own period.
+    #[inline(always)]
+    pub(crate) fn rest_output<F: MulAdd>(&self, scratch: &mut NetScratch<T>, dt: f64) -> Option<NetOut> {
+        let (own_dt, own) = self.rest?;
+        if dt == own_dt {
+            return Some(own);
+        }
+        Some(self.net.forward::<F>(self.cpu, scratch, &State::zeros(), &Input::zeros(), dt, false))
     }
 
     /// Rescale the predicted `(cos psi, sin psi)` to unit length after every step (with its

@@ -66,9 +66,9 @@ pub enum LrSchedule {
     /// Reduce-on-plateau on the smoothed dev loss (`patience`, `lr_factor`, `lr_min`).
     #[default]
     Plateau,
-    /// Half a cosine from `lr` to `lr_min` over the run's budget (the wall-clock limit, or the
-    /// epochs when that comes first), updated every step: a fixed budget spends its end at a
-    /// small rate instead of waiting out patience.
+    /// Half a cosine from `lr` to `lr_min` over the run's epochs, updated every step: a fixed
+    /// budget spends its end at a small rate instead of waiting out patience. It follows the
+    /// epochs only (a time limit cuts the run short and does not speed the schedule up).
     Cosine,
 }
 
@@ -129,7 +129,7 @@ pub struct TrainConfig {
     #[serde(default)]
     pub lr_schedule: LrSchedule,
     /// Curriculum: the physics, initial-condition and physics-rollout losses join once this
-    /// fraction of the budget (time limit or epochs) has passed; before, only the data and
+    /// fraction of the epochs has passed; before, only the data and
     /// rollout losses train. Weights are selected only from epochs with every loss active.
     #[serde(default)]
     pub physics_after: f64,

@@ -5,26 +5,44 @@
 //! the physics' step, the gradient (where the state depends on the weights, in a rollout)
 //! is the step's exact Jacobian.
 
-use super::net::to_f32;
+use super::to_f32;
+use crate::model::HybridPhysics;
 use crate::types::{Input, NU, NX, State};
-use crate::vehicle::Rk4Vehicle;
+use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-/// `Phi_t(x, u)` per row: `vehicle` with its sub-step count over each row's `t`; with
+/// A hybrid's analytic part in the form its file keeps: the vehicle and how its step is
+/// integrated (and whether the correction is anchored at rest).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hybrid {
+    /// The vehicle whose step the network corrects.
+    pub vehicle: VehicleParams,
+    /// Its sub-steps and the anchoring.
+    pub physics: HybridPhysics,
+}
+
+impl Hybrid {
+    /// The vehicle's integrator over a step of `dt`.
+    pub fn over(&self, dt: f64) -> Rk4Vehicle {
+        Rk4Vehicle { params: self.vehicle, dt, substeps: self.physics.substeps as usize }
+    }
+}
+
+/// `Phi_t(x, u)` per row: the hybrid's vehicle with its sub-step count over each row's `t`; with
 /// `tracked`, the gradient flows into `x` through the step's Jacobian (`x` is then a
 /// prediction, not data).
 ///
 /// # Shapes
 /// - `x`: `[N, 9]`, `u`: `[N, 4]`, `t`: `[N, 1]`; returns `[N, 9]`
-pub fn physics_step(vehicle: &Rk4Vehicle, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tracked: bool) -> Tensor<2> {
+pub fn physics_step(hybrid: &Hybrid, x: Tensor<2>, u: Tensor<2>, t: Tensor<2>, tracked: bool) -> Tensor<2> {
     let device = x.device();
     let [n, _] = x.dims();
     let (xs, us, ts) = (to_f32(x.clone().detach()), to_f32(u), to_f32(t));
     let row = |i: usize| {
         let xi = State::from_fn(|c, _| f64::from(xs[i * NX + c]));
         let ui = Input::from_fn(|c, _| f64::from(us[i * NU + c]));
-        (vehicle.over(f64::from(ts[i])), xi, ui)
+        (hybrid.over(f64::from(ts[i])), xi, ui)
     };
     if !tracked {
         let next: Vec<f32> = (0..n)

@@ -2,11 +2,11 @@
 //! every layer as ordinary tensor ops (burn has no double backward, so reverse mode must
 //! differentiate through the tangent for the physics loss).
 
-use super::hybrid::physics_step;
+use super::hybrid::{Hybrid, physics_step};
 use super::physics::rhs;
+use super::to_f32;
 use crate::model::{Activation, Architecture, HiddenLayer, LayerNormWeights, Linear, PincModel, Weights};
 use crate::types::NX;
-use crate::vehicle::Rk4Vehicle;
 use burn::module::{Module, Param};
 use burn::prelude::*;
 use burn::tensor::activation;
@@ -35,7 +35,7 @@ pub struct PincNet {
     arch: Architecture,
     /// A hybrid's physics: the network's output corrects its step instead of the state.
     #[module(skip)]
-    hybrid: Option<Rk4Vehicle>,
+    hybrid: Option<Hybrid>,
 }
 
 /// A forward pass: the prediction and, if asked for, its time derivative.
@@ -53,11 +53,6 @@ fn param2(data: Vec<f32>, dims: [usize; 2], device: &Device) -> Param<Tensor<2>>
 fn param1(data: Vec<f32>, device: &Device) -> Param<Tensor<1>> {
     let n = data.len();
     Param::from_data(TensorData::new(data, [n]), device)
-}
-
-/// Reads a tensor back as f32, whatever float dtype the device computes in.
-pub(crate) fn to_f32<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.try_into_vec_as::<f32>().expect("float tensor")
 }
 
 impl PincNet {
@@ -96,10 +91,15 @@ impl PincNet {
     /// zero, so that the model starts as the physics exactly (docs/MODEL.md section 13).
     ///
     /// # Panics
-    /// If the architecture is not residual (a hybrid's correction adds to the physics' step).
+    /// If the architecture is not residual (a hybrid's correction adds to the physics' step),
+    /// or a correction anchored at rest would see the position or heading.
     #[must_use]
-    pub fn into_hybrid(mut self, physics: Rk4Vehicle) -> Self {
+    pub fn into_hybrid(mut self, physics: Hybrid) -> Self {
         assert!(self.arch.residual, "a hybrid network is residual");
+        assert!(
+            !physics.physics.rest_anchored || self.arch.state_inputs.iter().all(|&i| i >= 5),
+            "a correction anchored at rest sees the body velocities only"
+        );
         let device = self.out_b.val().device();
         let w = self.arch.width;
         self.out_w = param2(vec![0.0; w * NX], [w, NX], &device);
@@ -109,7 +109,7 @@ impl PincNet {
     }
 
     /// The hybrid's physics, if this network corrects one.
-    pub fn hybrid(&self) -> Option<&Rk4Vehicle> {
+    pub fn hybrid(&self) -> Option<&Hybrid> {
         self.hybrid.as_ref()
     }
 
@@ -138,7 +138,7 @@ impl PincNet {
             out_w: param2(transpose(&m.weights.output), [m.weights.output.cols, NX], device),
             out_b: param1(m.weights.output.bias.clone(), device),
             arch: m.architecture.clone(),
-            hybrid: m.hybrid_vehicle(),
+            hybrid: m.hybrid.map(|physics| Hybrid { vehicle: m.vehicle, physics }),
         }
     }
 
@@ -198,9 +198,24 @@ impl PincNet {
         // A hybrid's base: the physics over `t` and, for the tangent, its rate f(Phi_t, u).
         let base = self.hybrid.as_ref().map(|h| {
             let phi = physics_step(h, x.clone(), u.clone(), t.clone(), tracked);
-            let rate = tangent.then(|| rhs(&h.params, phi.clone(), u.clone()));
+            let rate = tangent.then(|| rhs(&h.vehicle, phi.clone(), u.clone()));
             (phi, rate)
         });
+        let (mut o, mut d_o) = self.mlp(&x, u.clone(), t.clone(), tangent);
+        if self.hybrid.is_some_and(|h| h.physics.rest_anchored) {
+            // The correction less its value at rest over the same step: zero at rest.
+            let (rest_o, rest_d) = self.mlp(&x.zeros_like(), u.zeros_like(), t, tangent);
+            o = o - rest_o;
+            d_o = d_o.zip(rest_d).map(|(d, r)| d - r);
+        }
+        match base {
+            Some((phi, rate)) => self.compose(Some(phi), rate, o, d_o),
+            None => self.compose(self.arch.residual.then_some(x), None, o, d_o),
+        }
+    }
+
+    /// The network's raw output `N([x_seen, u, t])` and, with `tangent`, its time derivative.
+    fn mlp(&self, x: &Tensor<2>, u: Tensor<2>, t: Tensor<2>, tangent: bool) -> (Tensor<2>, Option<Tensor<2>>) {
         let device = x.device();
         let [n, _] = x.dims();
         let seen: Vec<i64> = self.arch.state_inputs.iter().map(|&i| i64::from(i)).collect();
@@ -253,11 +268,7 @@ impl PincNet {
             da = dout;
         }
         let o = a.matmul(self.out_w.val()) + self.out_b.val().unsqueeze::<2>();
-        let d_o = da.map(|d| d.matmul(self.out_w.val()));
-        match base {
-            Some((phi, rate)) => self.compose(Some(phi), rate, o, d_o),
-            None => self.compose(self.arch.residual.then_some(x), None, o, d_o),
-        }
+        (o, da.map(|d| d.matmul(self.out_w.val())))
     }
 
     /// Residual and rotation of the planar increments by the predicted yaw, with tangents.

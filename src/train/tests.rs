@@ -49,6 +49,7 @@ fn exported_weights_round_trip_through_the_frozen_format() {
         weights: net.weights(),
         vehicle: crate::vehicle::VehicleParams::default(),
         hybrid: None,
+        fitted: None,
     };
     crate::model::validate(&model).unwrap();
     let again = PincNet::from_model(&model, &device);

@@ -3,16 +3,17 @@
 //! runtime, and a clean stop on interruption or a non-finite loss.
 
 use super::GradCombine;
+use super::Hybrid;
 use super::config::{Backend, LossKind, LrSchedule, TrainConfig};
 use super::grad_combine::{clip_global_norm, coefficients, weighted_sum};
 use super::losses::{Batch, joint_losses, loss};
 use super::net::PincNet;
 use crate::dataset::TrajectorySet;
 use crate::eval::{mean, one_step_mse, rollout_mse_per_trajectory, vpt};
-use crate::model::{Envelope, HybridPhysics, PincModel, Provenance};
+use crate::model::{Envelope, PincModel, Provenance};
 use crate::runtime::Predictor;
 use crate::types::{NU, NX};
-use crate::vehicle::{Rk4Vehicle, VehicleParams};
+use crate::vehicle::VehicleParams;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -179,7 +180,8 @@ pub(super) fn flatten(net: &PincNet, grads: &Gradients) -> Vec<f32> {
 /// Freezes `net` with the run's envelope, provenance and vehicle (a hybrid's physics).
 fn freeze(net: &PincNet, dt: f64, envelope: &Envelope, provenance: Provenance, vehicle: VehicleParams) -> PincModel {
     PincModel {
-        hybrid: net.hybrid().map(|h| HybridPhysics { substeps: h.substeps as u32 }),
+        hybrid: net.hybrid().map(|h| h.physics),
+        fitted: None,
         architecture: net.architecture().clone(),
         dt,
         input_scaling: None,
@@ -268,7 +270,7 @@ pub fn train(
     let run = Run::new(cfg, train_set, dev, source);
     let mut net = PincNet::init(&cfg.architecture, cfg.seed, &run.device);
     if let Some(h) = cfg.hybrid {
-        net = net.into_hybrid(Rk4Vehicle { params: cfg.vehicle, dt: train_set.dt, substeps: h.substeps as usize });
+        net = net.into_hybrid(Hybrid { vehicle: cfg.vehicle, physics: h });
     }
     let mut optim =
         AdamWConfig::new().with_epsilon(cfg.adam_eps as f32).with_weight_decay(cfg.weight_decay as f32).init();
@@ -431,12 +433,11 @@ impl<'a> Run<'a> {
         (model, metrics, windows)
     }
 
-    /// How far the run is through its budget, in [0, 1]: the larger of the epochs' share and
-    /// the wall clock's share of the time limit. `within` is the fraction of `epoch` done.
+    /// How far the run is through its epochs, in [0, 1]; `within` is the fraction of `epoch`
+    /// done. Schedules follow the epochs, never the wall clock, so a run repeats bit for bit
+    /// on one machine; a time limit only cuts the run short.
     fn progress(&self, epoch: usize, within: f64) -> f64 {
-        let by_epochs = (epoch as f64 - 1.0 + within) / self.cfg.epochs as f64;
-        let by_time = self.cfg.time_limit_s.map_or(0.0, |t| self.start.elapsed().as_secs_f64() / t);
-        by_epochs.max(by_time).clamp(0.0, 1.0)
+        ((epoch as f64 - 1.0 + within) / self.cfg.epochs as f64).clamp(0.0, 1.0)
     }
 
     /// Which losses train in `epoch` (the curriculum holds the physics back at first).

@@ -18,7 +18,7 @@ pub use file::VehicleFileError;
 pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
 pub use params::{ParamsError, VehicleParams, terminal_speed};
 #[cfg(feature = "tools")]
-pub use thrusters::{Allocation, CommandUnit, Thruster, ThrusterCurve, Thrusters};
+pub use thrusters::{Allocation, CommandUnit, Thruster, ThrusterCurve, Thrusters, standalone_thruster_tables};
 
 #[cfg(test)]
 mod tests;

@@ -484,6 +484,34 @@ fn build_curve(name: &str, spec: CurveSpec, path: &Path) -> Result<ThrusterCurve
     })
 }
 
+/// A vehicle file's `[[thruster]]` and `[curve.*]` tables as TOML text that stands alone:
+/// every curve read from a table file is written inline as its points (in N, as read), so
+/// the text needs no other file. Empty where the file has no thrusters.
+///
+/// # Errors
+/// The file cannot be read or is not TOML, or a curve's table cannot be read.
+pub fn standalone_thruster_tables(path: &Path) -> Result<String, VehicleFileError> {
+    let text = std::fs::read_to_string(path).map_err(|source| VehicleFileError::Io { path: path.into(), source })?;
+    let syntax = |message: String| VehicleFileError::Syntax { path: path.into(), message };
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| syntax(e.to_string()))?;
+    let mut kept: toml::Table = table.into_iter().filter(|(k, _)| k == "thruster" || k == "curve").collect();
+    if let Some(curves) = kept.get_mut("curve").and_then(toml::Value::as_table_mut) {
+        for (name, curve) in curves.iter_mut() {
+            let Some(spec) = curve.as_table_mut() else { continue };
+            let Some(file) = spec.remove("table") else { continue };
+            let file = file.as_str().ok_or_else(|| syntax(format!("curve {name}: `table` must be a path")))?;
+            let points = read_blue_robotics_table(&path.parent().unwrap_or(Path::new(".")).join(file))
+                .map_err(|e| syntax(format!("curve {name}: {e}")))?;
+            let rows = points.iter().map(|p| toml::Value::Array(vec![p[0].into(), p[1].into()])).collect();
+            spec.insert("points".into(), toml::Value::Array(rows));
+        }
+    }
+    if kept.is_empty() {
+        return Ok(String::new());
+    }
+    toml::to_string(&kept).map_err(|e| syntax(e.to_string()))
+}
+
 /// `(PWM, thrust N)` rows of a table in Blue Robotics' published layout: a header with a
 /// `PWM` column and a `Force (Kg f)` column, force in kgf.
 fn read_blue_robotics_table(path: &Path) -> Result<Vec<[f64; 2]>, String> {

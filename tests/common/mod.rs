@@ -64,6 +64,7 @@ pub fn random_model(arch: Architecture, seed: u64) -> PincModel {
         weights: Weights { hidden, output },
         vehicle: pinc::vehicle::VehicleParams::default(),
         hybrid: None,
+        fitted: None,
         architecture: arch,
     }
 }
@@ -75,7 +76,7 @@ pub fn hybrid(mut m: PincModel, substeps: u32) -> PincModel {
     v.m = 12.1;
     v.izz = 0.3;
     m.vehicle = v;
-    m.hybrid = Some(pinc::model::HybridPhysics { substeps });
+    m.hybrid = Some(pinc::model::HybridPhysics { substeps, rest_anchored: false });
     m
 }
 

@@ -62,7 +62,7 @@ fn hybrid_files_keep_both_parts_and_version_2_files_read_as_pincs() {
     let bytes = hybrid.to_bytes().unwrap();
     assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
     let back = PincModel::from_bytes(&bytes).unwrap();
-    assert_eq!(back.hybrid, Some(pinc::model::HybridPhysics { substeps: 12 }));
+    assert_eq!(back.hybrid, Some(pinc::model::HybridPhysics { substeps: 12, rest_anchored: false }));
     assert_eq!(back.vehicle, hybrid.vehicle);
     // A version 2 file is a version 3 payload without the hybrid field (the last one, absent
     // being one byte): it reads as the same PINC.
@@ -79,7 +79,7 @@ fn hybrid_files_keep_both_parts_and_version_2_files_read_as_pincs() {
     let err = bad.to_bytes().unwrap_err().to_string();
     assert!(err.contains("architecture.residual") && err.contains("hybrid"), "{err}");
     let mut bad = hybrid;
-    bad.hybrid = Some(pinc::model::HybridPhysics { substeps: 0 });
+    bad.hybrid = Some(pinc::model::HybridPhysics { substeps: 0, rest_anchored: false });
     let err = bad.to_bytes().unwrap_err().to_string();
     assert!(err.contains("hybrid.substeps"), "{err}");
 }

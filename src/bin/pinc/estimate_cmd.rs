@@ -2,10 +2,9 @@
 //! body velocities), forward and then smoothed backward, written as pinc's CSV log
 //! (`t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz`) that `pinc dataset import` reads.
 
-use mavlink::dialects::ardupilotmega::MavMessage;
-use pinc::dataset::import::{TlogMessages, tlog_messages};
-use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
-use pinc::estimation::{Estimator, NoiseSettings};
+use pinc::dataset::import::mavlink_log;
+use pinc::estimation::NoiseSettings;
+use pinc::estimation::replay::{ReplaySettings, replay};
 use pinc::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
 use serde_json::json;
 use std::io::Write;
@@ -49,43 +48,6 @@ pub struct EstimateArgs {
     pub json: bool,
 }
 
-/// The MAVLink messages a `pinc vehicle record` MCAP holds (`/mavlink/<NAME>`, JSON with the
-/// sender in `header`), in log order.
-#[cfg(feature = "vehicle")]
-fn mcap_messages(path: &std::path::Path) -> Result<TlogMessages, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
-    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
-    for m in stream {
-        let m = m.map_err(|e| format!("{}: {e}", path.display()))?;
-        if !m.channel.topic.starts_with("/mavlink/") {
-            continue;
-        }
-        // A message this build's dialect cannot read back is counted, not fatal.
-        let value: serde_json::Value = match serde_json::from_slice(&m.data) {
-            Ok(v) => v,
-            Err(_) => {
-                out.damaged += 1;
-                continue;
-            }
-        };
-        let sys = value["header"]["system_id"].as_u64().unwrap_or(0) as u8;
-        match serde_json::from_value::<MavMessage>(value) {
-            Ok(message) => out.messages.push((m.log_time / 1000, sys, message)),
-            Err(_) => out.damaged += 1,
-        }
-    }
-    if out.messages.is_empty() {
-        return Err(format!("{}: no /mavlink/* messages (record it with `pinc vehicle record`)", path.display()));
-    }
-    Ok(out)
-}
-
-#[cfg(not(feature = "vehicle"))]
-fn mcap_messages(path: &std::path::Path) -> Result<TlogMessages, String> {
-    Err(format!("{}: reading MAVLink from MCAP needs the `vehicle` feature", path.display()))
-}
-
 /// What such data determine: with a position source, every coefficient; without one, the
 /// surge and sway velocities are the model's own, so only heave and yaw can be identified.
 fn determinable(horizontal: bool) -> (Vec<&'static str>, Vec<&'static str>) {
@@ -102,49 +64,19 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     noise.validate()?;
     let params = VehicleParams::load(&a.vehicle).map_err(|e| e.to_string())?;
     let thrusters = Thrusters::load(&a.vehicle).map_err(|e| e.to_string())?;
-    let is_mcap = a.log.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-    let log = if is_mcap { mcap_messages(&a.log)? } else { tlog_messages(&a.log).map_err(|e| e.to_string())? };
-    // The autopilot is the system that sends ATTITUDE.
-    let autopilot = log
-        .messages
-        .iter()
-        .find_map(|(_, sys, m)| matches!(m, MavMessage::ATTITUDE(_)).then_some(*sys))
-        .ok_or_else(|| format!("{}: no ATTITUDE message: no heading, no clock to estimate on", a.log.display()))?;
-    let mut measurements = MavlinkMeasurements::new(a.surface_pressure, a.water_density, Some(thrusters));
+    let log = mavlink_log(&a.log).map_err(|e| e.to_string())?;
+    let settings = ReplaySettings {
+        dt: a.dt,
+        surface_pressure: a.surface_pressure,
+        water_density: a.water_density,
+        noise,
+        ignore_position: a.ignore_position,
+    };
     let model = Rk4Vehicle { params, ..Rk4Vehicle::with_dt(a.dt) };
-    let mut estimator = Estimator::new(model, noise).keep_history();
-    let (mut now, mut next_sample, mut horizontal) = (0.0f64, f64::NEG_INFINITY, false);
-    for (_, sys, message) in &log.messages {
-        if *sys != autopilot || (a.ignore_position && matches!(message, MavMessage::LOCAL_POSITION_NED(_))) {
-            continue;
-        }
-        let mut attitude_t = None;
-        measurements.observe(now, message, |o| match o {
-            Observation::Measured(m) => {
-                horizontal |= m.observes_horizontal();
-                if let pinc::estimation::Measurement::Heading { t, .. } = m {
-                    attitude_t = Some(t);
-                }
-                estimator.measure(m);
-            }
-            Observation::Applied(t, u) => estimator.applied(t, u),
-        });
-        // ATTITUDE is the clock: a sample every dt of its time.
-        if let Some(t) = attitude_t {
-            now = t;
-            if t >= next_sample - 1e-9 {
-                estimator.advance(t).map_err(|e| format!("{}: the estimator at {t:.3} s: {e}", a.log.display()))?;
-                next_sample = if estimator.started() { estimator.ekf().t() + a.dt } else { t };
-            }
-        }
-    }
-    let steps = if a.no_smooth { estimator.filtered() } else { estimator.smoothed() };
-    if steps.is_empty() {
-        return Err(format!(
-            "{}: the estimator never started (it needs ATTITUDE and a depth: SCALED_PRESSURE2, SCALED_PRESSURE or LOCAL_POSITION_NED)",
-            a.log.display()
-        ));
-    }
+    let run =
+        replay(&log.messages, model, Some(thrusters), &settings).map_err(|e| format!("{}: {e}", a.log.display()))?;
+    let steps = if a.no_smooth { &run.filtered } else { &run.smoothed };
+    let horizontal = run.horizontal;
     // The input of each row: what the filter applied until the next row (the mean of the
     // outputs reported in the step), held over the end of a run.
     let partial = a.out.with_extension("csv.partial");
@@ -153,7 +85,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     let io = |e: std::io::Error| format!("{}: {e}", partial.display());
     writeln!(w, "t,x,y,z,psi,u,v,w,r,X,Y,Z,Mz").map_err(io)?;
     let mut last_u = pinc::Input::zeros();
-    for s in &steps {
+    for s in steps {
         last_u = s.input.unwrap_or(last_u);
         let x = s.state;
         writeln!(
@@ -171,7 +103,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
     let report = json!({
         "log": a.log.display().to_string(), "out": a.out.display().to_string(), "samples": steps.len(),
         "span_s": [steps[0].t, steps[steps.len() - 1].t], "smoothed": !a.no_smooth,
-        "position_source": horizontal, "restarts": estimator.restarts(), "late": estimator.late(),
+        "position_source": horizontal, "restarts": run.restarts, "late": run.late,
         "damaged_frames": log.damaged, "torn_last_frame": log.torn,
         "mean_std": {"z": mean_std(2), "u": mean_std(4), "v": mean_std(5), "w": mean_std(6), "r": mean_std(7)},
         "identifiable": can, "not_identifiable": cannot,

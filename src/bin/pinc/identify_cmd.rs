@@ -23,18 +23,6 @@ pub struct IdentifyArgs {
     pub json: bool,
 }
 
-/// The `[[thruster]]` and `[curve.*]` tables of a vehicle file, as TOML text ("" if none).
-fn thruster_tables(path: &std::path::Path) -> Result<String, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let table: toml::Table = text.parse().map_err(|e| format!("{}: {e}", path.display()))?;
-    let kept: toml::Table = table.into_iter().filter(|(k, _)| k == "thruster" || k == "curve").collect();
-    if kept.is_empty() {
-        return Ok(String::new());
-    }
-    let body = toml::to_string(&kept).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(format!("\n# The thrusters of {}.\n{body}", path.display()))
-}
-
 pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
     let base = load_vehicle(a.vehicle.as_deref())?;
     let mut folders = Vec::new();
@@ -67,7 +55,10 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
         // The base file's thrusters and their curves carry over: the identified file then
         // commands the vehicle (`--connect`) as the base did.
         let thrusters = match a.vehicle.as_deref() {
-            Some(path) => thruster_tables(path)?,
+            Some(path) => match pinc::vehicle::standalone_thruster_tables(path).map_err(|e| e.to_string())? {
+                t if t.is_empty() => t,
+                t => format!("\n# The thrusters of {} (curves inline).\n{t}", path.display()),
+            },
             None => String::new(),
         };
         // Written beside and renamed, so a reader never sees half a file.

@@ -15,6 +15,8 @@ use trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, w
 
 mod estimate_cmd;
 mod eval_cmd;
+#[cfg(all(feature = "train", feature = "vehicle"))]
+mod fit_cmd;
 mod identify_cmd;
 mod import_cmd;
 mod sweep_cmd;
@@ -167,6 +169,19 @@ enum Command {
     /// The state estimator on a recorded .tlog (smoothed): body velocities for a log without
     /// them, as pinc's CSV log for `pinc dataset import`.
     Estimate(estimate_cmd::EstimateArgs),
+    /// Fit a model to your vehicle from its recordings (stock ones too): the estimate, the
+    /// identified vehicle, its sensor model, a hybrid, and a report; the model flies with
+    /// `mpc_track --connect URL --model OUT/model.pinc` (docs/FIT.md).
+    #[cfg(all(feature = "train", feature = "vehicle"))]
+    Fit(Box<fit_cmd::FitArgs>),
+    /// Fit a model to your vehicle: needs the `train` feature (burn), which this build does not have.
+    #[cfg(not(all(feature = "train", feature = "vehicle")))]
+    #[command(disable_help_flag = true)]
+    Fit {
+        /// Whatever was given; nothing runs without the feature.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// A live ArduSub vehicle over MAVLink: check the link, record a session.
     #[cfg(feature = "vehicle")]
     Vehicle {
@@ -251,6 +266,15 @@ fn main() -> ExitCode {
         Command::Identify(args) => identify_cmd::run_identify(args),
         Command::Thrusters(args) => thrusters_cmd::run_thrusters(args),
         Command::Estimate(args) => estimate_cmd::run_estimate(args),
+        #[cfg(all(feature = "train", feature = "vehicle"))]
+        Command::Fit(args) => fit_cmd::run_fit(*args),
+        #[cfg(not(all(feature = "train", feature = "vehicle")))]
+        Command::Fit { .. } => {
+            eprintln!(
+                "error: this pinc was built without the trainer; run `cargo run --release --features train -- fit ...`"
+            );
+            return ExitCode::from(2);
+        }
         #[cfg(feature = "vehicle")]
         Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
     };

@@ -258,9 +258,9 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         None => training_sets(&a, &preset)?,
     };
     if a.hybrid {
-        // Sub-steps of at most the default 5 ms over the data's sample period.
-        let substeps = pinc::vehicle::Rk4Vehicle::with_dt(train_set.dt).substeps as u32;
-        cfg.hybrid = Some(pinc::model::HybridPhysics { substeps });
+        // A correction that sees the body velocities only is anchored at rest, so the vehicle
+        // at rest steps as its physics (docs/MODEL.md section 13).
+        cfg.hybrid = Some(pinc::model::HybridPhysics::for_period(train_set.dt, a.heading_free));
         cfg.check()?;
     }
     let interrupt = Arc::new(AtomicBool::new(false));

@@ -29,7 +29,9 @@ pub use mcap_log::read_mcap;
 pub use resample::{default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use ros2::{Ros2Options, read_ros2};
 pub use streams::{BodyFrame, CommandsToInput, Series, StreamSet, WorldFrame};
-pub use tlog::{TlogMessages, read_tlog, tlog_messages};
+#[cfg(feature = "vehicle")]
+pub use tlog::mcap_messages;
+pub use tlog::{TlogMessages, mavlink_log, read_tlog, tlog_messages};
 pub use windows::cut_windows;
 
 use super::{Dataset, DatasetPreset, Excitation, InitialRanges, SetSpec, TrajectorySet};

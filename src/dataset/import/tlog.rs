@@ -336,3 +336,54 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
     }
     build(path, d, opts, true)
 }
+
+/// The MAVLink messages a `pinc vehicle record` / `excite` MCAP holds (`/mavlink/<NAME>`,
+/// JSON with the sender in `header`), in log order, as [`tlog_messages`] gives a `.tlog`'s. A
+/// message this build's dialect cannot read back is counted as damaged, not fatal.
+///
+/// # Errors
+/// The file cannot be read, is not MCAP, or holds no `/mavlink/*` message.
+#[cfg(feature = "vehicle")]
+pub fn mcap_messages(path: &Path) -> Result<TlogMessages, ImportError> {
+    let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
+    let bytes = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
+    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
+    for m in stream {
+        let m = m.map_err(|e| malformed(e.to_string()))?;
+        if !m.channel.topic.starts_with("/mavlink/") {
+            continue;
+        }
+        let Ok(value) = serde_json::from_slice::<serde_json::Value>(&m.data) else {
+            out.damaged += 1;
+            continue;
+        };
+        let sys = value["header"]["system_id"].as_u64().unwrap_or(0) as u8;
+        match serde_json::from_value::<MavMessage>(value) {
+            Ok(message) => out.messages.push((m.log_time / 1000, sys, message)),
+            Err(_) => out.damaged += 1,
+        }
+    }
+    if out.messages.is_empty() {
+        return Err(malformed("no /mavlink/* messages (record it with `pinc vehicle record`)".into()));
+    }
+    Ok(out)
+}
+
+/// The MAVLink messages of a `.tlog`, or of a pinc MCAP (by the `.mcap` extension).
+///
+/// # Errors
+/// As [`tlog_messages`] and [`mcap_messages`]; an MCAP in a build without the `vehicle`
+/// feature.
+pub fn mavlink_log(path: &Path) -> Result<TlogMessages, ImportError> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
+        #[cfg(feature = "vehicle")]
+        return mcap_messages(path);
+        #[cfg(not(feature = "vehicle"))]
+        return Err(ImportError::Malformed {
+            path: path.to_path_buf(),
+            message: "reading MAVLink from MCAP needs the `vehicle` feature".into(),
+        });
+    }
+    tlog_messages(path)
+}

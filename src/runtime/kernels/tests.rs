@@ -160,6 +160,7 @@ fn model() -> PincModel {
         weights: Weights { hidden, output },
         vehicle: crate::vehicle::VehicleParams::default(),
         hybrid: None,
+        fitted: None,
         architecture: arch,
     }
 }

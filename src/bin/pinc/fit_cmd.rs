@@ -1,0 +1,118 @@
+//! `pinc fit`: recordings of a vehicle to a model that flies it, with its report (docs/FIT.md).
+
+use indicatif::{ProgressBar, ProgressStyle};
+use pinc::fit::{FitSettings, Stage, fit, report};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Arguments of `pinc fit`.
+#[derive(clap::Args)]
+pub struct FitArgs {
+    /// A recording of the vehicle: a `.tlog` (QGroundControl, MAVProxy) or the MCAP of `pinc
+    /// vehicle excite` / `record`. Repeat for several; a stock vehicle's (no velocities) is
+    /// fine: the estimator gives them.
+    #[arg(long = "recording", required = true)]
+    pub recordings: Vec<PathBuf>,
+    /// The starting vehicle file: its thrusters, mass and inertia, and the values of what the
+    /// recordings cannot determine.
+    #[arg(long)]
+    pub vehicle: PathBuf,
+    /// Output folder (written whole or not at all): vehicle.toml, model.pinc, report.md,
+    /// report.json, report.png, training.csv.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training epochs of the hybrid (its whole budget: the schedule follows them).
+    #[arg(long, default_value_t = FitSettings::new(Vec::new(), PathBuf::new()).epochs)]
+    pub epochs: usize,
+    /// Seed of the split's collocation times, the initialisation and the batches.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Stop training after this many minutes whatever the epochs (the report says so; the
+    /// model then depends on the machine's speed).
+    #[arg(long)]
+    pub time_cap: Option<f64>,
+    /// Sample period of the model (s).
+    #[arg(long, default_value_t = pinc::DEFAULT_DT)]
+    pub dt: f64,
+    /// Hidden layers of the correction.
+    #[arg(long, default_value_t = 2)]
+    pub layers: usize,
+    /// Neurons per hidden layer of the correction.
+    #[arg(long, default_value_t = 32)]
+    pub width: usize,
+    /// Surface pressure (hPa) for depth from pressure.
+    #[arg(long, default_value_t = 1013.25)]
+    pub surface_pressure: f64,
+    /// Water density (kg/m^3) for depth from pressure.
+    #[arg(long, default_value_t = 1000.0)]
+    pub water_density: f64,
+    /// Print the report as JSON (no progress display).
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run_fit(a: FitArgs) -> Result<(), String> {
+    let mut settings = FitSettings::new(a.recordings.clone(), a.vehicle.clone());
+    settings.epochs = a.epochs;
+    settings.seed = a.seed;
+    settings.time_cap_s = a.time_cap.map(|m| m * 60.0);
+    settings.dt = a.dt;
+    settings.layers = a.layers;
+    settings.width = a.width;
+    settings.surface_pressure = a.surface_pressure;
+    settings.water_density = a.water_density;
+    let command = std::env::args().map(|s| if s.contains(' ') { format!("{s:?}") } else { s }).collect::<Vec<_>>();
+    let command = command.join(" ");
+    let interrupt = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupt.clone();
+        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    }
+    let bar = if a.json { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let epoch_style = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} epochs ({elapsed}, ETA {eta})")
+        .expect("static template")
+        .progress_chars("=> ");
+    let on_stage = |stage: Stage| {
+        let msg = match stage {
+            Stage::Read => "reading the recordings".to_string(),
+            Stage::Estimate => "estimating the state on the starting vehicle".into(),
+            Stage::Identify => "identifying the vehicle".into(),
+            Stage::SensorLag(n) => format!("finding the depth sensor's lag ({n} candidates)"),
+            Stage::Refine => "estimating and identifying again on the fitted vehicle and sensors".into(),
+            Stage::Train(n) => {
+                bar.set_style(epoch_style.clone());
+                bar.set_length(n as u64);
+                "training the hybrid".into()
+            }
+            Stage::Report => "writing the report".into(),
+        };
+        bar.set_message(msg);
+    };
+    let on_epoch = |r: &pinc::train::EpochRecord| {
+        bar.set_position(r.epoch as u64);
+        bar.set_message(format!("training the hybrid (dev VPT {:.2} s)", r.dev_vpt));
+    };
+    let result = fit(&settings, &interrupt, on_stage, on_epoch).map_err(|e| e.to_string());
+    bar.finish_and_clear();
+    let result = result?;
+    if interrupt.load(Ordering::Relaxed) {
+        return Err("interrupted: nothing written".into());
+    }
+    let written = report::write(&result, &a.out, &command).map_err(|e| e.to_string())?;
+    if a.json {
+        let text = std::fs::read_to_string(&written.report_json).map_err(|e| e.to_string())?;
+        let mut v: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+        v["files"] = serde_json::to_value(&written).map_err(|e| e.to_string())?;
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+        return Ok(());
+    }
+    print!("{}", std::fs::read_to_string(&written.report_md).map_err(|e| e.to_string())?);
+    println!(
+        "\n-> {} (model.pinc: `mpc_track --connect URL --model {}` needs no other flag)",
+        written.folder.display(),
+        written.model.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,459 @@
+//! What a fit found and how its model does on data it did not train on: per coefficient and
+//! per axis what the recordings determined, the sensor model, physics against hybrid on the
+//! held-out time; written as `report.json`, `report.md` and `report.png`.
+
+use super::{Fit, FitError};
+use crate::dataset::TrajectorySet;
+use crate::identify::{ESTIMATED, Identification, MAX_RELATIVE_STD_ERR};
+use crate::plot::{Panel, Series, figure};
+use crate::runtime::Predictor;
+use crate::train::TrainOutcome;
+use crate::traits::DiscreteModel;
+use crate::types::State;
+use crate::vehicle::{Rk4Vehicle, VehicleParams};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// The axes and the coefficients of each.
+pub const AXES: [(&str, &[&str]); 4] = [
+    ("surge", &["x_ud", "x_u", "x_uu"]),
+    ("sway", &["y_vd", "y_v", "y_vv"]),
+    ("heave", &["volume", "z_wd", "z_w", "z_ww"]),
+    ("yaw", &["n_rd", "n_r", "n_rr"]),
+];
+
+/// What the data said of one coefficient.
+#[derive(Debug, Clone, Serialize)]
+pub struct CoefficientFinding {
+    /// Its name in the vehicle file.
+    pub name: &'static str,
+    /// The starting file's value.
+    pub start: f64,
+    /// The fitted model's value.
+    pub fitted: f64,
+    /// Its standard error, where the data determined it.
+    pub std_err: Option<f64>,
+    /// `identified`, `not_excited` (the data leave it undetermined: kept from the start) or
+    /// `no_position_source` (surge and sway without a position or velocity sensor: the
+    /// estimator's velocities are the starting file's own, so a fit would echo it).
+    pub status: &'static str,
+    /// Why, in words.
+    pub why: String,
+}
+
+/// What the data said of one axis.
+#[derive(Debug, Clone, Serialize)]
+pub struct AxisFinding {
+    /// surge, sway, heave or yaw.
+    pub axis: &'static str,
+    /// Whether the coefficients the controller needs of it were determined.
+    pub determined: bool,
+    /// Why not, where not.
+    pub why: String,
+}
+
+/// The report's findings.
+#[derive(Debug, Clone, Serialize)]
+pub struct Findings {
+    /// Per coefficient, in the identification's order.
+    pub coefficients: Vec<CoefficientFinding>,
+    /// Per axis.
+    pub axes: Vec<AxisFinding>,
+    /// What makes the model unfit to fly as it is (empty: the fit passed); the model file
+    /// carries them.
+    pub warnings: Vec<String>,
+    /// What an owner should know that does not fail the fit.
+    pub notes: Vec<String>,
+}
+
+/// The findings of an identification (its vehicle already holds the starting file's values
+/// where the data could not tell), given whether a position source was fused, which sensors
+/// kept a default and how the training ended.
+pub fn findings(
+    id: &Identification,
+    start: &VehicleParams,
+    horizontal: bool,
+    sensors_defaulted: &[&str],
+    training: &TrainOutcome,
+) -> Findings {
+    let value = |p: &VehicleParams, k: &str| p.named().into_iter().find(|(n, _)| *n == k).map_or(f64::NAN, |(_, v)| v);
+    let surge_sway = |k: &str| AXES[..2].iter().any(|(_, ks)| ks.contains(&k));
+    let coefficients: Vec<CoefficientFinding> = ESTIMATED
+        .iter()
+        .map(|&name| {
+            let (fitted, std_err) = (value(&id.vehicle, name), id.std_err_of(name));
+            let (status, why) = if !horizontal && surge_sway(name) {
+                (
+                    "no_position_source",
+                    "no position or velocity sensor: the estimated surge and sway come from the starting file's own \
+                     model, so they cannot correct it; kept from the starting file"
+                        .to_string(),
+                )
+            } else if let Some(se) = std_err {
+                ("identified", format!("standard error {:.1} % of the value", 100.0 * se / fitted.abs().max(1e-12)))
+            } else {
+                (
+                    "not_excited",
+                    format!(
+                        "the recordings do not excite it enough (standard error over {:.0} % of the value); kept from \
+                         the starting file",
+                        100.0 * MAX_RELATIVE_STD_ERR
+                    ),
+                )
+            };
+            CoefficientFinding { name, start: value(start, name), fitted, std_err, status, why }
+        })
+        .collect();
+    let ok = |k: &str| coefficients.iter().any(|c| c.name == k && c.status == "identified");
+    let mut warnings = Vec::new();
+    let mut notes = Vec::new();
+    let axes = AXES
+        .iter()
+        .map(|&(axis, keys)| {
+            let (mass, damping) = (keys[keys.len() - 3], &keys[keys.len() - 2..]);
+            let mut missing: Vec<&str> = Vec::new();
+            if axis == "heave" && !ok("volume") {
+                missing.push("volume (the net buoyancy)");
+            }
+            if !ok(mass) {
+                missing.push(mass);
+            }
+            if !damping.iter().any(|k| ok(k)) {
+                missing.push("any damping (linear or quadratic)");
+            }
+            let controlled = matches!(axis, "heave" | "yaw");
+            let why = if missing.is_empty() {
+                String::new()
+            } else if !horizontal && !controlled {
+                format!("no position source: the {axis} coefficients stay the starting file's")
+            } else {
+                format!("the recordings did not determine {}", missing.join(", "))
+            };
+            if !missing.is_empty() {
+                if controlled || horizontal {
+                    warnings.push(format!(
+                        "{axis}: {why}; record more of it (longer, or a wider excitation of that axis) and fit again"
+                    ));
+                } else {
+                    notes.push(format!("{axis}: {why} (add a DVL or another position source to fit it)"));
+                }
+            }
+            AxisFinding { axis, determined: missing.is_empty(), why }
+        })
+        .collect();
+    for &s in sensors_defaulted {
+        warnings.push(if s == "depth lag" {
+            "sensors: the depth lag is not determined (the heave equation's best lag is at an end of 0-0.3 s on these \
+             recordings); the estimator's default is kept"
+                .to_string()
+        } else {
+            format!("sensors: too few {s} readings to measure their noise; the estimator's default is kept")
+        });
+    }
+    if let Some(epoch) = super::cut_by_time(training) {
+        notes.push(format!(
+            "training: the time cap cut it after epoch {epoch} of {}; the same settings without the cap (or on a faster \
+             machine) train further",
+            training.history.len().max(epoch)
+        ));
+    }
+    if training.best_epoch == 0 {
+        notes.push(
+            "training: no correction beat the identified physics clearly on the dev data; the model is its physics \
+             (longer recordings let a correction show)"
+                .into(),
+        );
+    }
+    Findings { coefficients, axes, warnings, notes }
+}
+
+/// Physics and hybrid against the estimate on the held-out windows: RMS error over every
+/// step of every window, per quantity.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOut {
+    /// Windows and their length (s).
+    pub windows: usize,
+    /// Seconds per window.
+    pub window_s: f64,
+    /// `[depth m, heading rad, u, v, w m/s, r rad/s]` RMS, the identified vehicle's RK4 step.
+    pub physics_rms: [f64; 6],
+    /// The same for the hybrid.
+    pub hybrid_rms: [f64; 6],
+    /// Mean valid prediction time (s) of each.
+    pub physics_vpt_s: f64,
+    /// The hybrid's.
+    pub hybrid_vpt_s: f64,
+}
+
+/// The quantities of [`HeldOut`].
+pub const QUANTITIES: [&str; 6] = ["depth", "heading", "u", "v", "w", "r"];
+
+fn rollout<M: DiscreteModel>(m: &M, x0: &State, inputs: &[crate::Input]) -> Vec<State> {
+    let mut ws = m.workspace();
+    let mut out = vec![*x0];
+    for u in inputs {
+        let mut next = State::zeros();
+        if m.step(&mut ws, out.last().expect("x0"), u, &mut next).is_err() {
+            break;
+        }
+        out.push(next);
+    }
+    out
+}
+
+/// The heading (rad) of a network-form state.
+fn heading(x: &State) -> f64 {
+    x[4].atan2(x[3])
+}
+
+/// Squared errors per quantity of `pred` against `truth` (network-form states).
+fn add_errors(sums: &mut [f64; 6], pred: &[State], truth: &[State]) -> usize {
+    for (p, t) in pred.iter().zip(truth) {
+        let dpsi = crate::vehicle::wrap_angle(heading(p) - heading(t));
+        let e = [p[2] - t[2], dpsi, p[5] - t[5], p[6] - t[6], p[7] - t[7], p[8] - t[8]];
+        for (s, e) in sums.iter_mut().zip(e) {
+            *s += e * e;
+        }
+    }
+    pred.len().min(truth.len())
+}
+
+/// [`HeldOut`] of `model` (and its physics) on `test`.
+pub fn held_out(model: &crate::model::PincModel, test: &TrajectorySet) -> HeldOut {
+    let physics = Rk4Vehicle { params: model.vehicle, ..Rk4Vehicle::with_dt(test.dt) };
+    let hybrid = Predictor::<f64>::reference(model);
+    let (mut sp, mut sh, mut n) = ([0.0; 6], [0.0; 6], 0usize);
+    for i in 0..test.count {
+        let (states, inputs) = test.trajectory(i);
+        n += add_errors(&mut sp, &rollout(&physics, &states[0], inputs), states);
+        add_errors(&mut sh, &rollout(&hybrid, &states[0], inputs), states);
+    }
+    let rms = |s: [f64; 6]| s.map(|v| (v / n.max(1) as f64).sqrt());
+    let vpt_p = crate::eval::evaluate_set_discrete(&physics, test).map_or(f64::NAN, |m| m.vpt_s);
+    let vpt_h = crate::eval::evaluate_set(model, test, &model.vehicle).map_or(f64::NAN, |m| m.vpt_s);
+    HeldOut {
+        windows: test.count,
+        window_s: (test.points - 1) as f64 * test.dt,
+        physics_rms: rms(sp),
+        hybrid_rms: rms(sh),
+        physics_vpt_s: vpt_p,
+        hybrid_vpt_s: vpt_h,
+    }
+}
+
+/// The plot: the held-out windows laid end to end, each rolled out from its start, the
+/// estimate against physics and hybrid for depth, heading, heave and yaw rate.
+fn plot(path: &Path, model: &crate::model::PincModel, test: &TrajectorySet) -> Result<(), String> {
+    let physics = Rk4Vehicle { params: model.vehicle, ..Rk4Vehicle::with_dt(test.dt) };
+    let hybrid = Predictor::<f64>::reference(model);
+    let shown = test.count.min(8);
+    let mut lines: [[Vec<(f64, f64)>; 3]; 4] = Default::default();
+    let quantity = |x: &State, q: usize| match q {
+        0 => x[2],
+        1 => heading(x).to_degrees(),
+        2 => x[7],
+        _ => x[8],
+    };
+    for i in 0..shown {
+        let (states, inputs) = test.trajectory(i);
+        let t0 = i as f64 * (test.points as f64) * test.dt;
+        let runs = [states.to_vec(), rollout(&physics, &states[0], inputs), rollout(&hybrid, &states[0], inputs)];
+        for (q, line) in lines.iter_mut().enumerate() {
+            for (k, run) in runs.iter().enumerate() {
+                line[k].extend(run.iter().enumerate().map(|(j, x)| (t0 + j as f64 * test.dt, quantity(x, q))));
+                line[k].push((f64::NAN, f64::NAN));
+            }
+        }
+    }
+    let titles = [("depth", "m"), ("heading", "deg"), ("heave rate w", "m/s"), ("yaw rate r", "rad/s")];
+    let panels: Vec<Panel> = lines
+        .into_iter()
+        .zip(titles)
+        .map(|([est, phys, hyb], (title, unit))| Panel {
+            title,
+            x_label: "held-out windows end to end (s)",
+            y_label: unit,
+            log_y: false,
+            series: vec![
+                Series { label: "estimate (recorded)", points: est, color: 0, dashed: false },
+                Series { label: "identified physics", points: phys, color: 1, dashed: true },
+                Series { label: "hybrid", points: hyb, color: 2, dashed: false },
+            ],
+        })
+        .collect();
+    figure(path, 1400, 1000, 2, &panels).map_err(|e| e.to_string())
+}
+
+/// The files a fit writes, in its folder.
+#[derive(Debug, Clone, Serialize)]
+pub struct Written {
+    /// The folder.
+    pub folder: PathBuf,
+    /// The identified vehicle file (thrusters inline).
+    pub vehicle: PathBuf,
+    /// The hybrid model carrying the thrusters and the sensor model.
+    pub model: PathBuf,
+    /// The report: JSON, Markdown and the plot.
+    pub report_json: PathBuf,
+    /// Markdown.
+    pub report_md: PathBuf,
+    /// The plot.
+    pub report_png: PathBuf,
+    /// Per-epoch training record (CSV).
+    pub training_csv: PathBuf,
+}
+
+/// The report as JSON: everything `report.md` shows.
+pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
+    let s = &fit.sensors;
+    serde_json::json!({
+        "command": command,
+        "passed": fit.report.warnings.is_empty(),
+        "warnings": fit.report.warnings,
+        "notes": fit.report.notes,
+        "recordings": fit.recordings.iter().map(|(p, sha, span)| serde_json::json!({
+            "path": p.display().to_string(), "sha256": sha, "estimated_s": span})).collect::<Vec<_>>(),
+        "position_source": fit.horizontal,
+        "passes": fit.passes,
+        "coefficients": fit.report.coefficients,
+        "axes": fit.report.axes,
+        "rms_residual": {"u": fit.identification.rms_residual[0], "v": fit.identification.rms_residual[1],
+            "w": fit.identification.rms_residual[2], "r": fit.identification.rms_residual[3]},
+        "sensors": {"depth_std_m": s.depth_std, "depth_delay_s": s.depth_delay, "heading_std_rad": s.heading_std,
+            "yaw_rate_std_rad_s": s.yaw_rate_std, "defaulted": fit.sensors_defaulted,
+            "lag_scan": fit.lag_scan.iter().map(|(l, v)| serde_json::json!({"lag_s": l, "heave_residual": v})).collect::<Vec<_>>()},
+        "training": {"epochs_run": fit.training.history.len(), "best_epoch": fit.training.best_epoch,
+            "stop": fit.training.stop, "seconds": fit.training.seconds,
+            "cut_by_time_cap": super::cut_by_time(&fit.training).is_some()},
+        "held_out": held,
+        "dataset": {"train": fit.dataset.set("train").map_or(0, |s| s.count),
+            "dev": fit.dataset.set("dev").map_or(0, |s| s.count), "test": fit.dataset.set("test").map_or(0, |s| s.count)},
+    })
+}
+
+/// The report as Markdown.
+pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
+    let mut md = String::new();
+    let verdict = if fit.report.warnings.is_empty() { "passed" } else { "FAILED: read the warnings" };
+    md += &format!("# Fit report: {verdict}\n\n`{command}`\n\n");
+    for (p, sha, span) in &fit.recordings {
+        md +=
+            &format!("- recording `{}` ({span:.0} s estimated, SHA-256 {})\n", p.display(), &sha[..12.min(sha.len())]);
+    }
+    md += &format!(
+        "- position source: {}\n\n",
+        if fit.horizontal { "yes" } else { "none (depth, heading, yaw rate and the thrust only)" }
+    );
+    for w in &fit.report.warnings {
+        md += &format!("**Warning** {w}\n\n");
+    }
+    for n in &fit.report.notes {
+        md += &format!("Note: {n}\n\n");
+    }
+    md += "## Coefficients\n\n| coefficient | start | fitted | std. error | status |\n|---|---|---|---|---|\n";
+    for c in &fit.report.coefficients {
+        let se = c.std_err.map_or("-".to_string(), |s| format!("{s:.3e}"));
+        md += &format!("| {} | {:.5} | {:.5} | {se} | {}: {} |\n", c.name, c.start, c.fitted, c.status, c.why);
+    }
+    md += "\n## Axes\n\n| axis | determined | why not |\n|---|---|---|\n";
+    for a in &fit.report.axes {
+        md += &format!("| {} | {} | {} |\n", a.axis, if a.determined { "yes" } else { "no" }, a.why);
+    }
+    let s = &fit.sensors;
+    md += &format!(
+        "\n## Sensors\n\ndepth noise {:.3} m, depth lag {:.2} s (the best of {} tried against the heave equation), heading noise {:.4} rad, \
+         yaw-rate noise {:.4} rad/s\n",
+        s.depth_std,
+        s.depth_delay,
+        fit.lag_scan.len(),
+        s.heading_std,
+        s.yaw_rate_std
+    );
+    md += &format!(
+        "\n## Held out ({} windows of {:.1} s, rolled out from each start against the estimate)\n\n| RMS error | {} |\n|---|{}\n",
+        held.windows,
+        held.window_s,
+        QUANTITIES.join(" | "),
+        "---|".repeat(QUANTITIES.len())
+    );
+    let row = |name: &str, v: &[f64; 6]| {
+        format!("| {name} | {} |\n", v.iter().map(|x| format!("{x:.4}")).collect::<Vec<_>>().join(" | "))
+    };
+    md += &row("identified physics", &held.physics_rms);
+    md += &row("hybrid", &held.hybrid_rms);
+    md += &format!(
+        "\nMean valid prediction time: physics {:.2} s, hybrid {:.2} s. Units: m, rad, m/s, rad/s. Plot: report.png.\n",
+        held.physics_vpt_s, held.hybrid_vpt_s
+    );
+    md += &format!(
+        "\n## Training\n\n{} epochs run (best on dev: {}), {:.0} s.\n",
+        fit.training.history.len(),
+        fit.training.best_epoch,
+        fit.training.seconds
+    );
+    md
+}
+
+/// The training's epochs as CSV: rate, dev figures and which epoch was kept.
+pub fn training_csv(training: &TrainOutcome) -> String {
+    let mut csv = String::from("epoch,lr,dev_one_step_mse,dev_rollout10_mse,dev_vpt_s,best\n");
+    for r in &training.history {
+        csv += &format!(
+            "{},{:e},{:e},{:e},{},{}\n",
+            r.epoch,
+            r.lr,
+            r.dev_one_step,
+            r.dev_rollout10,
+            r.dev_vpt,
+            u8::from(r.best)
+        );
+    }
+    csv
+}
+
+/// Writes the fit's folder whole or not at all: built beside as `FOLDER.partial`, then
+/// renamed over any earlier one.
+///
+/// # Errors
+/// A file cannot be written.
+pub fn write(fit: &Fit, folder: &Path, command: &str) -> Result<Written, FitError> {
+    let partial = folder.with_extension("partial");
+    let out = |path: &Path, e: String| FitError::Output { path: path.to_path_buf(), message: e };
+    let _ = std::fs::remove_dir_all(&partial);
+    std::fs::create_dir_all(&partial).map_err(|e| out(&partial, e.to_string()))?;
+    let test = fit
+        .dataset
+        .set("test")
+        .filter(|s| s.count > 0)
+        .ok_or_else(|| FitError::Data("the held-out split is empty: record longer".into()))?;
+    let held = held_out(&fit.model, test);
+    let put = |name: &str, bytes: &[u8]| -> Result<(), FitError> {
+        let p = partial.join(name);
+        std::fs::write(&p, bytes).map_err(|e| out(&p, e.to_string()))
+    };
+    let header = format!(
+        "# Fitted by `{command}`.\n# Coefficients the recordings did not determine keep the starting file's values \
+         (report.md says which and why).\n"
+    );
+    let thrusters = fit.model.fitted.as_ref().map_or(String::new(), |f| f.thrusters_toml.clone());
+    put("vehicle.toml", (header + &fit.identification.vehicle.to_toml() + "\n" + &thrusters).as_bytes())?;
+    put("model.pinc", &fit.model.to_bytes().map_err(|e| out(&partial.join("model.pinc"), e.to_string()))?)?;
+    let json = serde_json::to_string_pretty(&json(fit, &held, command)).expect("JSON of plain values");
+    put("report.json", json.as_bytes())?;
+    put("report.md", markdown(fit, &held, command).as_bytes())?;
+    put("training.csv", training_csv(&fit.training).as_bytes())?;
+    plot(&partial.join("report.png"), &fit.model, test).map_err(|e| out(&partial.join("report.png"), e))?;
+    if folder.exists() {
+        std::fs::remove_dir_all(folder).map_err(|e| out(folder, e.to_string()))?;
+    }
+    std::fs::rename(&partial, folder).map_err(|e| out(folder, e.to_string()))?;
+    Ok(Written {
+        folder: folder.to_path_buf(),
+        vehicle: folder.join("vehicle.toml"),
+        model: folder.join("model.pinc"),
+        report_json: folder.join("report.json"),
+        report_md: folder.join("report.md"),
+        report_png: folder.join("report.png"),
+        training_csv: folder.join("training.csv"),
+    })
+}

@@ -1,0 +1,242 @@
+//! The sensor model of a vehicle from its own recordings: the noise of each reading from the
+//! reading alone, the depth sensor's lag from the filter's likelihood (docs/FIT.md).
+
+use crate::estimation::Measurement;
+use crate::model::SensorModel;
+
+/// Smallest standard deviations a fit gives (m, rad, rad/s): below them the filter would
+/// trust a reading more than its resolution and the autopilot's own filtering justify.
+pub const NOISE_FLOOR: [f64; 3] = [0.005, 0.002, 0.001];
+
+/// Depth lags the fit tries (s): 0 to 0.3 in steps of 0.02.
+pub fn lag_candidates() -> Vec<f64> {
+    (0..=15).map(|i| f64::from(i) * 0.02).collect()
+}
+
+/// Half-width (s) of the local quadratic that differentiates the depth reading.
+const DERIVATIVE_HALF_WIDTH: f64 = 0.5;
+/// Spacing (s) of the times the heave equation is checked at.
+const LAG_GRID: f64 = 0.04;
+
+/// The depth reading's lag from the heave equation alone: a sensor that reads `z(t - tau)`
+/// has `z_m''(t) = (Z(t - tau) - D(z_m'(t)) + B) / m`, so the lag is the shift of the applied
+/// heave force that best explains the reading's acceleration by a force, a linear and a
+/// quadratic drag of the reading's own rate and a constant. The rate and acceleration come
+/// from a local quadratic over +-0.5 s of readings (symmetric: it shifts nothing); no
+/// coefficient of the vehicle enters. Returns each candidate lag with its residual sum of
+/// squares, or `None` with too few readings (under 100 usable times).
+///
+/// `heave` is the applied heave force as a step function: `(t, Z)` from `t` on.
+pub fn depth_lag_scan(depth: &[(f64, f64)], heave: &[(f64, f64)], lags: &[f64]) -> Option<Vec<(f64, f64)>> {
+    let (Some(first), Some(last)) = (depth.first(), depth.last()) else { return None };
+    let h = DERIVATIVE_HALF_WIDTH;
+    // Rate and acceleration of the reading at grid times with readings all around.
+    let mut points = Vec::new();
+    let mut lo = 0;
+    let mut t = first.0 + h;
+    while t <= last.0 - h {
+        while lo < depth.len() && depth[lo].0 < t - h {
+            lo += 1;
+        }
+        let hi = depth[lo..].iter().position(|&(s, _)| s > t + h).map_or(depth.len(), |k| lo + k);
+        let window = &depth[lo..hi];
+        // At least 8 readings, and no gap of more than a third of the window.
+        let gapless = window.windows(2).all(|w| w[1].0 - w[0].0 < 2.0 * h / 3.0);
+        if window.len() >= 8 && gapless {
+            if let Some((rate, accel)) = local_quadratic(window, t) {
+                points.push((t, rate, accel));
+            }
+        }
+        t += LAG_GRID;
+    }
+    if points.len() < 100 {
+        return None;
+    }
+    let force_at = |t: f64| -> Option<f64> {
+        let k = heave.partition_point(|&(s, _)| s <= t);
+        (k > 0).then(|| heave[k - 1].1)
+    };
+    let scan = lags
+        .iter()
+        .map(|&lag| {
+            let rows: Vec<([f64; 4], f64)> = points
+                .iter()
+                .filter_map(|&(t, rate, accel)| {
+                    force_at(t - lag).map(|force| ([force, rate, rate.abs() * rate, 1.0], accel))
+                })
+                .collect();
+            (lag, least_squares_residual(&rows))
+        })
+        .collect();
+    Some(scan)
+}
+
+/// Rate and acceleration at `t` of the least-squares quadratic through `samples`.
+fn local_quadratic(samples: &[(f64, f64)], t: f64) -> Option<(f64, f64)> {
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    for &(s, y) in samples {
+        let d = s - t;
+        let row = nalgebra::Vector3::new(1.0, d, d * d);
+        ata += row * row.transpose();
+        atb += row * y;
+    }
+    let c = ata.cholesky()?.solve(&atb);
+    Some((c[1], 2.0 * c[2]))
+}
+
+/// Residual sum of squares of the least-squares fit of `y` on the rows (NaN without rows or
+/// with a singular system).
+fn least_squares_residual(rows: &[([f64; 4], f64)]) -> f64 {
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut atb = nalgebra::Vector4::<f64>::zeros();
+    for (x, y) in rows {
+        let x = nalgebra::Vector4::from(*x);
+        ata += x * x.transpose();
+        atb += x * *y;
+    }
+    let Some(c) = ata.cholesky().map(|ch| ch.solve(&atb)) else { return f64::NAN };
+    rows.iter().map(|(x, y)| (y - nalgebra::Vector4::from(*x).dot(&c)).powi(2)).sum()
+}
+
+/// The white noise of a sampled signal: each sample against the straight line through its
+/// two neighbours (in time), scaled to one sample's deviation, as a robust spread (1.4826
+/// times the median absolute value: a few jumps or manoeuvres do not inflate it). The
+/// signal's own curvature over two sample periods is left in; at 10 Hz and more it is far
+/// below the noise of a depth sensor. `wrap` treats the values as angles. `None` for fewer
+/// than 10 usable samples.
+pub fn white_noise_std(samples: &[(f64, f64)], wrap: bool) -> Option<f64> {
+    let diff = |a: f64, b: f64| if wrap { crate::vehicle::wrap_angle(a - b) } else { a - b };
+    let mut d: Vec<f64> = samples
+        .windows(3)
+        .filter_map(|w| {
+            let ((t0, y0), (t1, y1), (t2, y2)) = (w[0], w[1], w[2]);
+            let (h0, h1) = (t1 - t0, t2 - t1);
+            if !(h0 > 0.0 && h1 > 0.0) {
+                return None;
+            }
+            // y1 against the line through its neighbours: y0 + (y2 - y0) h0 / (h0 + h1).
+            let (a, b) = (h1 / (h0 + h1), h0 / (h0 + h1));
+            let line = y0 + b * diff(y2, y0);
+            let r = diff(y1, line);
+            Some((r / (1.0 + a * a + b * b).sqrt()).abs())
+        })
+        .filter(|r| r.is_finite())
+        .collect();
+    if d.len() < 10 {
+        return None;
+    }
+    let mid = d.len() / 2;
+    let (_, median, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(1.4826 * *median)
+}
+
+/// The readings of each kind, in order: depth `(t, z)`, heading `(t, psi)`, yaw rate `(t, r)`.
+/// A reading exactly equal to the one before is left out: a sensor read faster than it
+/// updates repeats its last value (ArduSub's simulator sends its 10 Hz depth at 12.5 Hz,
+/// every fifth a repeat), and the repeat's stamp is not when the value was measured.
+pub fn readings(measurements: &[Measurement]) -> [Vec<(f64, f64)>; 3] {
+    let mut out: [Vec<(f64, f64)>; 3] = Default::default();
+    for m in measurements {
+        let (k, t, v) = match *m {
+            Measurement::Depth { t, z } => (0, t, z),
+            Measurement::Heading { t, psi } => (1, t, psi),
+            Measurement::YawRate { t, r } => (2, t, r),
+            _ => continue,
+        };
+        if out[k].last().is_none_or(|&(_, last)| last != v) {
+            out[k].push((t, v));
+        }
+    }
+    out
+}
+
+/// The noise part of the sensor model (the lag is found by the filter): each reading's white
+/// noise, at least [`NOISE_FLOOR`], and which readings were too few to tell (their default is
+/// kept).
+pub fn noise_model(measurements: &[Measurement], default: &SensorModel) -> (SensorModel, Vec<&'static str>) {
+    let [depth, heading, yaw_rate] = readings(measurements);
+    let mut missing = Vec::new();
+    let mut pick = |name: &'static str, s: Option<f64>, floor: f64, fallback: f64| match s {
+        Some(s) => s.max(floor),
+        None => {
+            missing.push(name);
+            fallback
+        }
+    };
+    let model = SensorModel {
+        depth_std: pick("depth", white_noise_std(&depth, false), NOISE_FLOOR[0], default.depth_std),
+        heading_std: pick("heading", white_noise_std(&heading, true), NOISE_FLOOR[1], default.heading_std),
+        yaw_rate_std: pick("yaw rate", white_noise_std(&yaw_rate, false), NOISE_FLOOR[2], default.yaw_rate_std),
+        depth_delay: default.depth_delay,
+    };
+    (model, missing)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A smooth manoeuvre plus white noise of a known spread, at uneven stamps: the estimate
+    /// comes back within 5 %.
+    #[test]
+    fn white_noise_of_a_manoeuvre_is_recovered() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, 0.12).expect("finite");
+        let samples: Vec<(f64, f64)> = (0..6000)
+            .map(|i| {
+                let t = f64::from(i) * 0.1 + 0.01 * f64::from(i % 3);
+                (t, 1.5 + (0.3 * t).sin() + 0.5 * (0.05 * t).cos() + noise.sample(&mut rng))
+            })
+            .collect();
+        let s = white_noise_std(&samples, false).expect("enough samples");
+        assert!((s / 0.12 - 1.0).abs() < 0.05, "{s}");
+    }
+
+    /// A simulated heave under a random force, read through a sensor that lags 0.12 s with
+    /// 0.1 m of noise: the scan's best lag is within one step of it.
+    #[test]
+    fn depth_lag_of_a_simulated_heave() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let noise = Normal::new(0.0, 0.1).expect("finite");
+        let (dt, lag) = (0.001, 0.12);
+        let (mut z, mut w, mut force) = (1.0f64, 0.0f64, 0.0);
+        let (mut truth, mut heave, mut depth) = (Vec::new(), Vec::new(), Vec::new());
+        for k in 0..600_000 {
+            let t = f64::from(k) * dt;
+            if k % 80 == 0 {
+                // A new force every 0.08 s, held: steps of random size, pulled back to 1.5 m.
+                force = 40.0 * (rand::Rng::random::<f64>(&mut rng) - 0.5) - 30.0 * (z - 1.5);
+                heave.push((t, force));
+            }
+            w += dt * (force - 60.0 * w.abs() * w - 5.0 * w + 1.0) / 12.0;
+            z += dt * w;
+            truth.push(z);
+            if k % 80 == 40 && t > lag {
+                let delayed = truth[k - (lag / dt) as usize];
+                depth.push((t, delayed + noise.sample(&mut rng)));
+            }
+        }
+        let scan = depth_lag_scan(&depth, &heave, &lag_candidates()).expect("enough readings");
+        let best = scan.iter().min_by(|a, b| a.1.total_cmp(&b.1)).expect("candidates").0;
+        assert!((best - lag).abs() <= 0.021, "best lag {best}, scan {scan:?}");
+    }
+
+    /// Angles across the wrap: a steady turn through +-pi with 0.01 rad of noise.
+    #[test]
+    fn heading_noise_across_the_wrap() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let noise = Normal::new(0.0, 0.01).expect("finite");
+        let samples: Vec<(f64, f64)> = (0..4000)
+            .map(|i| {
+                let t = f64::from(i) * 0.08;
+                (t, crate::vehicle::wrap_angle(0.7 * t + noise.sample(&mut rng)))
+            })
+            .collect();
+        let s = white_noise_std(&samples, true).expect("enough samples");
+        assert!((s / 0.01 - 1.0).abs() < 0.06, "{s}");
+        assert_eq!(white_noise_std(&samples[..5], true), None);
+    }
+}
