@@ -204,7 +204,7 @@ mod tests {
         let (dt, lag) = (0.001, 0.12);
         let (mut z, mut w, mut force) = (1.0f64, 0.0f64, 0.0);
         let (mut truth, mut heave, mut depth) = (Vec::new(), Vec::new(), Vec::new());
-        for k in 0..600_000 {
+        for k in 0..600_000u32 {
             let t = f64::from(k) * dt;
             if k % 80 == 0 {
                 // A new force every 0.08 s, held: steps of random size, pulled back to 1.5 m.
@@ -215,7 +215,7 @@ mod tests {
             z += dt * w;
             truth.push(z);
             if k % 80 == 40 && t > lag {
-                let delayed = truth[k - (lag / dt) as usize];
+                let delayed = truth[k as usize - (lag / dt) as usize];
                 depth.push((t, delayed + noise.sample(&mut rng)));
             }
         }

@@ -201,9 +201,10 @@ pub struct HybridPhysics {
     /// as `pinc simulate` and the oracle integrate the vehicle.
     pub substeps: u32,
     /// The network's correction is taken relative to its output at rest (zero body
-    /// velocities, zero input, the same step), so a vehicle at rest steps as its physics
-    /// alone (format version 4; earlier hybrids read as `false`). Needs a network that sees
-    /// no position or heading.
+    /// velocities, the input that holds the physics still: the heave force that cancels its
+    /// net buoyancy; the same step), so a vehicle holding station steps as its physics alone
+    /// (format version 4; earlier hybrids read as `false`). Needs a network that sees no
+    /// position or heading.
     pub rest_anchored: bool,
 }
 
@@ -344,6 +345,12 @@ impl PincModel {
             dt: self.dt,
             substeps: h.substeps as usize,
         })
+    }
+
+    /// The input that holds this model's vehicle still: the heave force that cancels its net
+    /// buoyancy (what a hybrid anchored at rest is anchored at).
+    pub fn rest_input(&self) -> crate::types::Input {
+        crate::types::Input::new(0.0, 0.0, -self.vehicle.net_buoyancy(), 0.0)
     }
 
     /// Number of learned scalars.

@@ -59,6 +59,8 @@ pub struct Predictor<T: Real = f32> {
     /// A hybrid whose correction is anchored at rest: the network's output at rest over the
     /// model's own period, subtracted from every output (other periods compute theirs).
     pub(crate) rest: Option<(f64, NetOut)>,
+    /// The input at rest (the heave force that holds the vehicle still).
+    pub(crate) rest_input: Input,
     /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
     pub(crate) cpu: Option<Avx2Fma>,
 }
@@ -101,11 +103,12 @@ impl<T: Real> Predictor<T> {
             dt: model.dt,
             physics: model.hybrid_vehicle(),
             rest: None,
+            rest_input: model.rest_input(),
             cpu: Avx2Fma::detect(),
         };
         if model.hybrid.is_some_and(|h| h.rest_anchored) {
             let mut scratch = NetScratch::new(&p.net);
-            let out = p.net.forward::<Portable>(None, &mut scratch, &State::zeros(), &Input::zeros(), p.dt, false);
+            let out = p.net.forward::<Portable>(None, &mut scratch, &State::zeros(), &p.rest_input, p.dt, false);
             p.rest = Some((p.dt, out));
         }
         p
@@ -120,7 +123,7 @@ impl<T: Real> Predictor<T> {
         if dt == own_dt {
             return Some(own);
         }
-        Some(self.net.forward::<F>(self.cpu, scratch, &State::zeros(), &Input::zeros(), dt, false))
+        Some(self.net.forward::<F>(self.cpu, scratch, &State::zeros(), &self.rest_input, dt, false))
     }
 
     /// Rescale the predicted `(cos psi, sin psi)` to unit length after every step (with its

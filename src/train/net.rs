@@ -6,7 +6,7 @@ use super::hybrid::{Hybrid, physics_step};
 use super::physics::rhs;
 use super::to_f32;
 use crate::model::{Activation, Architecture, HiddenLayer, LayerNormWeights, Linear, PincModel, Weights};
-use crate::types::NX;
+use crate::types::{NU, NX};
 use burn::module::{Module, Param};
 use burn::prelude::*;
 use burn::tensor::activation;
@@ -203,8 +203,14 @@ impl PincNet {
         });
         let (mut o, mut d_o) = self.mlp(&x, u.clone(), t.clone(), tangent);
         if self.hybrid.is_some_and(|h| h.physics.rest_anchored) {
-            // The correction less its value at rest over the same step: zero at rest.
-            let (rest_o, rest_d) = self.mlp(&x.zeros_like(), u.zeros_like(), t, tangent);
+            // The correction less its value at rest (no velocity, the input that holds the
+            // physics still) over the same step: zero there.
+            let rest = h_rest_input(self.hybrid.as_ref().expect("anchored hybrid"));
+            let [n, _] = u.dims();
+            let u_rest = Tensor::<1>::from_data(TensorData::new(rest.to_vec(), [NU]), &u.device())
+                .unsqueeze::<2>()
+                .repeat_dim(0, n);
+            let (rest_o, rest_d) = self.mlp(&x.zeros_like(), u_rest, t, tangent);
             o = o - rest_o;
             d_o = d_o.zip(rest_d).map(|(d, r)| d - r);
         }
@@ -339,4 +345,10 @@ fn layer_norm(a: Tensor<2>, da: Option<Tensor<2>>, gain: Tensor<1>, bias: Tensor
         (dc - xhat * proj) * inv * g
     });
     (y, dy)
+}
+
+/// The input at which a hybrid anchored at rest is anchored: the heave force that cancels its
+/// vehicle's net buoyancy (as [`PincModel::rest_input`]).
+fn h_rest_input(h: &Hybrid) -> [f32; NU] {
+    [0.0, 0.0, -h.vehicle.net_buoyancy() as f32, 0.0]
 }

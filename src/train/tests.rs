@@ -24,7 +24,7 @@ fn tensor_rhs_matches_the_vehicle_model() {
     let x = batch(&states, &device);
     let uflat: Vec<f32> = inputs.iter().flat_map(|r| r.iter().map(|&v| v as f32)).collect();
     let u = Tensor::<2>::from_data(TensorData::new(uflat, [3, 4]), &device);
-    let got = net::to_f32(rhs(&p, x, u));
+    let got = super::to_f32(rhs(&p, x, u));
     for (i, (s, f)) in states.iter().zip(&inputs).enumerate() {
         let want = vehicle::rhs(&p, &State::from(*s), &Input::from(*f));
         for k in 0..9 {

@@ -2,4 +2,5 @@
 
 mod commands;
 mod eval_vehicle;
+mod fit;
 mod own_vehicle;

@@ -80,6 +80,13 @@ pub fn hybrid(mut m: PincModel, substeps: u32) -> PincModel {
     m
 }
 
+/// `m` as a hybrid anchored at rest (its network must see the body velocities only).
+pub fn anchored(m: PincModel) -> PincModel {
+    let mut m = hybrid(m, 8);
+    m.hybrid = Some(pinc::model::HybridPhysics { substeps: 8, rest_anchored: true });
+    m
+}
+
 /// The paper's 4 x 32 architecture with random weights.
 pub fn paper_4x32(seed: u64) -> PincModel {
     random_model(Architecture::paper(4, 32), seed)
@@ -114,6 +121,8 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
     let mut no_pos = Architecture::paper(2, 24);
     no_pos.state_inputs = vec![3, 4, 5, 6, 7, 8];
     let no_pos_hybrid = no_pos.clone();
+    let mut velocities = Architecture::paper(3, 16);
+    velocities.state_inputs = vec![5, 6, 7, 8];
     let mut no_ln = Architecture::paper(3, 20);
     no_ln.layer_norm = vec![false; 3];
     // 13 units: the last pack of 8 is padded; LayerNorm after the negative beta of layer 2.
@@ -130,16 +139,12 @@ pub fn variants() -> Vec<(&'static str, PincModel)> {
         ("LayerNorm everywhere 3x13", with_extras(random_model(all_ln, 8))),
         ("hybrid 4x32", hybrid(random_model(Architecture::paper(4, 32), 9), 16)),
         ("hybrid position-free 2x24 scaled", hybrid(with_extras(random_model(no_pos_hybrid, 10)), 5)),
+        ("hybrid velocities-only anchored at rest 3x16 scaled", anchored(with_extras(random_model(velocities, 11)))),
     ]
 }
 
-/// One step of `m` computed the plain way, in f64, straight from the definition in docs/MODEL.md
-/// (input scaling, Linear, `softplus(beta h) / beta` with torch's threshold or
-/// `tanh(beta h)`, LayerNorm with gain and bias, output layer and scaling, residual, planar
-/// increments rotated by the predicted yaw, then `(cos psi, sin psi)` rescaled to unit length
-/// as the runtime does by default): the reference the runtime's folded, packed kernels are
-/// checked against.
-pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64; 9] {
+/// The network's output (scaled back) at `x`, `u`, `t`, written out plainly.
+fn network_output(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> Vec<f64> {
     let arch = &m.architecture;
     let mut a: Vec<f64> = arch.state_inputs.iter().map(|&i| x[i as usize]).chain(u.iter().copied()).collect();
     a.push(t);
@@ -178,6 +183,23 @@ pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64
     let mut o = dense(&m.weights.output, &a);
     if let Some(s) = &m.output_scaling {
         o = o.iter().enumerate().map(|(k, v)| v * s.std[k] + s.mean[k]).collect();
+    }
+    o
+}
+
+/// One step of `m` computed the plain way, in f64, straight from the definition in docs/MODEL.md
+/// (input scaling, Linear, `softplus(beta h) / beta` with torch's threshold or
+/// `tanh(beta h)`, LayerNorm with gain and bias, output layer and scaling, residual, planar
+/// increments rotated by the predicted yaw, then `(cos psi, sin psi)` rescaled to unit length
+/// as the runtime does by default; a hybrid anchored at rest less its output at rest): the reference the runtime's folded, packed kernels are
+/// checked against.
+pub fn reference_step(m: &PincModel, x: &[f64; 9], u: &[f64; 4], t: f64) -> [f64; 9] {
+    let arch = &m.architecture;
+    let mut o = network_output(m, x, u, t);
+    // Anchored at rest: the output less the output at rest over the same step.
+    if m.hybrid.is_some_and(|h| h.rest_anchored) {
+        let rest = network_output(m, &[0.0; 9], &m.rest_input().into(), t);
+        o.iter_mut().zip(rest).for_each(|(o, r)| *o -= r);
     }
     let mut next = match (&m.hybrid, arch.residual) {
         // A hybrid's base: the vehicle's RK4 step over `t` in `substeps` equal parts.

@@ -57,22 +57,51 @@ fn reframed(bytes: &[u8], version: u32, drop: usize) -> Vec<u8> {
 }
 
 #[test]
-fn hybrid_files_keep_both_parts_and_version_2_files_read_as_pincs() {
+fn hybrid_files_keep_both_parts_and_older_versions_read_as_they_were() {
     let hybrid = common::hybrid(common::paper_4x32(4), 12);
     let bytes = hybrid.to_bytes().unwrap();
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 4);
     let back = PincModel::from_bytes(&bytes).unwrap();
     assert_eq!(back.hybrid, Some(pinc::model::HybridPhysics { substeps: 12, rest_anchored: false }));
     assert_eq!(back.vehicle, hybrid.vehicle);
-    // A version 2 file is a version 3 payload without the hybrid field (the last one, absent
-    // being one byte): it reads as the same PINC.
+    // Version 3 is version 4 without the anchoring flag (the hybrid's last byte) and the
+    // fitted vehicle (the payload's last, absent: one byte): it reads as an unanchored hybrid.
+    assert_eq!(bytes[bytes.len() - 2..], [0, 0], "unanchored, no fitted vehicle");
+    assert_eq!(PincModel::from_bytes(&reframed(&bytes, 3, 2)).unwrap(), hybrid);
+    // A version 2 file is a version 4 payload without the hybrid and fitted fields: it reads
+    // as the same PINC.
     let mut pinc_model = hybrid.clone();
     pinc_model.hybrid = None;
-    let v3 = pinc_model.to_bytes().unwrap();
-    assert_eq!(*v3.last().unwrap(), 0, "an absent hybrid part is bincode's None");
-    assert_eq!(PincModel::from_bytes(&reframed(&v3, 2, 1)).unwrap(), pinc_model);
+    let v4 = pinc_model.to_bytes().unwrap();
+    assert_eq!(v4[v4.len() - 2..], [0, 0], "absent parts are bincode's None");
+    assert_eq!(PincModel::from_bytes(&reframed(&v4, 2, 2)).unwrap(), pinc_model);
     // A hybrid's bytes claimed as version 2 leave bytes over: refused, not misread.
     assert!(PincModel::from_bytes(&reframed(&bytes, 2, 0)).is_err());
+    // A fitted vehicle and the anchoring come back whole.
+    let mut fitted = common::anchored(common::random_model(
+        {
+            let mut a = pinc::model::Architecture::paper(2, 8);
+            a.state_inputs = vec![5, 6, 7, 8];
+            a
+        },
+        5,
+    ));
+    fitted.fitted = Some(pinc::model::FittedVehicle {
+        thrusters_toml: "[[thruster]]\nname = \"t\"\n".into(),
+        sensors: pinc::model::SensorModel { depth_std: 0.12, depth_delay: 0.1, heading_std: 0.003, yaw_rate_std: 0.02 },
+        warnings: vec!["yaw: not determined".into()],
+    });
+    assert_eq!(PincModel::from_bytes(&fitted.to_bytes().unwrap()).unwrap(), fitted);
+    // What a fitted vehicle and an anchored hybrid cannot be.
+    let mut bad = fitted.clone();
+    bad.fitted.as_mut().unwrap().sensors.depth_std = -0.1;
+    assert!(bad.to_bytes().unwrap_err().to_string().contains("depth_std"));
+    let mut sees_heading = pinc::model::Architecture::paper(2, 8);
+    sees_heading.state_inputs = vec![3, 4, 5, 6, 7, 8];
+    let mut bad = common::hybrid(common::random_model(sees_heading, 6), 8);
+    bad.hybrid = Some(pinc::model::HybridPhysics { substeps: 8, rest_anchored: true });
+    let err = bad.to_bytes().unwrap_err().to_string();
+    assert!(err.contains("rest_anchored"), "{err}");
     // What a hybrid cannot be.
     let mut bad = hybrid.clone();
     bad.architecture.residual = false;

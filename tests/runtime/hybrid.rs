@@ -73,3 +73,47 @@ fn the_correction_is_added_to_the_physics_step() {
         }
     }
 }
+
+/// Anchored at rest, a hybrid at rest (any position and heading, no velocity, the heave force
+/// that holds its physics still) steps exactly as its physics over any period, through the
+/// single, f32 and batch calls.
+#[test]
+fn an_anchored_hybrid_at_rest_steps_as_its_physics() {
+    let mut model = PincModel::load(concat!(env!("CARGO_MANIFEST_DIR"), "/models/hybrid_plant_a.pinc")).unwrap();
+    model.hybrid = Some(pinc::model::HybridPhysics { rest_anchored: true, ..model.hybrid.unwrap() });
+    let (p32, p64) = (Predictor::new(&model), Predictor::reference(&model));
+    let rests: Vec<SimState> = (0..5)
+        .map(|i| SimState::from([i as f64, -2.0 * i as f64, 0.5 + i as f64, 0.7 * i as f64 - 1.3, 0.0, 0.0, 0.0, 0.0]))
+        .collect();
+    for dt in [model.dt, 0.05] {
+        let physics = model.hybrid_vehicle().unwrap().over(dt);
+        let hold = model.rest_input();
+        let zero = [hold];
+        for s in &rests {
+            let want = physics.step_network(&to_network(s), &hold);
+            let mut traj = [State::zeros(); 2];
+            p64.rollout_dt(&mut p64.workspace(), &to_network(s), &zero, dt, &mut traj).unwrap();
+            assert!((traj[1] - want).amax() < 1e-12, "f64, dt {dt}: {}", (traj[1] - want).amax());
+            p32.rollout_dt(&mut p32.workspace(), &to_network(s), &zero, dt, &mut traj).unwrap();
+            // f32: the output at rest is computed once, by the portable kernel; the call's own
+            // kernel may round the same sum differently.
+            assert!((traj[1] - want).amax() < 1e-6, "f32, dt {dt}: {}", (traj[1] - want).amax());
+        }
+        let x0: Vec<State> = rests.iter().map(to_network).collect();
+        let mut out = vec![State::zeros(); 2 * x0.len()];
+        let mut ws = pinc::runtime::BatchWorkspace::new(&p32);
+        p32.rollout_batch_dt(&mut ws, &x0, &vec![hold; x0.len()], dt, &mut out).unwrap();
+        for (i, s) in rests.iter().enumerate() {
+            let want = physics.step_network(&to_network(s), &hold);
+            assert!((out[2 * i + 1] - want).amax() < 1e-6, "batch, dt {dt}");
+        }
+    }
+    // Unanchored, the same weights move the vehicle at rest (what the anchoring removes).
+    let plain = PincModel::load(concat!(env!("CARGO_MANIFEST_DIR"), "/models/hybrid_plant_a.pinc")).unwrap();
+    let p = Predictor::reference(&plain);
+    let mut next = State::zeros();
+    let hold = plain.rest_input();
+    p.step(&mut p.workspace(), &to_network(&rests[0]), &hold, &mut next).unwrap();
+    let physics = plain.hybrid_vehicle().unwrap().step_network(&to_network(&rests[0]), &hold);
+    assert!((next - physics).amax() > 1e-5, "{}", (next - physics).amax());
+}
