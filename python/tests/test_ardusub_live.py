@@ -35,8 +35,10 @@ STOCK = [NO_POSITION, JS_GAIN]
 
 
 def fly(out_dir, *extra, vehicle=OWNER_VEHICLE, parms=STOCK):
-    """60 s of the default references on the stock firmware; the summary (JSON) and the run."""
-    client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--vehicle", vehicle, "--arm", "--sim-truth",
+    """60 s of the default references on the stock firmware; the summary (JSON) and the run.
+    `vehicle=None` gives no vehicle file (a fitted model carries its thrusters)."""
+    own_vehicle = [] if vehicle is None else ["--vehicle", vehicle]
+    client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", *own_vehicle, "--arm", "--sim-truth",
               "--json", "--out-dir", out_dir, "--timeout", "30", *extra]
     r = run_on_firmware(out_dir, parms, client)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"

@@ -42,10 +42,8 @@ pub fn depth_lag_scan(depth: &[(f64, f64)], heave: &[(f64, f64)], lags: &[f64]) 
         let window = &depth[lo..hi];
         // At least 8 readings, and no gap of more than a third of the window.
         let gapless = window.windows(2).all(|w| w[1].0 - w[0].0 < 2.0 * h / 3.0);
-        if window.len() >= 8 && gapless {
-            if let Some((rate, accel)) = local_quadratic(window, t) {
-                points.push((t, rate, accel));
-            }
+        if let Some((rate, accel)) = (window.len() >= 8 && gapless).then(|| local_quadratic(window, t)).flatten() {
+            points.push((t, rate, accel));
         }
         t += LAG_GRID;
     }

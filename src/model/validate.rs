@@ -121,10 +121,10 @@ pub fn validate(m: &PincModel) -> Result<(), ModelError> {
         let s = &f.sensors;
         let positive = [("depth_std", s.depth_std), ("heading_std", s.heading_std), ("yaw_rate_std", s.yaw_rate_std)];
         if let Some((name, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
-            return Err(invalid("fitted.sensors", &format!("{name} {v} must be a positive number")));
+            return Err(invalid("fitted.sensors", format!("{name} {v} must be a positive number")));
         }
         if !(s.depth_delay.is_finite() && (0.0..=1.0).contains(&s.depth_delay)) {
-            return Err(invalid("fitted.sensors", &format!("depth_delay {} must be 0 to 1 s", s.depth_delay)));
+            return Err(invalid("fitted.sensors", format!("depth_delay {} must be 0 to 1 s", s.depth_delay)));
         }
     }
     if let Some(s) = &m.input_scaling {

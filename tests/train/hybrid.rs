@@ -40,7 +40,8 @@ const W: [f64; 9] = [1.0, -0.5, 2.0, 0.3, 0.7, 3.0, -2.0, 1.5, 4.0];
 fn a_fresh_hybrid_network_is_its_physics() {
     let device = Device::flex();
     let model = common::hybrid(common::paper_4x32(5), 16);
-    let net = PincNet::init(&model.architecture, 3, &device).into_hybrid(model.hybrid_vehicle().unwrap());
+    let net = PincNet::init(&model.architecture, 3, &device)
+        .into_hybrid(pinc::train::Hybrid { vehicle: model.vehicle, physics: model.hybrid.unwrap() });
     let (x0, u) = start();
     let got: Vec<f32> = burn_rollout(&net, &x0, &u, &device).try_into_vec_as::<f32>().unwrap();
     let vehicle = Rk4Vehicle { params: model.vehicle, dt: 0.08, substeps: 16 };
