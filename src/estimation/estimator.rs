@@ -37,6 +37,9 @@ pub struct Estimator<M: DiscreteModel> {
     last_horizontal: Option<f64>,
     late: u64,
     restarts: u64,
+    /// The last depth reading, and how many exact repeats of it were left out.
+    last_depth: Option<f64>,
+    repeated: u64,
     /// The forward pass, kept for a smoother when asked for ([`Estimator::keep_history`]).
     history: Option<Vec<ForwardStep>>,
 }
@@ -55,6 +58,8 @@ impl<M: DiscreteModel> Estimator<M> {
             last_horizontal: None,
             late: 0,
             restarts: 0,
+            last_depth: None,
+            repeated: 0,
             history: None,
         }
     }
@@ -112,8 +117,19 @@ impl<M: DiscreteModel> Estimator<M> {
         self.started
     }
 
-    /// Queues a measurement.
+    /// Queues a measurement. A depth reading exactly equal to the one before is left out
+    /// (and counted): a sensor read faster than it updates repeats its last value under a new
+    /// stamp (ArduSub's simulator sends its 10 Hz depth at 12.5 Hz, every fifth a repeat), and
+    /// fused at that stamp the old value delays the heave estimate. A frozen sensor is the
+    /// session's safety stop to catch, not the filter's.
     pub fn measure(&mut self, m: Measurement) {
+        if let Measurement::Depth { z, .. } = m {
+            if self.last_depth == Some(z) {
+                self.repeated += 1;
+                return;
+            }
+            self.last_depth = Some(z);
+        }
         if self.pending.len() == QUEUE {
             self.pending.remove(0);
             self.late += 1;
@@ -141,6 +157,11 @@ impl<M: DiscreteModel> Estimator<M> {
     /// Measurements that came later than the step they belonged to and were dropped.
     pub fn late(&self) -> u64 {
         self.late
+    }
+
+    /// Depth readings left out as repeats of the one before.
+    pub fn repeated(&self) -> u64 {
+        self.repeated
     }
 
     /// Times the filter restarted after a gap longer than [`MAX_GAP_S`].
@@ -265,6 +286,18 @@ impl<M: DiscreteModel> Estimator<M> {
 mod tests {
     use super::*;
     use crate::vehicle::{Rk4Vehicle, to_network, to_simulator};
+
+    /// A depth reading repeated exactly (a sensor read faster than it updates) is left out
+    /// and counted; a new value is fused again.
+    #[test]
+    fn an_exactly_repeated_depth_reading_is_left_out() {
+        let mut tr = Estimator::new(Rk4Vehicle::with_dt(0.08), NoiseSettings::default());
+        for (k, z) in [2.0, 2.0, 2.0, 2.01, 2.01, 2.0].into_iter().enumerate() {
+            tr.measure(Measurement::Depth { t: 0.08 * k as f64, z });
+        }
+        assert_eq!(tr.repeated(), 3);
+        assert_eq!(tr.pending.len(), 3);
+    }
 
     #[test]
     fn starts_on_heading_yaw_rate_and_depth_then_steps_on_the_grid() {

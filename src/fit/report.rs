@@ -315,6 +315,7 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
             "path": p.display().to_string(), "sha256": sha, "estimated_s": span})).collect::<Vec<_>>(),
         "position_source": fit.horizontal,
         "passes": fit.passes,
+        "heave_gains": fit.heave_gains,
         "coefficients": fit.report.coefficients,
         "axes": fit.report.axes,
         "rms_residual": {"u": fit.identification.rms_residual[0], "v": fit.identification.rms_residual[1],
@@ -359,6 +360,13 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     for a in &fit.report.axes {
         md += &format!("| {} | {} | {} |\n", a.axis, if a.determined { "yes" } else { "no" }, a.why);
     }
+    md += &format!(
+        "\nEstimate-and-identify passes: {}. The filter's heave gain (the share of the applied heave force the \
+         vehicle misses) {}; the heave equation took it in until under {}.\n",
+        fit.passes,
+        fit.heave_gains.iter().map(|g| format!("{g:.3}")).collect::<Vec<_>>().join(" -> "),
+        super::HEAVE_GAIN_TOLERANCE
+    );
     let s = &fit.sensors;
     md += &format!(
         "\n## Sensors\n\ndepth noise {:.3} m, depth lag {:.2} s (the best of {} tried against the heave equation), heading noise {:.4} rad, \

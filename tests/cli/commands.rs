@@ -445,7 +445,7 @@ fn a_hybrid_that_cannot_beat_its_physics_is_its_physics() {
         (Some(true), Some(true), Some(0))
     );
     let frozen = pinc::model::PincModel::load(&model).unwrap();
-    assert_eq!(frozen.hybrid, Some(pinc::model::HybridPhysics { substeps: 16, rest_anchored: false }));
+    assert_eq!(frozen.hybrid, Some(pinc::model::HybridPhysics { substeps: 16, rest_anchored: true }));
     assert_eq!(frozen.vehicle, pinc::vehicle::VehicleParams::default());
     assert_eq!(frozen.architecture.state_inputs, vec![5, 6, 7, 8]);
     // Its rollout is the BlueROV2's.

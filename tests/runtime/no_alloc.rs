@@ -75,7 +75,8 @@ fn estimator_samples_do_not_allocate() {
     fn check<M: DiscreteModel>(name: &str, model: M) {
         let mut tr = Estimator::new(model, NoiseSettings::default());
         let feed = |tr: &mut Estimator<M>, t: f64| {
-            tr.measure(Measurement::Depth { t, z: 1.0 });
+            // A changing reading: an exact repeat is left out before it is queued.
+            tr.measure(Measurement::Depth { t, z: 1.0 + 0.01 * (10.0 * t).sin() });
             tr.measure(Measurement::Heading { t, psi: 0.3 });
             tr.measure(Measurement::YawRate { t, r: 0.01 });
             tr.measure(Measurement::VelocityNed { t, vn: 0.1, ve: 0.0, vd: 0.0 });
