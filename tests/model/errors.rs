@@ -67,7 +67,7 @@ fn rejects_future_version() {
         matches!(err, ModelError::UnsupportedVersion { found, supported } if found == FORMAT_VERSION + 1 && supported == FORMAT_VERSION)
     );
     assert!(
-        err.to_string().contains("format version 4") && err.to_string().contains("versions 1 to 3; a newer pinc"),
+        err.to_string().contains("format version 5") && err.to_string().contains("versions 1 to 4; a newer pinc"),
         "{err}"
     );
 }
