@@ -195,7 +195,8 @@ const MAX_PASSES: usize = 8;
 /// The passes stop once no heave or yaw coefficient moved more than this fraction.
 const PASS_TOLERANCE: f64 = 0.01;
 
-fn coefficient(p: &VehicleParams, key: &str) -> f64 {
+/// The value of coefficient `key` of `p` (0 for a name it does not have).
+pub(crate) fn coefficient(p: &VehicleParams, key: &str) -> f64 {
     p.named().into_iter().find(|(k, _)| *k == key).map_or(0.0, |(_, v)| v)
 }
 
@@ -318,12 +319,9 @@ pub fn fit(
         if !horizontal {
             // Without a position source the estimated surge and sway are the starting file's
             // own motion: a fit of them would echo it, so they stay the starting file's.
-            for &(_, keys) in &report::AXES[..2] {
-                for &k in keys {
-                    let start = base.named().into_iter().find(|(n, _)| *n == k).map(|(_, v)| v);
-                    if let (Some(v), Some(slot)) = (start, id.vehicle.get_mut(k)) {
-                        *slot = v;
-                    }
+            for &k in report::AXES[..2].iter().flat_map(|(_, keys)| keys.iter()) {
+                if let Some(slot) = id.vehicle.get_mut(k) {
+                    *slot = coefficient(&base, k);
                 }
             }
         }

@@ -76,13 +76,14 @@ pub fn findings(
     sensors_defaulted: &[&str],
     training: &TrainOutcome,
 ) -> Findings {
-    let value = |p: &VehicleParams, k: &str| p.named().into_iter().find(|(n, _)| *n == k).map_or(f64::NAN, |(_, v)| v);
     let surge_sway = |k: &str| AXES[..2].iter().any(|(_, ks)| ks.contains(&k));
     let coefficients: Vec<CoefficientFinding> = ESTIMATED
         .iter()
         .map(|&name| {
-            let (fitted, std_err) = (value(&id.vehicle, name), id.std_err_of(name));
-            let (status, why) = if !horizontal && surge_sway(name) {
+            let echo = !horizontal && surge_sway(name);
+            // An echo's standard error is the fit of the starting file to its own motion.
+            let (fitted, std_err) = (super::coefficient(&id.vehicle, name), id.std_err_of(name).filter(|_| !echo));
+            let (status, why) = if echo {
                 (
                     "no_position_source",
                     "no position or velocity sensor: the estimated surge and sway come from the starting file's own \
@@ -101,7 +102,7 @@ pub fn findings(
                     ),
                 )
             };
-            CoefficientFinding { name, start: value(start, name), fitted, std_err, status, why }
+            CoefficientFinding { name, start: super::coefficient(start, name), fitted, std_err, status, why }
         })
         .collect();
     let ok = |k: &str| coefficients.iter().any(|c| c.name == k && c.status == "identified");

@@ -71,29 +71,28 @@ pub fn depth_lag_scan(depth: &[(f64, f64)], heave: &[(f64, f64)], lags: &[f64]) 
 
 /// Rate and acceleration at `t` of the least-squares quadratic through `samples`.
 fn local_quadratic(samples: &[(f64, f64)], t: f64) -> Option<(f64, f64)> {
-    let mut ata = nalgebra::Matrix3::<f64>::zeros();
-    let mut atb = nalgebra::Vector3::<f64>::zeros();
-    for &(s, y) in samples {
-        let d = s - t;
-        let row = nalgebra::Vector3::new(1.0, d, d * d);
-        ata += row * row.transpose();
-        atb += row * y;
-    }
-    let c = ata.cholesky()?.solve(&atb);
+    let rows: Vec<([f64; 3], f64)> = samples.iter().map(|&(s, y)| ([1.0, s - t, (s - t) * (s - t)], y)).collect();
+    let c = least_squares(&rows)?;
     Some((c[1], 2.0 * c[2]))
+}
+
+/// The least-squares coefficients of `y` on the rows, by the normal equations (`None` for a
+/// singular system).
+fn least_squares<const N: usize>(rows: &[([f64; N], f64)]) -> Option<nalgebra::SVector<f64, N>> {
+    let mut ata = nalgebra::SMatrix::<f64, N, N>::zeros();
+    let mut atb = nalgebra::SVector::<f64, N>::zeros();
+    for (x, y) in rows {
+        let x = nalgebra::SVector::<f64, N>::from(*x);
+        ata += x * x.transpose();
+        atb += x * *y;
+    }
+    Some(ata.cholesky()?.solve(&atb))
 }
 
 /// Residual sum of squares of the least-squares fit of `y` on the rows (NaN without rows or
 /// with a singular system).
 fn least_squares_residual(rows: &[([f64; 4], f64)]) -> f64 {
-    let mut ata = nalgebra::Matrix4::<f64>::zeros();
-    let mut atb = nalgebra::Vector4::<f64>::zeros();
-    for (x, y) in rows {
-        let x = nalgebra::Vector4::from(*x);
-        ata += x * x.transpose();
-        atb += x * *y;
-    }
-    let Some(c) = ata.cholesky().map(|ch| ch.solve(&atb)) else { return f64::NAN };
+    let Some(c) = least_squares(rows) else { return f64::NAN };
     rows.iter().map(|(x, y)| (y - nalgebra::Vector4::from(*x).dot(&c)).powi(2)).sum()
 }
 
