@@ -26,7 +26,7 @@ use crate::dataset::import::{ImportOptions, Recording, import, mavlink_log, sha2
 use crate::dataset::{Dataset, TrajectorySet};
 use crate::estimation::NoiseSettings;
 use crate::estimation::ekf::HEAVE_GAIN;
-use crate::estimation::replay::{Replay, ReplaySettings, replay};
+use crate::estimation::replay::{Replay, ReplaySettings, replay, replay_streams};
 use crate::identify::{Identification, identify};
 use crate::model::{FittedVehicle, HybridPhysics, PincModel, SensorModel};
 use crate::train::{Backend, LossKind, LrSchedule, StopReason, TrainConfig, TrainOutcome, train};
@@ -38,7 +38,8 @@ use std::sync::atomic::AtomicBool;
 /// What a fit is given.
 #[derive(Debug, Clone)]
 pub struct FitSettings {
-    /// The recordings: `.tlog` or pinc's MCAP (`pinc vehicle record` / `excite`).
+    /// The recordings: `.tlog`, pinc's MCAP (`pinc vehicle record` / `excite`) or an ArduPilot
+    /// `.BIN`.
     pub recordings: Vec<PathBuf>,
     /// The starting vehicle file: its thrusters (kept), mass, inertia and the values of the
     /// coefficients the data cannot determine.
@@ -139,7 +140,35 @@ pub enum FitError {
 struct Log {
     path: PathBuf,
     sha256: String,
-    messages: Vec<(u64, u8, mavlink::dialects::ardupilotmega::MavMessage)>,
+    content: Content,
+}
+
+/// A recording's MAVLink messages (`.tlog`, pinc's MCAP), or the streams of an ArduPilot
+/// `.BIN`.
+enum Content {
+    Mavlink(Vec<(u64, u8, mavlink::dialects::ardupilotmega::MavMessage)>),
+    Streams(Box<crate::dataset::import::StreamSet>),
+}
+
+/// Reads a recording by its extension: `.tlog` and `.mcap` as MAVLink, `.bin` as an
+/// ArduPilot dataflash log (its thruster outputs through `thrusters`).
+fn read_recording(path: &Path, thrusters: &Thrusters, water_density: f64) -> Result<Content, String> {
+    use crate::dataset::import::{ArdupilotOptions, InputSource, read_bin};
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("tlog" | "mcap") => mavlink_log(path).map(|l| Content::Mavlink(l.messages)).map_err(|e| e.to_string()),
+        Some("bin") => {
+            let t = thrusters.clone();
+            let options = ArdupilotOptions {
+                inputs: InputSource::ThrusterOutputs,
+                thrusters: Some(Box::new(move |c: &[f64]| t.input_from_commands(c))),
+                water_density,
+                ..ArdupilotOptions::default()
+            };
+            read_bin(path, &options).map(|s| Content::Streams(Box::new(s))).map_err(|e| e.to_string())
+        }
+        _ => Err("a recording is a .tlog, a pinc MCAP (`pinc vehicle excite` / `record`) or an ArduPilot .BIN".into()),
+    }
 }
 
 /// What a fit produced (before it is written).
@@ -274,8 +303,8 @@ pub fn fit(
     for path in &settings.recordings {
         let input = |message: String| FitError::Input { path: path.clone(), message };
         let bytes = std::fs::read(path).map_err(|e| input(e.to_string()))?;
-        let read = mavlink_log(path).map_err(|e| input(e.to_string()))?;
-        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), messages: read.messages });
+        let content = read_recording(path, &thrusters, settings.water_density).map_err(input)?;
+        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), content });
     }
     // `live`: the estimator as a live session runs it (its process noise unscaled).
     let replay_as = |vehicle: &VehicleParams, sensors: &SensorModel, live: bool| -> Result<Vec<Replay>, FitError> {
@@ -289,8 +318,11 @@ pub fn fit(
         logs.iter()
             .map(|log| {
                 let model = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(settings.dt) };
-                replay(&log.messages, model, Some(thrusters.clone()), &replay_settings)
-                    .map_err(|e| FitError::Input { path: log.path.clone(), message: e.to_string() })
+                match &log.content {
+                    Content::Mavlink(messages) => replay(messages, model, Some(thrusters.clone()), &replay_settings),
+                    Content::Streams(streams) => replay_streams(streams, model, &replay_settings),
+                }
+                .map_err(|e| FitError::Input { path: log.path.clone(), message: e.to_string() })
             })
             .collect()
     };

@@ -9,9 +9,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// Arguments of `pinc fit`.
 #[derive(clap::Args)]
 pub struct FitArgs {
-    /// A recording of the vehicle: a `.tlog` (QGroundControl, MAVProxy) or the MCAP of `pinc
-    /// vehicle excite` / `record`. Repeat for several; a stock vehicle's (no velocities) is
-    /// fine: the estimator gives them.
+    /// A recording of the vehicle: a `.tlog` (QGroundControl, MAVProxy), the MCAP of `pinc
+    /// vehicle excite` / `record`, or the autopilot's `.BIN`. Repeat for several; a stock
+    /// vehicle's (no velocities) is fine: the estimator gives them.
     #[arg(long = "recording", required = true)]
     pub recordings: Vec<PathBuf>,
     /// The starting vehicle file: its thrusters, mass and inertia, and the values of what the

@@ -97,6 +97,7 @@ enum Kind {
     Rcou,
     Rcin,
     Orgn,
+    Imu,
 }
 
 impl Kind {
@@ -108,6 +109,7 @@ impl Kind {
             "RCOU" => Self::Rcou,
             "RCIN" => Self::Rcin,
             "ORGN" => Self::Orgn,
+            "IMU" => Self::Imu,
             _ => return None,
         })
     }
@@ -118,6 +120,7 @@ impl Kind {
             Self::Att => &["TimeUS", "Roll", "Pitch", "Yaw"],
             Self::Xkf1 => &["TimeUS", "C", "VN", "VE", "VD", "PN", "PE", "PD"],
             Self::Baro => &["TimeUS", "I", "Alt"],
+            Self::Imu => &["TimeUS", "I", "GyrZ"],
             Self::Rcou | Self::Rcin | Self::Orgn => &["TimeUS"],
         }
     }
@@ -203,6 +206,8 @@ pub(crate) struct BinSamples {
     xkf1: Vec<[f64; 7]>,
     /// `[t, instance, alt]`.
     baro: Vec<[f64; 3]>,
+    /// `[t, gyro z]` of the first IMU (rad/s, body frame: the yaw rate pinc's state holds).
+    imu: Vec<[f64; 2]>,
     rcou: Vec<Vec<f64>>,
     rcin: Vec<Vec<f64>>,
     /// Time of the first `ORGN` record: the EKF's origin was set.
@@ -250,6 +255,11 @@ pub(crate) fn decode_bin(buf: &[u8]) -> Result<BinSamples, String> {
             let labels = text(&rec[25..89]);
             s.names_seen += 1;
             let decode = match Kind::from_name(&name) {
+                // The gyro is a bonus (the estimator's yaw rate): an IMU record of another
+                // layout is left undecoded rather than failing the log.
+                Some(Kind::Imu) => {
+                    decode_fields(Kind::Imu, &name, format.as_bytes(), &labels).ok().map(|f| (Kind::Imu, f))
+                }
                 Some(kind) => Some((kind, decode_fields(kind, &name, format.as_bytes(), &labels)?)),
                 None => None,
             };
@@ -266,6 +276,11 @@ pub(crate) fn decode_bin(buf: &[u8]) -> Result<BinSamples, String> {
                     }
                 }
                 Kind::Baro => s.baro.push([g(0), g(1), g(2)]),
+                Kind::Imu => {
+                    if g(1) == 0.0 {
+                        s.imu.push([g(0), g(2)]);
+                    }
+                }
                 Kind::Rcou => s.rcou.push(fields.iter().map(|f| f.get(rec)).collect()),
                 Kind::Rcin => s.rcin.push(fields.iter().map(|f| f.get(rec)).collect()),
                 Kind::Orgn => {
@@ -336,6 +351,13 @@ fn assemble(s: BinSamples, opts: &ArdupilotOptions) -> Result<Decoded, String> {
             return Err(format!("no BARO record of instance {inst} (the highest is {highest})"));
         }
         d.depth = Some(depth);
+    }
+    if !s.imu.is_empty() {
+        let mut rate = Series::new("IMU[I=0].GyrZ (rad/s)");
+        for i in &s.imu {
+            rate.push(i[0] * us, [i[1]]);
+        }
+        d.yaw_rate = Some(rate);
     }
     if !s.rcou.is_empty() {
         let t = s.rcou.iter().map(|r| r[0] * us).collect();
