@@ -1,8 +1,9 @@
 //! `pinc fit`: an owner's recordings to a model of their vehicle that flies it (docs/FIT.md).
 //!
 //! One pipeline, in this order, each stage on the previous one's result:
-//! 1. the recordings' MAVLink messages replayed through the state estimator on the starting
-//!    vehicle file (a stock vehicle logs no velocities: the filter gives them);
+//! 1. the recordings' MAVLink messages (or a `.BIN`'s streams) replayed through the state
+//!    estimator on the starting vehicle file (a stock vehicle logs no velocities: the filter
+//!    gives them);
 //! 2. the estimate cut into windows and split in time (train, dev, held out), and the vehicle
 //!    identified from the train split;
 //! 3. the sensors: each reading's noise from the reading alone, the depth lag from the heave
