@@ -215,9 +215,16 @@ fn try_main(a: Args) -> Result<(), String> {
     // nothing and leaves no log.
     #[cfg(feature = "vehicle")]
     let live_run = match &a.connect {
-        Some(link) => {
-            Some(live(&a, link, Mpc::new(predictor.clone(), cfg.clone()), scenario, &vehicle, &mut log)).transpose()
-        }
+        Some(link) => Some(live(
+            &a,
+            link,
+            Mpc::new(predictor.clone(), cfg.clone()),
+            scenario,
+            &vehicle,
+            model.fitted.as_ref(),
+            &mut log,
+        ))
+        .transpose(),
         None => Ok(None),
     }
     .inspect_err(|_| {
@@ -539,15 +546,15 @@ fn live(
     mpc: Result<Mpc<Predictor<f64>>, impl std::fmt::Display>,
     scenario: &Scenario,
     vehicle: &VehicleParams,
+    // What a model fitted by `pinc fit` carries of its vehicle (thrusters, sensors).
+    fitted: Option<&pinc::model::FittedVehicle>,
     log: &mut McapLog,
 ) -> Result<RunOutcome, String> {
     use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
-    // A model fitted by `pinc fit` carries its vehicle's thrusters and sensors.
-    let fitted = pinc::model::PincModel::load(&a.model).map_err(|e| e.to_string())?.fitted;
     let options = SessionOptions {
         connect,
         vehicle: a.vehicle.as_deref(),
-        fitted: fitted.as_ref(),
+        fitted,
         link: &a.link,
         drive: &a.drive,
         estimator: &a.estimator,
