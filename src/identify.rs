@@ -116,6 +116,14 @@ fn predict(p: &VehicleParams, s: &Interval) -> Velocities {
     v
 }
 
+/// `f` of each 256-interval chunk, in parallel, returned in the chunks' order: callers add
+/// the parts in that order, so a fit is the same bits however rayon splits the work (its own
+/// `sum`/`reduce` group by where threads steal, which changes the last digits with load).
+fn in_order<T: Send>(intervals: &[Interval], f: impl Fn(&[Interval]) -> T + Sync + Send) -> Vec<T> {
+    use rayon::prelude::*;
+    intervals.par_chunks(256).map(f).collect()
+}
+
 /// Weighted least-squares problem over the `active` coefficients, each scaled by `scale`
 /// (the unknowns are relative changes, so coefficients of very different size condition alike).
 struct Problem<'a> {
@@ -128,27 +136,29 @@ struct Problem<'a> {
 impl Problem<'_> {
     /// Weighted cost `sum ((pred - v1) / sigma)^2`.
     fn cost(&self, p: &VehicleParams) -> f64 {
-        use rayon::prelude::*;
-        self.intervals
-            .par_iter()
-            .map(|s| {
-                let r = predict(p, s) - s.v1;
-                (0..4).map(|d| (r[d] / self.sigma[d]).powi(2)).sum::<f64>()
-            })
-            .sum()
+        in_order(self.intervals, |chunk| {
+            chunk
+                .iter()
+                .map(|s| {
+                    let r = predict(p, s) - s.v1;
+                    (0..4).map(|d| (r[d] / self.sigma[d]).powi(2)).sum::<f64>()
+                })
+                .sum::<f64>()
+        })
+        .into_iter()
+        .sum()
     }
 
     /// Unweighted RMS residual per degree of freedom, without a Jacobian.
     fn rms(&self, p: &VehicleParams) -> [f64; 4] {
-        use rayon::prelude::*;
-        let sq = self
-            .intervals
-            .par_iter()
-            .map(|s| {
+        let sq = in_order(self.intervals, |chunk| {
+            chunk.iter().fold([0.0; 4], |acc, s| {
                 let r = predict(p, s) - s.v1;
-                [0, 1, 2, 3].map(|d| r[d] * r[d])
+                [0, 1, 2, 3].map(|d| acc[d] + r[d] * r[d])
             })
-            .reduce(|| [0.0; 4], |a, b| [0, 1, 2, 3].map(|d| a[d] + b[d]));
+        })
+        .into_iter()
+        .fold([0.0; 4], |a, b| [0, 1, 2, 3].map(|d| a[d] + b[d]));
         let n = self.intervals.len().max(1) as f64;
         sq.map(|s| (s / n).sqrt())
     }
@@ -156,7 +166,6 @@ impl Problem<'_> {
     /// `J^T J`, `J^T r` (weighted, J by forward differences in the scaled unknowns), the cost
     /// and the unweighted RMS residual per degree of freedom; the residuals in parallel.
     fn normal_equations(&self, p: &VehicleParams, active: &[usize]) -> (DMatrix<f64>, DVector<f64>, f64, [f64; 4]) {
-        use rayon::prelude::*;
         let k = active.len();
         let shifted: Vec<(VehicleParams, f64)> = active
             .iter()
@@ -168,32 +177,31 @@ impl Problem<'_> {
             })
             .collect();
         let empty = || (DMatrix::<f64>::zeros(k, k), DVector::<f64>::zeros(k), 0.0, [0.0; 4]);
-        let (mut jtj, jtr, cost, sq) = self
-            .intervals
-            .par_chunks(256)
-            .fold(empty, |(mut jtj, mut jtr, mut cost, mut sq), chunk| {
-                let mut row = vec![Velocities::zeros(); k];
-                for s in chunk {
-                    let at = predict(p, s);
-                    let r = at - s.v1;
-                    for (j, (plus, f)) in shifted.iter().enumerate() {
-                        row[j] = (predict(plus, s) - at) * *f;
-                    }
-                    for d in 0..4 {
-                        let w = 1.0 / (self.sigma[d] * self.sigma[d]);
-                        sq[d] += r[d] * r[d];
-                        cost += r[d] * r[d] * w;
-                        for a in 0..k {
-                            jtr[a] += row[a][d] * r[d] * w;
-                            for b in 0..=a {
-                                jtj[(a, b)] += row[a][d] * row[b][d] * w;
-                            }
+        let (mut jtj, jtr, cost, sq) = in_order(self.intervals, |chunk| {
+            let (mut jtj, mut jtr, mut cost, mut sq) = empty();
+            let mut row = vec![Velocities::zeros(); k];
+            for s in chunk {
+                let at = predict(p, s);
+                let r = at - s.v1;
+                for (j, (plus, f)) in shifted.iter().enumerate() {
+                    row[j] = (predict(plus, s) - at) * *f;
+                }
+                for d in 0..4 {
+                    let w = 1.0 / (self.sigma[d] * self.sigma[d]);
+                    sq[d] += r[d] * r[d];
+                    cost += r[d] * r[d] * w;
+                    for a in 0..k {
+                        jtr[a] += row[a][d] * r[d] * w;
+                        for b in 0..=a {
+                            jtj[(a, b)] += row[a][d] * row[b][d] * w;
                         }
                     }
                 }
-                (jtj, jtr, cost, sq)
-            })
-            .reduce(empty, |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, [0, 1, 2, 3].map(|d| a.3[d] + b.3[d])));
+            }
+            (jtj, jtr, cost, sq)
+        })
+        .into_iter()
+        .fold(empty(), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, [0, 1, 2, 3].map(|d| a.3[d] + b.3[d])));
         for a in 0..k {
             for b in 0..a {
                 jtj[(b, a)] = jtj[(a, b)];
