@@ -45,6 +45,10 @@ pub enum Observation {
     Measured(Measurement),
     /// The input applied at a time (s).
     Applied(f64, Input),
+    /// A reading the estimator leaves out: the position's own depth where a depth sensor
+    /// measures it (the autopilot's EKF blends that same sensor in). The raw state keeps it
+    /// with the position, so that both are of one time.
+    Unfused(Measurement),
 }
 
 /// Turns messages into [`Observation`]s.
@@ -71,6 +75,17 @@ impl MavlinkMeasurements {
             newest: [f64::NEG_INFINITY; 4],
             dropped: 0,
         }
+    }
+
+    /// Reads the thruster outputs through `thrusters` (`None`: not at all).
+    pub fn set_thrusters(&mut self, thrusters: Option<Thrusters>) {
+        self.thrusters = thrusters;
+    }
+
+    /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0).
+    pub fn restart(&mut self) {
+        self.newest = [f64::NEG_INFINITY; 4];
+        self.external_pressure = false;
     }
 
     /// Messages dropped as older than the newest of their kind.
@@ -123,6 +138,9 @@ impl MavlinkMeasurements {
                 let z = if self.external_pressure { f64::NAN } else { f(m.z) };
                 out(Observation::Measured(Measurement::Position { t, x: f(m.x), y: f(m.y), z }));
                 out(Observation::Measured(Measurement::VelocityNed { t, vn: f(m.vx), ve: f(m.vy), vd: f(m.vz) }));
+                if self.external_pressure {
+                    out(Observation::Unfused(Measurement::Depth { t, z: f(m.z) }));
+                }
             }
             MavMessage::SERVO_OUTPUT_RAW(o) if o.port == 0 => {
                 let t = outputs_time(now, o);
@@ -179,5 +197,6 @@ mod tests {
         assert!(
             matches!(got[4], Observation::Measured(Measurement::VelocityNed { vd, .. }) if (vd - 0.3).abs() < 1e-6)
         );
+        assert!(matches!(got[5], Observation::Unfused(Measurement::Depth { z, .. }) if (z - 2.1).abs() < 1e-6));
     }
 }

@@ -157,7 +157,7 @@ pub fn replay_streams<M: DiscreteModel>(
         );
     }
     let time = |o: &Observation| match o {
-        Observation::Measured(m) => m.t(),
+        Observation::Measured(m) | Observation::Unfused(m) => m.t(),
         Observation::Applied(t, _) => *t,
     };
     // In time order; at one time, the heading (which steps the filter) after the rest.
@@ -208,6 +208,7 @@ impl<'a, M: DiscreteModel> Feeder<'a, M> {
                 return;
             }
             Observation::Measured(m) => m,
+            Observation::Unfused(_) => return,
         };
         self.horizontal |= m.observes_horizontal();
         if matches!(m, Measurement::Depth { .. } | Measurement::Heading { .. } | Measurement::YawRate { .. }) {

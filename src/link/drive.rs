@@ -15,7 +15,7 @@ use super::safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 use super::state::{RawState, StateAssembler, message_time};
 use crate::closed_loop::Level;
 use crate::estimation::Measurement;
-use crate::estimation::mavlink::{MavlinkMeasurements, Observation};
+use crate::estimation::mavlink::Observation;
 use crate::types::Input;
 use mavlink::dialects::ardupilotmega::{MavCmd, MavMessage, MavResult, MavSeverity, STATUSTEXT_DATA};
 use std::collections::HashMap;
@@ -78,7 +78,6 @@ pub struct Drive {
     /// The last `COMMAND_ACK` of an arm command, and the last `PreArm:`/`Arm:` text.
     arm_ack: Option<MavResult>,
     arm_text: Option<String>,
-    measurements: MavlinkMeasurements,
     observations: Vec<Observation>,
     /// The autopilot's parameters read at the start.
     params: Params,
@@ -215,11 +214,8 @@ impl Drive {
         let mode = autopilot.heartbeat.custom_mode;
         let mut safety = Safety::new(settings.limits.clone(), now);
         safety.heartbeat(now, Autopilot::armed(&autopilot.heartbeat));
-        let measurements = MavlinkMeasurements::new(
-            assembler.config().surface_pressure_hpa,
-            assembler.config().water_density,
-            Some(commander.thrusters().clone()),
-        );
+        let mut assembler = assembler;
+        assembler.set_thrusters(commander.thrusters().clone());
         let mut d = Self {
             link,
             autopilot,
@@ -235,7 +231,6 @@ impl Drive {
             echo_notes: settings.echo_notes,
             arm_ack: None,
             arm_text: None,
-            measurements,
             observations: Vec::with_capacity(64),
             params: Params::default(),
             ekf_status: None,
@@ -253,7 +248,9 @@ impl Drive {
             Err(e) => return Err(d.refuse(Trigger::Link(e.to_string()))),
         }
         for r in &early {
-            d.assembler.update(r);
+            if d.is_autopilot(r) {
+                d.read(r);
+            }
             let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(r, t);
         }
@@ -426,6 +423,34 @@ impl Drive {
         self.assembler.autopilot_time(Instant::now()).unwrap_or(0.0)
     }
 
+    fn is_autopilot(&self, r: &Received) -> bool {
+        r.header.system_id as u8 == self.autopilot.system_id && r.header.component_id == self.autopilot.component_id
+    }
+
+    /// Reads one message of the autopilot, once: the raw state, the observations for the
+    /// estimator, the sensor watch; counts a message older than the newest of its type.
+    fn read(&mut self, r: &Received) -> Option<RawState> {
+        if let Some(t) = message_time(&r.message) {
+            let newest = self.newest.entry(mavlink::Message::message_name(&r.message)).or_insert(f64::MIN);
+            if t < *newest {
+                self.out_of_order += 1;
+            }
+            *newest = newest.max(t);
+        }
+        let (observations, watch) = (&mut self.observations, &mut self.watch);
+        self.assembler.update(r, |o| {
+            match o {
+                Observation::Measured(Measurement::Depth { t, z }) => watch.depth(t, z, true),
+                Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => {
+                    watch.depth(t, z, false);
+                }
+                Observation::Measured(Measurement::Heading { t, .. }) => watch.heading(t),
+                _ => {}
+            }
+            observations.push(o);
+        })
+    }
+
     /// Handles one message (or a short silence): the watchdog, the state.
     fn poll(&mut self, seen: &mut impl FnMut(&Received, f64)) -> Result<Option<Fresh>, Trigger> {
         if self.stop.load(Ordering::Relaxed) {
@@ -435,35 +460,11 @@ impl Drive {
         let r = self.link.recv_timeout(wait).map_err(|e: LinkError| Trigger::Link(e.to_string()))?;
         let mut fresh = None;
         if let Some(r) = r {
-            let from_autopilot = r.header.system_id as u8 == self.autopilot.system_id
-                && r.header.component_id == self.autopilot.component_id;
-            let state = if from_autopilot {
-                if let Some(t) = message_time(&r.message) {
-                    let newest = self.newest.entry(mavlink::Message::message_name(&r.message)).or_insert(f64::MIN);
-                    if t < *newest {
-                        self.out_of_order += 1;
-                    }
-                    *newest = newest.max(t);
-                }
-                self.assembler.update(&r)
-            } else {
-                None
-            };
+            let from_autopilot = self.is_autopilot(&r);
+            let state = if from_autopilot { self.read(&r) } else { None };
             let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(&r, t);
             if from_autopilot {
-                let (observations, watch) = (&mut self.observations, &mut self.watch);
-                self.measurements.observe(t, &r.message, |o| {
-                    match o {
-                        Observation::Measured(Measurement::Depth { t, z }) => watch.depth(t, z, true),
-                        Observation::Measured(Measurement::Position { t, z, .. }) if z.is_finite() => {
-                            watch.depth(t, z, false);
-                        }
-                        Observation::Measured(Measurement::Heading { t, .. }) => watch.heading(t),
-                        _ => {}
-                    }
-                    observations.push(o);
-                });
                 match &r.message {
                     MavMessage::EKF_STATUS_REPORT(e) => self.ekf_status = Some(EkfStatus::new(t, e)),
                     MavMessage::GPS_RAW_INT(g) => self.gps_fix = Some(g.fix_type as u8),
@@ -593,12 +594,15 @@ impl Drive {
     }
 
     /// Waits `duration` while passing messages on (after a stop: the last messages into the
-    /// recording).
+    /// recording, and what they measured to [`Drive::drain_observations`]).
     pub fn drain(&mut self, duration: Duration, mut seen: impl FnMut(&Received, f64)) {
         let until = Instant::now() + duration;
         while Instant::now() < until {
             match self.link.recv_timeout(POLL) {
                 Ok(Some(r)) => {
+                    if self.is_autopilot(&r) {
+                        self.read(&r);
+                    }
                     let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
                     seen(&r, t);
                 }

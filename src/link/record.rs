@@ -19,10 +19,9 @@ use super::link::Received;
 use super::state::{Capability, DepthSource, RawState};
 use crate::closed_loop::Level;
 use crate::estimation::Estimate;
-use crate::estimation::mavlink::{outputs_time, servo_pwm};
+use crate::estimation::mavlink::servo_pwm;
 use crate::types::INPUT_NAMES;
 use crate::types::Input;
-use crate::vehicle::Thrusters;
 use mavlink::dialects::ardupilotmega::SERVO_OUTPUT_RAW_DATA;
 use mcap::records::{MessageHeader, Metadata};
 use serde_json::{Map, Value, json};
@@ -327,13 +326,13 @@ impl Drop for Recorder {
 }
 
 /// The body input of each state sample from the thruster outputs the autopilot reports
-/// (`SERVO_OUTPUT_RAW`) through a vehicle file's thrusters: the input over the sample period
+/// (`SERVO_OUTPUT_RAW`, read through a vehicle file's thrusters by
+/// [`crate::estimation::mavlink::MavlinkMeasurements`]): the input over the sample period
 /// after the state's time, `[t, t + period)`, each output held until the next (so outputs
 /// faster than the states are averaged, as `pinc dataset import` averages inputs), known once
 /// an output at or after `t + period` arrived.
 #[derive(Debug, Clone)]
 pub struct InputsFromOutputs {
-    thrusters: Thrusters,
     period: f64,
     max_gap: f64,
     /// (autopilot time s, input) of each output message, in time order.
@@ -342,24 +341,19 @@ pub struct InputsFromOutputs {
 }
 
 impl InputsFromOutputs {
-    /// Inputs through `thrusters` over samples of `period` s; an output older than `max_gap`
-    /// s at a state's time (outputs stopped) leaves that state's input unknown.
-    pub fn new(thrusters: Thrusters, period: f64, max_gap: f64) -> Self {
-        Self { thrusters, period, max_gap, outputs: VecDeque::new(), pending: VecDeque::new() }
+    /// Inputs over samples of `period` s; an output older than `max_gap` s at a state's time
+    /// (outputs stopped) leaves that state's input unknown.
+    pub fn new(period: f64, max_gap: f64) -> Self {
+        Self { period, max_gap, outputs: VecDeque::new(), pending: VecDeque::new() }
     }
 
-    /// An output message received at autopilot time `now` (s): its own `time_usec` is put on
-    /// the autopilot's time line (the wrap nearest `now`). Out-of-order outputs are dropped.
-    pub fn outputs(&mut self, now: f64, o: &SERVO_OUTPUT_RAW_DATA) {
-        if o.port != 0 {
-            return; // channels 9-16: no thruster of a vehicle file pinc commands is there
-        }
-        let t = outputs_time(now, o);
+    /// The input the outputs at autopilot time `t` (s) stand for. Out-of-order ones are
+    /// dropped.
+    pub fn applied(&mut self, t: f64, input: Input) {
         if self.outputs.back().is_some_and(|(last, _)| t <= *last) {
             return;
         }
-        let pwm = servo_pwm(o).map(f64::from);
-        self.outputs.push_back((t, self.thrusters.input_from_commands(&pwm)));
+        self.outputs.push_back((t, input));
     }
 
     /// A state sample whose input is wanted.
@@ -422,7 +416,10 @@ impl InputsFromOutputs {
 mod tests {
     use super::*;
     use crate::dataset::import::{McapTopics, read_mcap};
+    use crate::estimation::mavlink::{MavlinkMeasurements, Observation};
     use crate::link::state::{Part, PartStatus};
+    use crate::vehicle::Thrusters;
+    use mavlink::dialects::ardupilotmega::MavMessage;
 
     fn estimate(t: f64, sim: [f64; 8]) -> RawState {
         let part = |part| PartStatus { part, stamp: Some(t), age: Some(0.0), fresh: true };
@@ -472,27 +469,35 @@ mod tests {
     fn inputs_average_the_outputs_held_over_each_sample() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/ardusub/sitl_vectored.toml");
         let thrusters = Thrusters::load(path).unwrap();
-        let mut p = InputsFromOutputs::new(thrusters.clone(), 0.08, 0.5);
-        let out = |ms: u32, pwm5: u16| SERVO_OUTPUT_RAW_DATA {
-            time_usec: ms * 1000,
-            servo1_raw: 1500,
-            servo2_raw: 1500,
-            servo3_raw: 1500,
-            servo4_raw: 1500,
-            servo5_raw: pwm5,
-            servo6_raw: pwm5,
-            ..Default::default()
+        let mut p = InputsFromOutputs::new(0.08, 0.5);
+        let mut reader = MavlinkMeasurements::new(1013.25, 1000.0, Some(thrusters.clone()));
+        let mut outputs = |p: &mut InputsFromOutputs, now: f64, ms: u32, pwm5: u16| {
+            let o = SERVO_OUTPUT_RAW_DATA {
+                time_usec: ms * 1000,
+                servo1_raw: 1500,
+                servo2_raw: 1500,
+                servo3_raw: 1500,
+                servo4_raw: 1500,
+                servo5_raw: pwm5,
+                servo6_raw: pwm5,
+                ..Default::default()
+            };
+            reader.observe(now, &MavMessage::SERVO_OUTPUT_RAW(o), |ob| {
+                if let Observation::Applied(t, u) = ob {
+                    p.applied(t, u);
+                }
+            });
         };
         let s = |t: f64| estimate(t, [0.0; 8]);
         // Outputs every 20 ms; the vertical thrusters go from 1500 to 1700 at 1.02 s.
-        p.outputs(1.0, &out(1000, 1500));
+        outputs(&mut p, 1.0, 1000, 1500);
         p.state(s(1.0));
         assert!(p.ready(1.0).is_empty(), "the sample's period is not covered yet");
         for ms in [1020, 1040, 1060] {
-            p.outputs(f64::from(ms) / 1e3, &out(ms, 1700));
+            outputs(&mut p, f64::from(ms) / 1e3, ms, 1700);
         }
         assert!(p.ready(1.06).is_empty());
-        p.outputs(1.08, &out(1080, 1700));
+        outputs(&mut p, 1.08, 1080, 1700);
         let got = p.ready(1.08);
         assert_eq!(got.len(), 1);
         let z = got[0].1.unwrap()[2];

@@ -486,6 +486,7 @@ pub fn run<M: DiscreteModel + Clone>(
             each!(&mut estimator, tr => match ob {
                 Observation::Measured(m) => tr.measure(m),
                 Observation::Applied(t, u) => tr.applied(t, u),
+                Observation::Unfused(_) => {}
             });
         }
         let estimate: Option<Estimate> = if o.estimator.no_estimator {

@@ -1,5 +1,7 @@
 //! The vehicle's state `x y z psi u v w r` rebuilt from ArduSub's standard messages, on the
-//! autopilot's own time base (`time_boot_ms`).
+//! autopilot's own time base (`time_boot_ms`). Each message is read once, by
+//! [`MavlinkMeasurements`] (the reading the state estimator takes too): the assembler keeps
+//! the newest of each part and hands the same observations on.
 //!
 //! - heading `psi` (unwrapped across +-pi) and yaw rate `r`: `ATTITUDE` (`yaw`, `yawspeed`);
 //! - position `x y z` and the NED velocity: `LOCAL_POSITION_NED`, which ArduSub sends only
@@ -13,8 +15,10 @@
 //! time) is stale and reported as missing (`NaN`), never held.
 
 use super::link::Received;
-use crate::estimation::mavlink::depth_from_pressure;
+use crate::estimation::Measurement;
+use crate::estimation::mavlink::{MavlinkMeasurements, Observation};
 use crate::types::{NS, SIM_STATE_NAMES};
+use crate::vehicle::Thrusters;
 use mavlink::dialects::ardupilotmega::MavMessage;
 use std::collections::VecDeque;
 use std::fmt;
@@ -167,20 +171,27 @@ const ATTITUDE_HISTORY: usize = 32;
 const REBOOT_STEP: f64 = 5.0;
 
 /// Builds [`RawState`]s from the messages of one autopilot.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct StateAssembler {
     config: StateConfig,
+    /// Reads every message (the one place messages become measurements).
+    reader: MavlinkMeasurements,
     attitudes: VecDeque<Attitude>,
     local: Option<Local>,
-    /// (autopilot time, hPa); `SCALED_PRESSURE2` wins over `SCALED_PRESSURE` once seen.
-    pressure: Option<(f64, f64)>,
-    external_pressure_seen: bool,
+    /// (autopilot time, depth m) of the newest pressure reading.
+    depth: Option<(f64, f64)>,
     /// The newest autopilot time seen and when it was received.
     clock: Option<(f64, Instant)>,
     /// Time of the last sample returned by [`StateAssembler::update`]: samples never go back.
     last_sample: Option<f64>,
     /// When the newest position arrived (host clock).
     local_arrival: Option<Instant>,
+}
+
+impl Default for StateAssembler {
+    fn default() -> Self {
+        Self::new(StateConfig::default())
+    }
 }
 
 fn wrap(a: f64) -> f64 {
@@ -204,9 +215,31 @@ pub fn message_time(message: &MavMessage) -> Option<f64> {
 }
 
 impl StateAssembler {
-    /// An estimator with `config`.
+    /// An assembler with `config`; the applied input is not read until
+    /// [`StateAssembler::set_thrusters`].
     pub fn new(config: StateConfig) -> Self {
-        Self { config, ..Self::default() }
+        let reader = MavlinkMeasurements::new(config.surface_pressure_hpa, config.water_density, None);
+        Self {
+            config,
+            reader,
+            attitudes: VecDeque::new(),
+            local: None,
+            depth: None,
+            clock: None,
+            last_sample: None,
+            local_arrival: None,
+        }
+    }
+
+    /// Reads the thruster outputs (`SERVO_OUTPUT_RAW`) through `thrusters`: each becomes an
+    /// [`Observation::Applied`].
+    pub fn set_thrusters(&mut self, thrusters: Thrusters) {
+        self.reader.set_thrusters(Some(thrusters));
+    }
+
+    /// Whether the vehicle has an external depth sensor (`SCALED_PRESSURE2` seen).
+    pub fn external_pressure(&self) -> bool {
+        self.reader.external_pressure()
     }
 
     /// The settings.
@@ -223,12 +256,14 @@ impl StateAssembler {
         })
     }
 
-    /// Feeds one message. Returns a new state sample when the message is the state's clock:
-    /// `LOCAL_POSITION_NED` while positions keep coming (so position and velocity are those of
-    /// the sample's own time), `ATTITUDE` otherwise, from one and a half attitude periods after
-    /// the last position on (a position source lost mid-run leaves no gap in the samples).
-    pub fn update(&mut self, r: &Received) -> Option<RawState> {
-        let sample = self.take(r)?;
+    /// Feeds one message: what it measures (and the input it says was applied) goes to
+    /// `observed`, in the message's order. Returns a new state sample when the message is
+    /// the state's clock: `LOCAL_POSITION_NED` while positions keep coming (so position and
+    /// velocity are those of the sample's own time), `ATTITUDE` otherwise, from one and a half
+    /// attitude periods after the last position on (a position source lost mid-run leaves no
+    /// gap in the samples).
+    pub fn update(&mut self, r: &Received, observed: impl FnMut(Observation)) -> Option<RawState> {
+        let sample = self.take(r, observed)?;
         // The autopilot produces ATTITUDE and LOCAL_POSITION_NED at different instants, and a
         // position can carry a stamp older than the newest attitude: when the clock passes from
         // one to the other, a sample older than the last makes none. Samples never go back.
@@ -239,71 +274,73 @@ impl StateAssembler {
         Some(sample)
     }
 
-    fn take(&mut self, r: &Received) -> Option<RawState> {
-        let t = message_time(&r.message)?;
-        match self.clock {
-            Some((newest, _)) if t < newest - REBOOT_STEP => {
-                // The autopilot rebooted: nothing before belongs to the new time base.
-                *self = Self::new(self.config.clone());
-                self.clock = Some((t, r.at));
-            }
-            Some((newest, _)) if t <= newest => {}
-            _ => self.clock = Some((t, r.at)),
-        }
-        match &r.message {
-            MavMessage::ATTITUDE(m) => {
-                let last = self.attitudes.back().copied();
-                if last.is_some_and(|a| t <= a.t) {
-                    return None; // late or repeated: the history is in time order
+    fn take(&mut self, r: &Received, mut observed: impl FnMut(Observation)) -> Option<RawState> {
+        if let Some(t) = message_time(&r.message) {
+            match self.clock {
+                Some((newest, _)) if t < newest - REBOOT_STEP => {
+                    // The autopilot rebooted: nothing before belongs to the new time base.
+                    let mut fresh = Self::new(self.config.clone());
+                    fresh.reader = self.reader.clone();
+                    fresh.reader.restart();
+                    *self = fresh;
+                    self.clock = Some((t, r.at));
                 }
-                let yaw = match last {
-                    Some(a) => a.yaw + wrap(f64::from(m.yaw) - a.yaw),
-                    None => f64::from(m.yaw),
-                };
-                self.attitudes.push_back(Attitude { t, yaw, yaw_rate: f64::from(m.yawspeed) });
-                if self.attitudes.len() > ATTITUDE_HISTORY {
-                    self.attitudes.pop_front();
-                }
-                // The attitude's own period: the shortest of its last intervals (a gap is not a
-                // period), at most 0.1 s.
-                let newer = self.attitudes.iter().rev();
-                let older = self.attitudes.iter().rev().skip(1);
-                let period = newer.zip(older).take(8).map(|(a, b)| a.t - b.t).fold(0.1, f64::min);
-                // Positions arrive in the same bursts as attitudes but stamped up to a period
-                // earlier: whether they are still coming is judged by their arrival.
-                let since = self.local_arrival.map(|a| r.at.saturating_duration_since(a).as_secs_f64());
-                let position_clock = since.is_some_and(|s| s <= 1.5 * period);
-                // A sample the attitude makes holds a position only from its own moment (within
-                // the same window): an older one would put the vehicle where it was.
-                (!position_clock).then(|| self.estimate_with(t, (1.5 * period).min(self.config.max_age)))
+                Some((newest, _)) if t <= newest => {}
+                _ => self.clock = Some((t, r.at)),
             }
-            MavMessage::LOCAL_POSITION_NED(m) => {
-                if self.local.is_some_and(|l| t <= l.t) {
-                    return None;
-                }
-                let f = |v: f32| f64::from(v);
-                self.local =
-                    Some(Local { t, position: [f(m.x), f(m.y), f(m.z)], velocity_ned: [f(m.vx), f(m.vy), f(m.vz)] });
-                self.local_arrival = Some(r.at);
-                Some(self.estimate_at(t))
-            }
-            MavMessage::SCALED_PRESSURE2(m) => {
-                self.external_pressure_seen = true;
-                self.set_pressure(t, m.press_abs);
-                None
-            }
-            MavMessage::SCALED_PRESSURE(m) if !self.external_pressure_seen => {
-                self.set_pressure(t, m.press_abs);
-                None
-            }
-            _ => None,
         }
-    }
-
-    fn set_pressure(&mut self, t: f64, hpa: f32) {
-        if self.pressure.is_none_or(|(last, _)| t > last) {
-            self.pressure = Some((t, f64::from(hpa)));
+        // At most three observations per message (ATTITUDE: heading and yaw rate; a position:
+        // position, velocity and, beside a depth sensor, its own depth).
+        let mut got = [None; 3];
+        let now = self.autopilot_time(r.at).unwrap_or(0.0);
+        self.reader.observe(now, &r.message, |o| {
+            if let Some(slot) = got.iter_mut().find(|g| g.is_none()) {
+                *slot = Some(o);
+            }
+            observed(o);
+        });
+        let (mut heading, mut rate, mut position, mut velocity, mut position_depth) = (None, None, None, None, None);
+        for o in got.into_iter().flatten() {
+            match o {
+                Observation::Measured(Measurement::Heading { t, psi }) => heading = Some((t, psi)),
+                Observation::Measured(Measurement::YawRate { r, .. }) => rate = Some(r),
+                Observation::Measured(Measurement::Position { t, x, y, z }) => position = Some((t, [x, y, z])),
+                Observation::Unfused(Measurement::Depth { z, .. }) => position_depth = Some(z),
+                Observation::Measured(Measurement::VelocityNed { vn, ve, vd, .. }) => velocity = Some([vn, ve, vd]),
+                Observation::Measured(Measurement::Depth { t, z }) => self.depth = Some((t, z)),
+                _ => {}
+            }
         }
+        if let (Some((t, psi)), Some(yaw_rate)) = (heading, rate) {
+            let last = self.attitudes.back().copied();
+            let yaw = match last {
+                Some(a) => a.yaw + wrap(psi - a.yaw),
+                None => psi,
+            };
+            self.attitudes.push_back(Attitude { t, yaw, yaw_rate });
+            if self.attitudes.len() > ATTITUDE_HISTORY {
+                self.attitudes.pop_front();
+            }
+            // The attitude's own period: the shortest of its last intervals (a gap is not a
+            // period), at most 0.1 s.
+            let newer = self.attitudes.iter().rev();
+            let older = self.attitudes.iter().rev().skip(1);
+            let period = newer.zip(older).take(8).map(|(a, b)| a.t - b.t).fold(0.1, f64::min);
+            // Positions arrive in the same bursts as attitudes but stamped up to a period
+            // earlier: whether they are still coming is judged by their arrival.
+            let since = self.local_arrival.map(|a| r.at.saturating_duration_since(a).as_secs_f64());
+            let position_clock = since.is_some_and(|s| s <= 1.5 * period);
+            // A sample the attitude makes holds a position only from its own moment (within
+            // the same window): an older one would put the vehicle where it was.
+            return (!position_clock).then(|| self.estimate_with(t, (1.5 * period).min(self.config.max_age)));
+        }
+        if let (Some((t, mut position)), Some(velocity_ned)) = (position, velocity) {
+            position[2] = position_depth.unwrap_or(position[2]);
+            self.local = Some(Local { t, position, velocity_ned });
+            self.local_arrival = Some(r.at);
+            return Some(self.estimate_at(t));
+        }
+        None
     }
 
     /// The attitude nearest to `t` (the newest one on a tie).
@@ -357,9 +394,9 @@ impl StateAssembler {
         let (depth, depth_source) = if position.fresh {
             (status(Part::Depth, position.stamp), Some(DepthSource::Position))
         } else {
-            let d = status(Part::Depth, self.pressure.map(|(s, _)| s));
-            if let (Some((_, p)), true) = (self.pressure, d.fresh) {
-                sim[2] = depth_from_pressure(p, self.config.surface_pressure_hpa, self.config.water_density);
+            let d = status(Part::Depth, self.depth.map(|(s, _)| s));
+            if let (Some((_, z)), true) = (self.depth, d.fresh) {
+                sim[2] = z;
             }
             let source = d.fresh.then_some(DepthSource::Pressure);
             (d, source)
@@ -414,18 +451,18 @@ mod tests {
     fn surge_while_heading_east_is_an_east_velocity_turned_into_u() {
         // Heading 90 deg (east), moving east at 1 m/s and sinking at 0.2 m/s: u = 1, v = 0, w = 0.2.
         let mut e = StateAssembler::default();
-        assert!(e.update(&attitude(960, std::f32::consts::FRAC_PI_2, 0.1)).is_some());
-        let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2])).expect("position is the clock");
+        assert!(e.update(&attitude(960, std::f32::consts::FRAC_PI_2, 0.1), |_| {}).is_some());
+        let s = e.update(&local(1000, [1.0, 2.0, 3.0], [0.0, 1.0, 0.2]), |_| {}).expect("position is the clock");
         assert_eq!(s.capability, Capability::Full);
         let want = [1.0, 2.0, 3.0, std::f64::consts::FRAC_PI_2, 1.0, 0.0, 0.2, 0.1];
         for (i, (got, want)) in s.sim.iter().zip(want).enumerate() {
             assert!((got - want).abs() < 1e-6, "{}: {got} vs {want}", SIM_STATE_NAMES[i]);
         }
         // Moving north while heading east is a sway to port: v = -1.
-        let s = e.update(&local(1080, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0])).unwrap();
+        let s = e.update(&local(1080, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0]), |_| {}).unwrap();
         assert!((s.sim[4]).abs() < 1e-6 && (s.sim[5] + 1.0).abs() < 1e-6, "{:?}", s.sim);
         // With positions coming, attitudes do not make samples of their own.
-        assert!(e.update(&attitude(1100, std::f32::consts::FRAC_PI_2, 0.0)).is_none());
+        assert!(e.update(&attitude(1100, std::f32::consts::FRAC_PI_2, 0.0), |_| {}).is_none());
     }
 
     /// The firmware's interleaving: a position stamped before the last attitude sample (the
@@ -440,7 +477,7 @@ mod tests {
         let mut e = StateAssembler::default();
         let mut times = Vec::new();
         let mut feed = |e: &mut StateAssembler, r: Received| {
-            times.extend(e.update(&r).map(|s| (s.t * 1e3).round() as i64));
+            times.extend(e.update(&r, |_| {}).map(|s| (s.t * 1e3).round() as i64));
             times.clone()
         };
         feed(&mut e, at(attitude(41_080, 0.0, 0.0), 0));
@@ -472,8 +509,8 @@ mod tests {
     #[test]
     fn heading_is_unwrapped_across_pi() {
         let mut e = StateAssembler::default();
-        e.update(&attitude(0, 3.1, 0.0));
-        let s = e.update(&attitude(40, -3.1, 0.0)).unwrap();
+        e.update(&attitude(0, 3.1, 0.0), |_| {});
+        let s = e.update(&attitude(40, -3.1, 0.0), |_| {}).unwrap();
         assert!((s.sim[3] - (3.1 + (std::f64::consts::TAU - 6.2))).abs() < 1e-5, "{}", s.sim[3]);
     }
 
@@ -481,8 +518,8 @@ mod tests {
     fn without_a_position_depth_comes_from_pressure_and_velocities_are_missing() {
         let mut e = StateAssembler::default();
         // 2 m of fresh water: 2 * 1000 * 9.80665 Pa = 196.133 hPa above the surface.
-        e.update(&pressure(900, 1013.25 + 196.133));
-        let s = e.update(&attitude(1000, 0.5, 0.0)).unwrap();
+        e.update(&pressure(900, 1013.25 + 196.133), |_| {});
+        let s = e.update(&attitude(1000, 0.5, 0.0), |_| {}).unwrap();
         assert_eq!(s.capability, Capability::DepthHeading);
         assert_eq!(s.depth_source, Some(DepthSource::Pressure));
         assert!((s.sim[2] - 2.0).abs() < 1e-4, "{}", s.sim[2]);
@@ -495,11 +532,11 @@ mod tests {
     #[test]
     fn stale_parts_are_missing_not_held() {
         let mut e = StateAssembler::default();
-        e.update(&attitude(1000, 0.0, 0.0));
-        e.update(&local(1000, [1.0, 1.0, 1.0], [0.0; 3]));
+        e.update(&attitude(1000, 0.0, 0.0), |_| {});
+        e.update(&local(1000, [1.0, 1.0, 1.0], [0.0; 3]), |_| {});
         // 0.6 s later only attitudes arrive: the position is stale and the attitude is the clock.
         let later = Received { at: Instant::now() + std::time::Duration::from_millis(600), ..attitude(1600, 0.0, 0.0) };
-        let s = e.update(&later).expect("attitude is the clock again");
+        let s = e.update(&later, |_| {}).expect("attitude is the clock again");
         let p = s.part(Part::Position);
         assert!(!p.fresh && (p.age.unwrap() - 0.6).abs() < 1e-9, "{p:?}");
         assert!(s.sim[0].is_nan() && s.sim[2].is_nan() && s.sim[4].is_nan());
@@ -512,10 +549,43 @@ mod tests {
     #[test]
     fn a_reboot_clears_the_state() {
         let mut e = StateAssembler::default();
-        e.update(&attitude(60_000, 1.0, 0.0));
-        e.update(&local(60_000, [5.0; 3], [0.0; 3]));
-        let s = e.update(&attitude(100, 0.2, 0.0)).unwrap();
+        e.update(&attitude(60_000, 1.0, 0.0), |_| {});
+        e.update(&local(60_000, [5.0; 3], [0.0; 3]), |_| {});
+        let mut after = Vec::new();
+        let s = e.update(&attitude(100, 0.2, 0.0), |o| after.push(o)).unwrap();
         assert!(s.part(Part::Position).stamp.is_none());
         assert!((s.sim[3] - 0.2).abs() < 1e-6);
+        // The reader starts its time line over too: the new stamps are measurements, not late.
+        assert_eq!(
+            after,
+            [
+                Observation::Measured(Measurement::Heading { t: 0.1, psi: f64::from(0.2f32) }),
+                Observation::Measured(Measurement::YawRate { t: 0.1, r: 0.0 }),
+            ]
+        );
+    }
+
+    /// One reading of each message: the observations handed on are the estimator's (the
+    /// position's own depth left out beside a depth sensor), and the state keeps the
+    /// position's depth, of the position's own time.
+    #[test]
+    fn each_message_is_read_once_for_the_state_and_the_estimator() {
+        let mut e = StateAssembler::default();
+        let mut seen = Vec::new();
+        e.update(&pressure(980, 1013.25 + 196.133), |o| seen.push(o));
+        e.update(&attitude(990, 0.0, 0.0), |o| seen.push(o));
+        let s = e.update(&local(1000, [1.0, 2.0, 2.5], [0.0; 3]), |o| seen.push(o)).unwrap();
+        assert_eq!(s.capability, Capability::Full);
+        assert_eq!(s.depth_source, Some(DepthSource::Position));
+        assert!(s.sim[2] == 2.5 && s.sim[0] == 1.0, "{:?}", s.sim);
+        assert!(matches!(seen[3], Observation::Measured(Measurement::Position { z, .. }) if z.is_nan()));
+        let mut reader = MavlinkMeasurements::new(1013.25, 1000.0, None);
+        let mut direct = Vec::new();
+        for r in [pressure(980, 1013.25 + 196.133), attitude(990, 0.0, 0.0), local(1000, [1.0, 2.0, 2.5], [0.0; 3])] {
+            reader.observe(0.0, &r.message, |o| direct.push(o));
+        }
+        // NaN (the position's depth left out) compares unequal: compare the debug text.
+        assert_eq!(format!("{seen:?}"), format!("{direct:?}"));
+        assert!(e.external_pressure());
     }
 }

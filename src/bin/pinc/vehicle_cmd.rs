@@ -3,7 +3,7 @@
 
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
-use pinc::estimation::mavlink::{MavlinkMeasurements, Observation};
+use pinc::estimation::mavlink::Observation;
 use pinc::estimation::{Estimate, Estimator, NoiseSettings};
 use pinc::link::SigningKey;
 use pinc::link::cli::{DriveArgs, LinkArgs, non_negative, open, positive};
@@ -213,11 +213,11 @@ impl Arrivals {
 fn run_status(a: StatusArgs) -> Result<(), String> {
     let window = positive("--window", a.window)?;
     let thrusters = a.vehicle.as_ref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?;
-    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |_| {})?;
+    let (mut link, autopilot, mut assembler) = open(&a.link.connect, &a.link, |_| {})?;
     link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
     link.set_message_rate(EKF_STATUS_REPORT_ID, AUTOPILOT_ESTIMATE_RATE_HZ).map_err(|e| e.to_string())?;
     let params = read_autopilot_config(&mut link, &autopilot, |r| {
-        estimator.update(r);
+        assembler.update(r, |_| {});
     })
     .map_err(|e| e.to_string())?;
     let mut ekf: Option<EkfStatus> = None;
@@ -237,7 +237,7 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
             continue;
         }
         arrivals.entry(mavlink::Message::message_name(&r.message)).or_default().add(r.at);
-        estimator.update(&r);
+        assembler.update(&r, |_| {});
         match &r.message {
             MavMessage::HEARTBEAT(h) if !is_ground_station(h) => heartbeat = h.clone(),
             MavMessage::AUTOPILOT_VERSION(v) => version = Some(v.clone()),
@@ -254,7 +254,7 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
     let ways = functions.ways(&outputs);
     let heading = HeadingReference::of(&params, ekf.is_some_and(|e| e.absolute_position()));
     let not_ready = ekf.map_or_else(|| vec!["no EKF_STATUS_REPORT answered".to_string()], |e| e.not_ready());
-    let now = estimator.estimate_now(Instant::now());
+    let now = assembler.estimate_now(Instant::now());
     let rate_of = |name: &str| arrivals.get(name).and_then(Arrivals::rate);
     let pressure_rate = rate_of("SCALED_PRESSURE2").or_else(|| rate_of("SCALED_PRESSURE"));
     let part_source = |p: Part| -> (&'static str, Option<f64>) {
@@ -381,29 +381,18 @@ fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
     Ok(stop)
 }
 
+/// The state estimator of a recording: the analytic vehicle of the vehicle file, fed what
+/// every message measured; its estimate is written beside each raw state sample.
+fn recording_estimator(vehicle: &std::path::Path, dt: f64) -> Result<Estimator<Rk4Vehicle>, String> {
+    let params = VehicleParams::load(vehicle).map_err(|e| e.to_string())?;
+    Ok(Estimator::new(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) }, NoiseSettings::default()))
+}
+
 /// Writes a session into its recording: every message, the state samples with their body
 /// input (from the thruster outputs when a vehicle file is given), the `/log` lines.
-/// The state estimator of a recording: the analytic vehicle of the vehicle file, fed every
-/// message; its estimate is written beside each raw state sample.
-struct Estimation {
-    measurements: MavlinkMeasurements,
-    filter: Estimator<Rk4Vehicle>,
-}
-
-impl Estimation {
-    fn new(vehicle: &std::path::Path, dt: f64, link: &pinc::link::cli::LinkOptions) -> Result<Self, String> {
-        let params = VehicleParams::load(vehicle).map_err(|e| e.to_string())?;
-        let thrusters = Thrusters::load(vehicle).ok();
-        Ok(Self {
-            measurements: MavlinkMeasurements::new(link.surface_pressure, link.water_density, thrusters),
-            filter: Estimator::new(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) }, NoiseSettings::default()),
-        })
-    }
-}
-
 struct Writer {
     rec: Recorder,
-    estimation: Option<Estimation>,
+    estimation: Option<Estimator<Rk4Vehicle>>,
     notes: Session,
     autopilot: Autopilot,
     inputs: Option<InputsFromOutputs>,
@@ -438,33 +427,47 @@ impl Writer {
     fn one(&mut self, r: &Received, t: f64) -> Result<(), String> {
         // A write error ends the session: the unfinished file is removed (`Recorder`'s drop).
         write_one(&mut self.rec, &mut self.notes, &self.autopilot, t, r)?;
-        if let Some(e) = &mut self.estimation
-            && from_autopilot(r, &self.autopilot)
-        {
-            let filter = &mut e.filter;
-            e.measurements.observe(t, &r.message, |o| match o {
-                Observation::Measured(m) => filter.measure(m),
-                Observation::Applied(t, u) => filter.applied(t, u),
-            });
-        }
-        if let (Some(p), MavMessage::SERVO_OUTPUT_RAW(o)) = (&mut self.inputs, &r.message)
-            && from_autopilot(r, &self.autopilot)
-        {
-            p.outputs(t, o);
-            for (s, u) in p.ready(t) {
-                self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
-            }
-        }
         self.flush_log()
     }
 
-    /// A fresh state sample.
+    /// What the autopilot's messages measured and the inputs they say were applied (read
+    /// once, by the state's assembler), up to autopilot time `now` (s).
+    fn observed(&mut self, now: f64, observations: impl IntoIterator<Item = Observation>) -> Result<(), String> {
+        if self.clock.is_none() {
+            return Ok(()); // nothing is on the autopilot's time line yet
+        }
+        for o in observations {
+            match o {
+                Observation::Measured(m) => {
+                    if let Some(e) = &mut self.estimation {
+                        e.measure(m);
+                    }
+                }
+                Observation::Applied(t, u) => {
+                    if let Some(e) = &mut self.estimation {
+                        e.applied(t, u);
+                    }
+                    if let Some(p) = &mut self.inputs {
+                        p.applied(t, u);
+                    }
+                }
+                Observation::Unfused(_) => {}
+            }
+        }
+        if let Some(p) = &mut self.inputs {
+            for (s, u) in p.ready(now) {
+                self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
+            }
+        }
+        Ok(())
+    }
+
     /// A fresh state sample; the state estimate at it, once the estimator runs.
     fn state(&mut self, s: &pinc::link::RawState) -> Result<Option<Estimate>, String> {
         self.notes.note_capability(s.t, s.capability);
         let mut out = None;
         if let Some(e) = &mut self.estimation {
-            match e.filter.advance(s.t) {
+            match e.advance(s.t) {
                 Ok(Some(estimate)) => {
                     self.rec.estimate(&estimate).map_err(|e| e.to_string())?;
                     out = Some(estimate);
@@ -510,25 +513,16 @@ impl Writer {
     }
 }
 
-fn inputs_from_outputs(
-    vehicle: Option<&PathBuf>,
-    rate: f64,
-    max_age: f64,
-) -> Result<Option<InputsFromOutputs>, String> {
-    vehicle
-        .map(|v| {
-            let thrusters = Thrusters::load(v).map_err(|e| e.to_string())?;
-            Ok(InputsFromOutputs::new(thrusters, 1.0 / rate, max_age))
-        })
-        .transpose()
-}
-
 fn run_record(a: RecordArgs) -> Result<(), String> {
     let duration = a.duration.map(|d| positive("--duration", d)).transpose()?;
     let stop = ctrl_c_flag()?;
-    let inputs = inputs_from_outputs(a.vehicle.as_ref(), a.link.rate, a.link.max_age)?;
+    let thrusters = a.vehicle.as_ref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?;
+    let inputs = thrusters.is_some().then(|| InputsFromOutputs::new(1.0 / a.link.rate, a.link.max_age));
     let mut pending: Vec<Received> = Vec::new();
-    let (mut link, autopilot, mut estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
+    let (mut link, autopilot, mut assembler) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
+    if let Some(t) = thrusters {
+        assembler.set_thrusters(t);
+    }
     if inputs.is_some() {
         link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.outputs_rate).map_err(|e| e.to_string())?;
     }
@@ -539,9 +533,10 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
     let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
     let mut w = Writer::new(rec, autopilot.clone(), inputs, pending);
     if let Some(v) = &a.vehicle {
-        w.estimation = Some(Estimation::new(v, 1.0 / a.link.rate, &a.link.options)?);
+        w.estimation = Some(recording_estimator(v, 1.0 / a.link.rate)?);
     }
     let start = Instant::now();
+    let mut observed = Vec::new();
     let result = loop {
         if stop.load(Ordering::Relaxed) {
             break Ok("Ctrl-C");
@@ -554,14 +549,15 @@ fn run_record(a: RecordArgs) -> Result<(), String> {
             Ok(None) => continue,
             Err(e) => break Err(e.to_string()),
         };
-        let state = if from_autopilot(&r, &autopilot) { estimator.update(&r) } else { None };
-        let t = estimator.autopilot_time(r.at).unwrap_or(0.0);
+        let state = if from_autopilot(&r, &autopilot) { assembler.update(&r, |o| observed.push(o)) } else { None };
+        let t = assembler.autopilot_time(r.at).unwrap_or(0.0);
         w.message(&r, t)?;
+        w.observed(t, observed.drain(..))?;
         if let Some(s) = state {
             w.state(&s)?;
         }
     };
-    let end_t = estimator.autopilot_time(Instant::now()).unwrap_or(0.0);
+    let end_t = assembler.autopilot_time(Instant::now()).unwrap_or(0.0);
     let reason = match &result {
         Ok(reason) => format!("recording ended: {reason}"),
         Err(e) => format!("recording ended on an error: {e}"),
@@ -601,7 +597,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let limits = settings.limits.clone();
     let wait_position = non_negative("--wait-position", a.drive.wait_position)?;
     let stop = ctrl_c_flag()?;
-    let recorded = Some(InputsFromOutputs::new(commander.thrusters().clone(), 1.0 / a.link.rate, a.link.max_age));
+    let recorded = Some(InputsFromOutputs::new(1.0 / a.link.rate, a.link.max_age));
     let mut pending: Vec<Received> = Vec::new();
     let (link, autopilot, estimator) = open(&a.link.connect, &a.link, |r| pending.push(r.clone()))?;
     link.set_message_rate(SERVO_OUTPUT_RAW_ID, a.drive.outputs_rate).map_err(|e| e.to_string())?;
@@ -612,7 +608,7 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     session.insert("limits".to_string(), limits.describe());
     let rec = Recorder::create(&a.out, session).map_err(|e| e.to_string())?;
     let mut writer = Writer::new(rec, autopilot.clone(), recorded, pending);
-    writer.estimation = Some(Estimation::new(&a.vehicle, dt, &a.link.options)?);
+    writer.estimation = Some(recording_estimator(&a.vehicle, dt)?);
     let w = RefCell::new(writer);
     let write_error: RefCell<Option<String>> = RefCell::new(None);
     let keep = |result: Result<(), String>| {
@@ -640,7 +636,10 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let mut cycle = || -> Result<(), Trigger> {
         loop {
             let fresh: Fresh = drive.next_state(seen)?;
-            drive.drain_observations().for_each(drop);
+            let observed = w.borrow_mut().observed(fresh.state.t, drive.drain_observations());
+            if let Err(e) = observed {
+                return Err(Trigger::Error(e));
+            }
             // The autopilot's own texts are in the recording already (the writer logs them).
             for n in drive.take_notes().into_iter().filter(|n| !n.from_autopilot) {
                 keep(w.borrow_mut().log(n.t, n.level, &n.text));
@@ -695,6 +694,8 @@ fn run_excite(a: ExciteArgs) -> Result<(), String> {
     };
     // The last outputs (the neutral ones among them) into the recording.
     drive.drain(Duration::from_millis(300), seen);
+    let now = drive.now_t();
+    keep(w.borrow_mut().observed(now, drive.drain_observations()));
     if drive.out_of_order() > 0 {
         let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
         keep(w.borrow_mut().log(stopped.t, Level::Warning, &line));
