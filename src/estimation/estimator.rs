@@ -203,7 +203,7 @@ impl<M: DiscreteModel> Estimator<M> {
     /// Starts from the newest of each measured part, if heading, yaw rate and depth are among
     /// them.
     fn try_start(&mut self, t: f64) {
-        let (mut psi, mut r, mut z, mut pos, mut vel) = (None, None, None, None, None);
+        let (mut psi, mut r, mut z, mut pos, mut vel, mut down) = (None, None, None, None, None, None);
         for m in &self.pending {
             match *m {
                 Measurement::Heading { psi: p, .. } => psi = Some(p),
@@ -214,12 +214,14 @@ impl<M: DiscreteModel> Estimator<M> {
                     z = z.or(Some(d));
                 }
                 Measurement::VelocityNed { vn, ve, vd, .. } => vel = Some((vn, ve, vd)),
+                Measurement::VerticalVelocity { vd, .. } => down = Some(vd),
                 Measurement::VelocityBody { .. } => {}
             }
         }
         let (Some(psi), Some(r), Some(z)) = (psi, r, z) else { return };
         let (s, c) = psi.sin_cos();
         let (u, v, w) = vel.map_or((0.0, 0.0, 0.0), |(vn, ve, vd)| (c * vn + s * ve, -s * vn + c * ve, vd));
+        let w = down.unwrap_or(w);
         let (x, y) = pos.unwrap_or((0.0, 0.0));
         let sim = SimState::from([x, y, z, psi, u, v, w, r]);
         // Unknown horizontal position: a wide prior; velocities at rest within 0.3 m/s.

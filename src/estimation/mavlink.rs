@@ -6,6 +6,10 @@
 //!   depth `(p - p_surface) / (rho g)`;
 //! - `LOCAL_POSITION_NED` (only while the autopilot's EKF has a position source): position
 //!   (its depth left to the pressure sensor where there is one) and NED velocity;
+//! - `GLOBAL_POSITION_INT.vz`: the EKF's vertical velocity, which ArduSub estimates from its
+//!   accelerometers and depth sensor without a position too; taken only while the newest
+//!   `EKF_STATUS_REPORT` vouches for it (`EKF_VELOCITY_VERT` set, initialised), and left out
+//!   while `LOCAL_POSITION_NED` comes (its velocity holds the same number);
 //! - `SERVO_OUTPUT_RAW` through a vehicle file's thrusters: the input actually applied.
 //!
 //! Messages older than the newest of their kind are dropped (and counted).
@@ -13,7 +17,7 @@
 use super::measurement::Measurement;
 use crate::types::Input;
 use crate::vehicle::Thrusters;
-use mavlink::dialects::ardupilotmega::{MavMessage, SERVO_OUTPUT_RAW_DATA};
+use mavlink::dialects::ardupilotmega::{EkfStatusFlags, MavMessage, SERVO_OUTPUT_RAW_DATA};
 
 /// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
 pub const GRAVITY: f64 = 9.80665;
@@ -23,6 +27,9 @@ pub const GRAVITY: f64 = 9.80665;
 pub fn depth_from_pressure(hpa: f64, surface_hpa: f64, density: f64) -> f64 {
     (hpa - surface_hpa) * 100.0 / (density * GRAVITY)
 }
+/// How long (s) after a `LOCAL_POSITION_NED` its velocity stands for the EKF's vertical
+/// velocity (ArduSub sends both at the same rate).
+const LOCAL_POSITION_COVERS_S: f64 = 1.0;
 /// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
 pub const USEC_WRAP_S: f64 = 4294.967296;
 
@@ -58,9 +65,12 @@ pub struct MavlinkMeasurements {
     water_density: f64,
     thrusters: Option<Thrusters>,
     external_pressure: bool,
-    /// Newest stamp of attitude, pressure, local position, outputs.
-    newest: [f64; 4],
+    /// Newest stamp of attitude, pressure, local position, outputs, global position.
+    newest: [f64; 5],
     dropped: u64,
+    /// The newest EKF_STATUS_REPORT vouches for the vertical velocity.
+    vertical_velocity_valid: bool,
+    vertical_velocity_left_out: u64,
 }
 
 impl MavlinkMeasurements {
@@ -72,8 +82,10 @@ impl MavlinkMeasurements {
             water_density,
             thrusters,
             external_pressure: false,
-            newest: [f64::NEG_INFINITY; 4],
+            newest: [f64::NEG_INFINITY; 5],
             dropped: 0,
+            vertical_velocity_valid: false,
+            vertical_velocity_left_out: 0,
         }
     }
 
@@ -84,8 +96,15 @@ impl MavlinkMeasurements {
 
     /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0).
     pub fn restart(&mut self) {
-        self.newest = [f64::NEG_INFINITY; 4];
+        self.newest = [f64::NEG_INFINITY; 5];
         self.external_pressure = false;
+        self.vertical_velocity_valid = false;
+    }
+
+    /// Vertical velocities left out while the autopilot's EKF did not vouch for them (before
+    /// its first `EKF_STATUS_REPORT`, while initialising).
+    pub fn vertical_velocity_left_out(&self) -> u64 {
+        self.vertical_velocity_left_out
     }
 
     /// Messages dropped as older than the newest of their kind.
@@ -142,6 +161,22 @@ impl MavlinkMeasurements {
                     out(Observation::Unfused(Measurement::Depth { t, z: f(m.z) }));
                 }
             }
+            MavMessage::GLOBAL_POSITION_INT(m) if self.in_order(4, ms(m.time_boot_ms)) => {
+                let t = ms(m.time_boot_ms);
+                // A local position within the last second carries this velocity already.
+                let covered = self.newest[2] >= t - LOCAL_POSITION_COVERS_S;
+                match (covered, self.vertical_velocity_valid) {
+                    (true, _) => {}
+                    (false, true) => {
+                        out(Observation::Measured(Measurement::VerticalVelocity { t, vd: f64::from(m.vz) * 0.01 }));
+                    }
+                    (false, false) => self.vertical_velocity_left_out += 1,
+                }
+            }
+            MavMessage::EKF_STATUS_REPORT(e) => {
+                self.vertical_velocity_valid = e.flags.contains(EkfStatusFlags::EKF_VELOCITY_VERT)
+                    && !e.flags.contains(EkfStatusFlags::EKF_UNINITIALIZED);
+            }
             MavMessage::SERVO_OUTPUT_RAW(o) if o.port == 0 => {
                 let t = outputs_time(now, o);
                 if self.thrusters.is_some() && self.in_order(3, t) {
@@ -159,6 +194,30 @@ impl MavlinkMeasurements {
 mod tests {
     use super::*;
     use mavlink::dialects::ardupilotmega::{ATTITUDE_DATA, LOCAL_POSITION_NED_DATA, SCALED_PRESSURE2_DATA};
+
+    /// `GLOBAL_POSITION_INT.vz` (cm/s, down) is a vertical velocity once the autopilot's EKF
+    /// vouches for it, and not while a local position carries the same number.
+    #[test]
+    fn the_autopilots_vertical_velocity_is_taken_while_its_ekf_vouches_for_it() {
+        use mavlink::dialects::ardupilotmega::{EKF_STATUS_REPORT_DATA, GLOBAL_POSITION_INT_DATA};
+        let mut m = MavlinkMeasurements::new(1013.25, 1000.0, None);
+        let mut got = Vec::new();
+        let global = |ms, vz| {
+            MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA { time_boot_ms: ms, vz, ..Default::default() })
+        };
+        let ekf = |flags| MavMessage::EKF_STATUS_REPORT(EKF_STATUS_REPORT_DATA { flags, ..Default::default() });
+        m.observe(0.0, &global(1000, 25), |o| got.push(o));
+        m.observe(0.0, &ekf(EkfStatusFlags::EKF_ATTITUDE | EkfStatusFlags::EKF_UNINITIALIZED), |o| got.push(o));
+        m.observe(0.0, &global(1080, 25), |o| got.push(o));
+        assert!(got.is_empty() && m.vertical_velocity_left_out() == 2);
+        m.observe(0.0, &ekf(EkfStatusFlags::EKF_ATTITUDE | EkfStatusFlags::EKF_VELOCITY_VERT), |o| got.push(o));
+        m.observe(0.0, &global(1160, -40), |o| got.push(o));
+        assert_eq!(got, [Observation::Measured(Measurement::VerticalVelocity { t: 1.16, vd: -0.4 })]);
+        let lp = MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA { time_boot_ms: 1200, ..Default::default() });
+        m.observe(0.0, &lp, |o| got.push(o));
+        m.observe(0.0, &global(1240, 10), |o| got.push(o));
+        assert_eq!(got.len(), 3, "the position's velocity holds it: {got:?}");
+    }
 
     #[test]
     fn messages_become_measurements_and_late_ones_are_dropped() {

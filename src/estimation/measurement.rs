@@ -51,6 +51,14 @@ pub enum Measurement {
         /// Down (m/s).
         vd: f64,
     },
+    /// Vertical velocity (m/s, down) as the autopilot's EKF reports it: ArduSub estimates it
+    /// from its accelerometers and depth sensor with or without a position source.
+    VerticalVelocity {
+        /// Time (s).
+        t: f64,
+        /// Down (m/s).
+        vd: f64,
+    },
     /// Body velocity (m/s): a DVL.
     VelocityBody {
         /// Time (s).
@@ -73,12 +81,13 @@ impl Measurement {
             | Measurement::YawRate { t, .. }
             | Measurement::Position { t, .. }
             | Measurement::VelocityNed { t, .. }
+            | Measurement::VerticalVelocity { t, .. }
             | Measurement::VelocityBody { t, .. } => t,
         }
     }
 
     /// Its kind's name (`depth`, `heading`, `yaw_rate`, `position`, `velocity_ned`,
-    /// `velocity_body`).
+    /// `vertical_velocity`, `velocity_body`).
     pub fn kind(&self) -> &'static str {
         match self {
             Measurement::Depth { .. } => "depth",
@@ -86,6 +95,7 @@ impl Measurement {
             Measurement::YawRate { .. } => "yaw_rate",
             Measurement::Position { .. } => "position",
             Measurement::VelocityNed { .. } => "velocity_ned",
+            Measurement::VerticalVelocity { .. } => "vertical_velocity",
             Measurement::VelocityBody { .. } => "velocity_body",
         }
     }
@@ -121,6 +131,11 @@ pub struct NoiseSettings {
     pub position_std: f64,
     /// NED velocity (m/s) from the autopilot's EKF.
     pub velocity_ned_std: f64,
+    /// Vertical velocity (m/s) from the autopilot's EKF (accelerometers and depth sensor):
+    /// ArduSub's simulator without a position source reports its truth within 0.018 m/s RMS
+    /// (measured, `GLOBAL_POSITION_INT.vz` against `SIM_STATE`); a real vehicle's vibration
+    /// and accelerometer bias add more.
+    pub vertical_velocity_std: f64,
     /// Body velocity (m/s) of a DVL.
     pub velocity_body_std: f64,
     /// The model's error per sample period on `x y z psi u v w r`.
@@ -142,6 +157,7 @@ impl Default for NoiseSettings {
             yaw_rate_std: 0.005,
             position_std: 0.3,
             velocity_ned_std: 0.1,
+            vertical_velocity_std: 0.05,
             velocity_body_std: 0.03,
             process_std: [0.005, 0.005, 0.01, 0.002, 0.02, 0.02, 0.05, 0.02],
             disturbance_std: [5.0, 5.0, 5.0, 1.0],
@@ -169,6 +185,7 @@ impl NoiseSettings {
             ("yaw_rate_std", self.yaw_rate_std),
             ("position_std", self.position_std),
             ("velocity_ned_std", self.velocity_ned_std),
+            ("vertical_velocity_std", self.vertical_velocity_std),
             ("velocity_body_std", self.velocity_body_std),
             ("disturbance_time_constant", self.disturbance_time_constant),
             ("gate", self.gate),

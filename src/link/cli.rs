@@ -266,6 +266,10 @@ pub struct EstimatorArgs {
     /// model's, else 0.005].
     #[arg(long)]
     pub yaw_rate_std: Option<f64>,
+    /// Standard deviation of the autopilot's vertical velocity (m/s, `GLOBAL_POSITION_INT.vz`,
+    /// from its accelerometers and depth sensor) the estimator assumes [default: 0.05].
+    #[arg(long)]
+    pub vertical_velocity_std: Option<f64>,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]
@@ -286,6 +290,7 @@ impl EstimatorArgs {
             depth_delay: pick(self.depth_delay, fitted.map(|f| f.depth_delay), d.depth_delay),
             heading_std: pick(self.heading_std, fitted.map(|f| f.heading_std), d.heading_std),
             yaw_rate_std: pick(self.yaw_rate_std, fitted.map(|f| f.yaw_rate_std), d.yaw_rate_std),
+            vertical_velocity_std: self.vertical_velocity_std.unwrap_or(d.vertical_velocity_std),
             ..d
         };
         noise.validate()?;

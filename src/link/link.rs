@@ -519,8 +519,8 @@ impl VehicleLink {
 
 /// Ids of the messages [`VehicleLink::request_state_streams`] asks for: `ATTITUDE` (30),
 /// `LOCAL_POSITION_NED` (32), `SCALED_PRESSURE` (29), `SCALED_PRESSURE2` (137),
-/// `SERVO_OUTPUT_RAW` (36).
-pub const STATE_MESSAGE_IDS: [u32; 5] = [30, 32, 29, 137, 36];
+/// `SERVO_OUTPUT_RAW` (36), `GLOBAL_POSITION_INT` (33, for its vertical velocity).
+pub const STATE_MESSAGE_IDS: [u32; 6] = [30, 32, 29, 137, 36, 33];
 
 /// Id of `AUTOPILOT_VERSION`.
 pub const AUTOPILOT_VERSION_ID: u32 = 148;

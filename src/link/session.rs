@@ -424,6 +424,9 @@ pub fn run<M: DiscreteModel + Clone>(
     let mut not_ready_said: Vec<String> = Vec::new();
     let mut position_measured_before: Option<bool> = None;
     let mut dead_reckoned = 0u64;
+    // The autopilot's vertical velocities taken (its reader counts those its EKF did not vouch
+    // for).
+    let mut vertical_velocities = 0u64;
     let mut heading_reference: Option<HeadingReference> = None;
     let mut hold_xy = (0.0, 0.0);
     // When the hold's mode was last asked for, and whether the autopilot is in it.
@@ -465,6 +468,7 @@ pub fn run<M: DiscreteModel + Clone>(
                     dead_reckoned += 1;
                     continue;
                 }
+                Observation::Measured(Measurement::VerticalVelocity { .. }) => vertical_velocities += 1,
                 Observation::Applied(t, applied) => {
                     last_applied = applied;
                     // The outputs the autopilot reports against what pinc asked for, once the
@@ -843,6 +847,8 @@ pub fn run<M: DiscreteModel + Clone>(
         "heading_reference_text": heading_reference.map(|h| h.describe()),
         "autopilot_not_ready": not_ready_said,
         "dead_reckoned_left_out": dead_reckoned,
+        "vertical_velocity": {"taken": vertical_velocities,
+            "left_out_ekf_not_ready": drive.assembler().reader().vertical_velocity_left_out()},
         "estimator_health": sensors,
         "process_noise_scale": each!(&estimator, tr => tr.ekf().process_scale()),
         "model_misfits": misfits,

@@ -237,6 +237,11 @@ impl StateAssembler {
         self.reader.set_thrusters(Some(thrusters));
     }
 
+    /// The reader of the messages (what it dropped and left out).
+    pub fn reader(&self) -> &MavlinkMeasurements {
+        &self.reader
+    }
+
     /// Whether the vehicle has an external depth sensor (`SCALED_PRESSURE2` seen).
     pub fn external_pressure(&self) -> bool {
         self.reader.external_pressure()
