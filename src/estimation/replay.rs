@@ -93,12 +93,18 @@ pub fn replay<M: DiscreteModel>(
             continue;
         }
         reader.observe(feeder.now, message, |o| observed.push(o));
+        // ArduSub sends a sample's messages in one burst, ATTITUDE first and the depth and
+        // vertical velocity of the same stamp after it: the burst ends where the next
+        // ATTITUDE begins, and the filter steps to the last heading's time only then (as the
+        // live session reads a burst whole before the sample).
+        if observed.iter().any(is_heading) {
+            feeder.tick()?;
+        }
         for o in observed.drain(..) {
             feeder.feed(o);
         }
-        // A message's heading steps the filter once the whole message is queued.
-        feeder.tick()?;
     }
+    feeder.tick()?;
     feeder.finish()
 }
 

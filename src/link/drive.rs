@@ -98,6 +98,11 @@ pub struct Drive {
 const ARM_RETRY: Duration = Duration::from_secs(1);
 /// The longest one wait for a message lasts, so that a trigger is seen within it.
 const POLL: Duration = Duration::from_millis(5);
+/// A pause this long ends a burst of messages (ArduSub's come within microseconds of each
+/// other on loopback; its bursts are a sample period apart).
+const BURST_GAP: Duration = Duration::from_millis(2);
+/// The longest a sample waits for the rest of its burst.
+const BURST_MAX: Duration = Duration::from_millis(10);
 /// How long the parameters pinc needs may take to answer (ArduSub answers within 0.35 s;
 /// requests are repeated every half second).
 const PARAM_TIMEOUT: Duration = Duration::from_secs(3);
@@ -315,7 +320,7 @@ impl Drive {
                 attempts += 1;
                 next_try = now + ARM_RETRY;
             }
-            self.poll(seen)?;
+            self.poll(seen, POLL)?;
             if let Some(result) = self.arm_ack.take()
                 && result != MavResult::MAV_RESULT_ACCEPTED
                 && result != MavResult::MAV_RESULT_IN_PROGRESS
@@ -323,7 +328,7 @@ impl Drive {
                 // The autopilot's text comes just before its answer; wait a moment for a late one.
                 let until = Instant::now() + Duration::from_millis(50);
                 while self.arm_text.is_none() && Instant::now() < until {
-                    self.poll(seen)?;
+                    self.poll(seen, POLL)?;
                 }
                 let result_name = format!("{result:?}");
                 let result_name = result_name.strip_prefix("MAV_RESULT_").unwrap_or(&result_name).to_string();
@@ -452,11 +457,11 @@ impl Drive {
     }
 
     /// Handles one message (or a short silence): the watchdog, the state.
-    fn poll(&mut self, seen: &mut impl FnMut(&Received, f64)) -> Result<Option<Fresh>, Trigger> {
+    fn poll(&mut self, seen: &mut impl FnMut(&Received, f64), most: Duration) -> Result<Option<Fresh>, Trigger> {
         if self.stop.load(Ordering::Relaxed) {
             return Err(Trigger::Interrupted);
         }
-        let wait = self.safety.next_deadline().saturating_duration_since(Instant::now()).clamp(Duration::ZERO, POLL);
+        let wait = self.safety.next_deadline().saturating_duration_since(Instant::now()).clamp(Duration::ZERO, most);
         let r = self.link.recv_timeout(wait).map_err(|e: LinkError| Trigger::Link(e.to_string()))?;
         let mut fresh = None;
         if let Some(r) = r {
@@ -519,11 +524,24 @@ impl Drive {
     /// # Errors
     /// A safety trigger.
     pub fn next_state(&mut self, mut seen: impl FnMut(&Received, f64)) -> Result<Fresh, Trigger> {
-        loop {
-            if let Some(f) = self.poll(&mut seen)? {
-                return Ok(f);
+        let mut fresh = loop {
+            if let Some(f) = self.poll(&mut seen, POLL)? {
+                break f;
+            }
+        };
+        // ArduSub sends a sample's messages in one burst, ATTITUDE (the clock) first and the
+        // depth and vertical velocity of the same stamp after it: the rest of the burst is read
+        // before the sample is handed on, or the estimator would fuse them a sample late.
+        let until = Instant::now() + BURST_MAX;
+        while Instant::now() < until {
+            let before = self.link.received();
+            match self.poll(&mut seen, BURST_GAP)? {
+                Some(f) => fresh = f,
+                None if self.link.received() == before => break,
+                None => {}
             }
         }
+        Ok(fresh)
     }
 
     /// Sends the command for `input` (at most once per state sample: a second send for the
