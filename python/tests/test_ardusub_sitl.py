@@ -47,10 +47,10 @@ def run_on_firmware(tmp_path, parms, client, timeout=300):
 
 
 def mpc_track_args(tmp_path, way, *extra):
-    # The simulator's depth sensor has 0.12 m of noise (its README) and lags its truth by 0.12 s
-    # (measured: raw depth against SIM_STATE): the estimator is told so.
+    # The simulator's depth sensor has 0.12 m of noise (its README) and lags its truth by about
+    # 0.04 s (measured: raw depth at its own stamps against SIM_STATE): the estimator is told so.
     return [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--vehicle", VEHICLE, "--oracle", "--arm",
-            "--command", way, "--js-gain", "1", "--sim-truth", "--depth-std", "0.12", "--depth-delay", "0.12",
+            "--command", way, "--js-gain", "1", "--sim-truth", "--depth-std", "0.12", "--depth-delay", "0.04",
             "--json",
             "--out-dir", tmp_path / "out", "--timeout", "30", *extra]
 

@@ -118,10 +118,10 @@ pub struct NoiseSettings {
     pub depth_std: f64,
     /// How long the depth sensor lags (s): its reading at `t` is taken as the depth at
     /// `t - depth_delay` (to first order, `z - depth_delay w`). ArduSub's simulator lags
-    /// 0.12 s (measured against its truth); a Bar30 behind ArduSub lags by its conversion and
-    /// the autopilot's averaging between reads. The default, 0.1 s: unmodelled, such a lag
-    /// delays the heave estimate by as much (measured on the simulator with the shipped model:
-    /// w RMS error 0.15 m/s at 0 against the truth, the estimate 0.08 s behind it).
+    /// 0.02-0.04 s (its readings at their own stamps against its truth; `pinc fit` finds 0.04
+    /// against the autopilot's vertical velocity); a Bar30 behind ArduSub lags by its
+    /// conversion and the autopilot's averaging between reads. The default, 0.04 s (0.1 while
+    /// each sample's depth was fused a sample late: that delay is gone, docs/MODEL.md 12).
     pub depth_delay: f64,
     /// Heading (rad): the autopilot's attitude estimate.
     pub heading_std: f64,
@@ -152,7 +152,7 @@ impl Default for NoiseSettings {
     fn default() -> Self {
         Self {
             depth_std: 0.1,
-            depth_delay: 0.1,
+            depth_delay: 0.04,
             heading_std: 0.02,
             yaw_rate_std: 0.005,
             position_std: 0.3,

@@ -41,7 +41,7 @@ pub struct Replay {
     pub late: u64,
     /// The filter's innovations per sensor (since its last restart).
     pub health: Health,
-    /// Every depth, heading and yaw-rate measurement, in log order.
+    /// Every depth, heading, yaw-rate and vertical-velocity measurement, in log order.
     pub measurements: Vec<Measurement>,
     /// Every input the vehicle reported applying (its thruster outputs), with its time.
     pub applied: Vec<(f64, crate::types::Input)>,
@@ -217,7 +217,13 @@ impl<'a, M: DiscreteModel> Feeder<'a, M> {
             Observation::Unfused(_) => return,
         };
         self.horizontal |= m.observes_horizontal();
-        if matches!(m, Measurement::Depth { .. } | Measurement::Heading { .. } | Measurement::YawRate { .. }) {
+        if matches!(
+            m,
+            Measurement::Depth { .. }
+                | Measurement::Heading { .. }
+                | Measurement::YawRate { .. }
+                | Measurement::VerticalVelocity { .. }
+        ) {
             self.measurements.push(m);
         }
         if let Measurement::Heading { t, .. } = m {

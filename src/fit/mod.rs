@@ -6,8 +6,9 @@
 //!    gives them);
 //! 2. the estimate cut into windows and split in time (train, dev, held out), and the vehicle
 //!    identified from the train split;
-//! 3. the sensors: each reading's noise from the reading alone, the depth lag from the heave
-//!    equation on the readings and the applied force ([`sensors`]);
+//! 3. the sensors: each reading's noise from the reading alone, the depth lag against the
+//!    autopilot's vertical velocity where the recordings hold it, else from the heave equation
+//!    on the readings and the applied force ([`sensors`]);
 //! 4. the estimate and the identification again with the identified vehicle and the sensor
 //!    model (the velocities of pass 1 came from a vehicle that was not this one);
 //! 5. the heave force the identified vehicle still misses, as the filter's heave gain
@@ -172,15 +173,44 @@ fn read_recording(path: &Path, thrusters: &Thrusters, water_density: f64) -> Res
     }
 }
 
+/// What the depth sensor's lag is measured against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LagMethod {
+    /// The integral of the autopilot's vertical velocity
+    /// ([`sensors::depth_lag_from_vertical_velocity`]).
+    VerticalVelocity,
+    /// The heave equation with the applied heave force ([`sensors::depth_lag_scan`]).
+    HeaveEquation,
+}
+
+impl LagMethod {
+    /// Its name in the report (`vertical_velocity`, `heave_equation`).
+    pub fn key(self) -> &'static str {
+        match self {
+            LagMethod::VerticalVelocity => "vertical_velocity",
+            LagMethod::HeaveEquation => "heave_equation",
+        }
+    }
+
+    /// In words, for the report.
+    pub fn describe(self) -> &'static str {
+        match self {
+            LagMethod::VerticalVelocity => "the integral of the autopilot's vertical velocity",
+            LagMethod::HeaveEquation => "the heave equation",
+        }
+    }
+}
+
 /// What a fit produced (before it is written).
 pub struct Fit {
     /// The identified vehicle.
     pub identification: Identification,
     /// The sensor model.
     pub sensors: SensorModel,
-    /// Depth lags tried and the heave equation's residual sum of squares at each
-    /// ([`sensors::depth_lag_scan`]).
+    /// Depth lags tried and the residual sum of squares at each.
     pub lag_scan: Vec<(f64, f64)>,
+    /// What the depth lag was measured against.
+    pub lag_method: LagMethod,
     /// Readings too few to measure their noise (their default kept).
     pub sensors_defaulted: Vec<&'static str>,
     /// Whether a position or velocity source was fused (else surge and sway are the model's).
@@ -368,25 +398,41 @@ pub fn fit(
     on_stage(Stage::Identify);
     let rough = identify_on(&dataset_of(&first)?, horizontal)?;
 
-    // The sensors: noise from the readings, the depth lag from the heave equation.
+    // The sensors: noise from the readings, then the depth lag.
     let measurements: Vec<_> = first.iter().flat_map(|r| r.measurements.iter().copied()).collect();
     let (mut sensors, mut sensors_defaulted) = sensors::noise_model(&measurements, &default_sensors());
     let lags = sensors::lag_candidates();
     on_stage(Stage::SensorLag(lags.len()));
     let mut lag_scan = vec![(0.0, 0.0); lags.len()];
     let mut scanned = 0;
+    // Against the autopilot's vertical velocity where the recordings have it (its integral
+    // has the depth's shape without a lag), else against the heave equation.
+    let lag_method = if first.iter().any(|r| sensors::vertical_velocities(&r.measurements).len() >= 100) {
+        LagMethod::VerticalVelocity
+    } else {
+        LagMethod::HeaveEquation
+    };
     for run in &first {
         let depth = sensors::readings(&run.measurements)[0].clone();
-        let heave: Vec<(f64, f64)> = run.applied.iter().map(|(t, u)| (*t, u[2])).collect();
-        if let Some(scan) = sensors::depth_lag_scan(&depth, &heave, &lags) {
+        let scan = match lag_method {
+            LagMethod::VerticalVelocity => {
+                let velocity = sensors::vertical_velocities(&run.measurements);
+                sensors::depth_lag_from_vertical_velocity(&depth, &velocity, &lags)
+            }
+            LagMethod::HeaveEquation => {
+                let heave: Vec<(f64, f64)> = run.applied.iter().map(|(t, u)| (*t, u[2])).collect();
+                sensors::depth_lag_scan(&depth, &heave, &lags)
+            }
+        };
+        if let Some(scan) = scan {
             for (sum, (lag, rss)) in lag_scan.iter_mut().zip(scan) {
                 *sum = (lag, sum.1 + rss);
             }
             scanned += 1;
         }
     }
-    // Only a minimum inside the range is a lag; one at an end says the heave equation
-    // does not explain the readings (a feedback or a sensor's sample-and-hold can do that).
+    // Only a minimum inside the range is a lag; one at an end says the readings are not
+    // explained (a feedback or a sensor's sample-and-hold can do that to the heave equation).
     let best = lag_scan.iter().enumerate().filter(|(_, (_, v))| v.is_finite()).min_by(|a, b| a.1.1.total_cmp(&b.1.1));
     match best {
         Some((k, &(lag, _))) if scanned > 0 && k > 0 && k + 1 < lag_scan.len() => sensors.depth_delay = lag,
@@ -466,6 +512,7 @@ pub fn fit(
         identification,
         sensors,
         lag_scan,
+        lag_method,
         sensors_defaulted,
         horizontal,
         passes,

@@ -144,8 +144,8 @@ pub fn findings(
         .collect();
     for &s in sensors_defaulted {
         warnings.push(if s == "depth lag" {
-            "sensors: the depth lag is not determined (the heave equation's best lag is at an end of 0-0.3 s on these \
-             recordings); the estimator's default is kept"
+            "sensors: the depth lag is not determined (the best lag is at an end of 0-0.3 s on these recordings); the \
+             estimator's default is kept"
                 .to_string()
         } else {
             format!("sensors: too few {s} readings to measure their noise; the estimator's default is kept")
@@ -323,7 +323,8 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
             "w": fit.identification.rms_residual[2], "r": fit.identification.rms_residual[3]},
         "sensors": {"depth_std_m": s.depth_std, "depth_delay_s": s.depth_delay, "heading_std_rad": s.heading_std,
             "yaw_rate_std_rad_s": s.yaw_rate_std, "defaulted": fit.sensors_defaulted,
-            "lag_scan": fit.lag_scan.iter().map(|(l, v)| serde_json::json!({"lag_s": l, "heave_residual": v})).collect::<Vec<_>>()},
+            "lag_method": fit.lag_method.key(),
+            "lag_scan": fit.lag_scan.iter().map(|(l, v)| serde_json::json!({"lag_s": l, "residual": v})).collect::<Vec<_>>()},
         "training": {"epochs_run": fit.training.history.len(), "best_epoch": fit.training.best_epoch,
             "stop": fit.training.stop, "seconds": fit.training.seconds,
             "cut_by_time_cap": super::cut_by_time(&fit.training).is_some()},
@@ -370,11 +371,12 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     );
     let s = &fit.sensors;
     md += &format!(
-        "\n## Sensors\n\ndepth noise {:.3} m, depth lag {:.2} s (the best of {} tried against the heave equation), heading noise {:.4} rad, \
+        "\n## Sensors\n\ndepth noise {:.3} m, depth lag {:.2} s (the best of {} tried against {}), heading noise {:.4} rad, \
          yaw-rate noise {:.4} rad/s\n",
         s.depth_std,
         s.depth_delay,
         fit.lag_scan.len(),
+        fit.lag_method.describe(),
         s.heading_std,
         s.yaw_rate_std
     );

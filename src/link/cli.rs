@@ -255,7 +255,7 @@ pub struct EstimatorArgs {
     #[arg(long)]
     pub depth_std: Option<f64>,
     /// How long the depth sensor lags (s): its reading is taken as the depth that long ago
-    /// [default: the fitted model's, else 0.1].
+    /// [default: the fitted model's, else 0.04].
     #[arg(long)]
     pub depth_delay: Option<f64>,
     /// Standard deviation of the heading (rad) the estimator assumes [default: the fitted
