@@ -101,6 +101,11 @@ impl MavlinkMeasurements {
         self.vertical_velocity_valid = false;
     }
 
+    /// Whether the newest `EKF_STATUS_REPORT` vouches for the autopilot's vertical velocity.
+    pub fn vertical_velocity_valid(&self) -> bool {
+        self.vertical_velocity_valid
+    }
+
     /// Vertical velocities left out while the autopilot's EKF did not vouch for them (before
     /// its first `EKF_STATUS_REPORT`, while initialising).
     pub fn vertical_velocity_left_out(&self) -> u64 {

@@ -460,8 +460,18 @@ pub fn run<M: DiscreteModel + Clone>(
             });
         }
         position_measured_before = Some(position_measured);
-        for ob in drive.drain_observations() {
+        let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
+        for mut ob in drive.drain_observations() {
             match ob {
+                // A dead-reckoned position's vertical velocity is still the EKF's estimate from
+                // its accelerometers and depth: that part is kept.
+                Observation::Measured(Measurement::VelocityNed { t, vd, .. })
+                    if !position_measured && vertical_velocity_valid =>
+                {
+                    dead_reckoned += 1;
+                    vertical_velocities += 1;
+                    ob = Observation::Measured(Measurement::VerticalVelocity { t, vd });
+                }
                 Observation::Measured(Measurement::Position { .. } | Measurement::VelocityNed { .. })
                     if !position_measured =>
                 {
