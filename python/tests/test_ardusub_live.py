@@ -96,6 +96,9 @@ def test_per_thruster_commands_are_refused_on_the_stock_outputs_and_status_says_
     assert late["command_ways"]["manual"]["allowed"] and not late["command_ways"]["thrusters"]["allowed"]
     assert late["js_gain"] == 1.0 and late["heading_reference"] == "magnetic"
     assert late["ekf_not_ready"] == [] and late["ekf_position_measured"] is False
+    # The autopilot's vertical velocity: left out while its EKF initialises, then vouched for.
+    assert early["vertical_velocity"]["ekf_vouches"] is False, early["vertical_velocity"]
+    assert late["vertical_velocity"]["ekf_vouches"] is True and late["vertical_velocity"]["rate_hz"] > 5, late
 
 
 def test_the_shipped_model_holds_a_stock_vehicle_on_its_defaults(pinc_stock):

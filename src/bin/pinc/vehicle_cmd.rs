@@ -268,6 +268,9 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
             ),
         }
     };
+    // The autopilot's vertical velocity, which the estimator takes while its EKF vouches for it.
+    let vertical_rate = rate_of("GLOBAL_POSITION_INT");
+    let vertical_valid = assembler.reader().vertical_velocity_valid();
     let mode = SubMode::name_of(heartbeat.custom_mode);
     let armed = Autopilot::armed(&heartbeat);
     let vehicle_type = enum_name(&heartbeat.mavtype, "MAV_TYPE_");
@@ -299,6 +302,7 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
             "compass_dec_rad": params.get("COMPASS_DEC"), "compass_autodec": params.get("COMPASS_AUTODEC"),
             "ekf_flags": ekf.map(|e| e.flags), "ekf_not_ready": not_ready,
             "ekf_position_measured": ekf.map(|e| e.position_measured()),
+            "vertical_velocity": {"source": "GLOBAL_POSITION_INT", "rate_hz": vertical_rate, "ekf_vouches": vertical_valid},
         });
         println!("{}", serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?);
         return Ok(());
@@ -319,6 +323,18 @@ fn run_status(a: StatusArgs) -> Result<(), String> {
         };
         println!("  {:<9} {what}", p.part.name());
     }
+    let vertical = match (vertical_rate, vertical_valid) {
+        (Some(r), true) => {
+            format!("{r:.1} Hz from GLOBAL_POSITION_INT, the EKF vouches for it: the estimator takes it")
+        }
+        (Some(r), false) => {
+            format!(
+                "{r:.1} Hz from GLOBAL_POSITION_INT, the EKF does not vouch for it (yet): the estimator leaves it out"
+            )
+        }
+        (None, _) => "no GLOBAL_POSITION_INT: the estimator's heave rests on the depth and the model".to_string(),
+    };
+    println!("vertical    {vertical}");
     println!("controller  {}", now.capability);
     let outputs_line: Vec<String> =
         functions.by_output.iter().map(|(n, f)| format!("{n} {}", function_name(*f))).collect();
