@@ -407,18 +407,13 @@ pub fn fit(
     let mut scanned = 0;
     // Against the autopilot's vertical velocity where the recordings have it (its integral
     // has the depth's shape without a lag), else against the heave equation.
-    let lag_method = if first.iter().any(|r| sensors::vertical_velocities(&r.measurements).len() >= 100) {
-        LagMethod::VerticalVelocity
-    } else {
-        LagMethod::HeaveEquation
-    };
-    for run in &first {
+    let velocities: Vec<_> = first.iter().map(|r| sensors::vertical_velocities(&r.measurements)).collect();
+    let lag_method =
+        if velocities.iter().any(|v| v.len() >= 100) { LagMethod::VerticalVelocity } else { LagMethod::HeaveEquation };
+    for (run, velocity) in first.iter().zip(&velocities) {
         let depth = sensors::readings(&run.measurements)[0].clone();
         let scan = match lag_method {
-            LagMethod::VerticalVelocity => {
-                let velocity = sensors::vertical_velocities(&run.measurements);
-                sensors::depth_lag_from_vertical_velocity(&depth, &velocity, &lags)
-            }
+            LagMethod::VerticalVelocity => sensors::depth_lag_from_vertical_velocity(&depth, velocity, &lags),
             LagMethod::HeaveEquation => {
                 let heave: Vec<(f64, f64)> = run.applied.iter().map(|(t, u)| (*t, u[2])).collect();
                 sensors::depth_lag_scan(&depth, &heave, &lags)

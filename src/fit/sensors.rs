@@ -106,14 +106,18 @@ pub fn depth_lag_from_vertical_velocity(
         let (a, b) = (integral.get(k.checked_sub(1)?)?, integral.get(k)?);
         (a.2 == b.2).then(|| (a.1 + (b.1 - a.1) * (t - a.0) / (b.0 - a.0), a.2))
     };
-    // The readings every candidate can compare, each in one integration segment.
-    let usable: Vec<(f64, f64, usize)> = depth
+    // The readings every candidate can compare, each in one integration segment: its group
+    // (segment, block) and the depth minus the integral shifted by each lag.
+    let usable: Vec<((usize, i64), Vec<f64>)> = depth
         .iter()
         .filter_map(|&(t, z)| {
-            let segs: Option<Vec<usize>> = lags.iter().map(|&lag| integral_at(t - lag).map(|(_, s)| s)).collect();
-            let segs = segs?;
-            let seg = *segs.first()?;
-            segs.iter().all(|&s| s == seg).then_some((t, z, seg))
+            let shifted: Option<Vec<(f64, usize)>> = lags.iter().map(|&lag| integral_at(t - lag)).collect();
+            let shifted = shifted?;
+            let seg = shifted.first()?.1;
+            shifted
+                .iter()
+                .all(|&(_, s)| s == seg)
+                .then(|| ((seg, (t / DRIFT_BLOCK).floor() as i64), shifted.iter().map(|&(zi, _)| z - zi).collect()))
         })
         .collect();
     if usable.len() < 100 {
@@ -121,16 +125,15 @@ pub fn depth_lag_from_vertical_velocity(
     }
     let scan = lags
         .iter()
-        .map(|&lag| {
-            // Depth minus the shifted integral, grouped by (segment, block): the sum of
-            // squares about each group's own mean.
+        .enumerate()
+        .map(|(k, &lag)| {
+            // The sum of squares about each group's own mean.
             let mut groups: std::collections::BTreeMap<(usize, i64), (f64, f64, f64)> = Default::default();
-            for &(t, z, seg) in &usable {
-                let d = z - integral_at(t - lag).map_or(f64::NAN, |(zi, _)| zi);
-                let g = groups.entry((seg, (t / DRIFT_BLOCK).floor() as i64)).or_insert((0.0, 0.0, 0.0));
-                *g = (g.0 + d, g.1 + d * d, g.2 + 1.0);
+            for (group, d) in &usable {
+                let g = groups.entry(*group).or_insert((0.0, 0.0, 0.0));
+                *g = (g.0 + d[k], g.1 + d[k] * d[k], g.2 + 1.0);
             }
-            (lag, groups.values().map(|&(s, s2, k)| s2 - s * s / k).sum())
+            (lag, groups.values().map(|&(s, s2, n)| s2 - s * s / n).sum())
         })
         .collect();
     Some(scan)

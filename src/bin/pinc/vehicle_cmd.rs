@@ -452,6 +452,7 @@ impl Writer {
         if self.clock.is_none() {
             return Ok(()); // nothing is on the autopilot's time line yet
         }
+        let mut outputs = false;
         for o in observations {
             match o {
                 Observation::Measured(m) => {
@@ -460,6 +461,7 @@ impl Writer {
                     }
                 }
                 Observation::Applied(t, u) => {
+                    outputs = true;
                     if let Some(e) = &mut self.estimation {
                         e.applied(t, u);
                     }
@@ -470,7 +472,9 @@ impl Writer {
                 Observation::Unfused(_) => {}
             }
         }
-        if let Some(p) = &mut self.inputs {
+        // New outputs may complete the input of states waiting for it (a state's own arrival
+        // releases those whose outputs stopped).
+        if let (true, Some(p)) = (outputs, &mut self.inputs) {
             for (s, u) in p.ready(now) {
                 self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;
             }
