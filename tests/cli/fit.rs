@@ -53,6 +53,11 @@ fn a_stock_recording_fits_the_same_model_twice_and_says_what_it_determined() {
     // from the readings within a third.
     let depth_std = report["sensors"]["depth_std_m"].as_f64().unwrap();
     assert!((0.08..=0.16).contains(&depth_std), "{depth_std}");
+    // The recording holds the autopilot's vertical velocity: the depth lag is measured against
+    // it. The simulator's readings at their own stamps lag its truth by 0.02-0.04 s.
+    assert_eq!(report["sensors"]["lag_method"], "vertical_velocity");
+    let lag = report["sensors"]["depth_delay_s"].as_f64().unwrap();
+    assert!((0.02..=0.06).contains(&lag), "{lag}");
     // The held-out comparison and the plot are there.
     assert!(report["held_out"]["windows"].as_u64().unwrap() > 10);
     for name in ["report.md", "report.png", "training.csv"] {
