@@ -1,24 +1,28 @@
 //! The controller: its model, plan, QP and persistent solver, and one control cycle in named
 //! phases (disturbance update, shift, linearise, write the QP's data, solve, accept the
-//! solution, predict the next measurement); docs/MODEL.md section 11.
+//! solution, predict the next measurement); docs/MODEL.md section 11. The QP goes to Clarabel
+//! (partially condensed, [`Qp`]) or to the Riccati interior-point method ([`RiccatiQp`]),
+//! which takes the stages as they come.
 
 use super::error::MpcError;
 use super::fallback::Fallback;
 use super::qp::Weights;
-use super::qp::{ALL_STATES, Qp, WITHOUT_POSITION};
+use super::qp::{ALL_STATES, Qp, WITHOUT_POSITION, soft_steps};
 use super::reference::Reference;
 use super::report::CycleReport;
-use super::settings::MpcConfig;
+use super::riccati::{IpmLimits, RiccatiInfo, RiccatiQp};
 use super::settings::solver_settings;
+use super::settings::{MpcConfig, QpSolver};
 use crate::runtime::{EnvelopeStatus, HorizonLinearisation};
 use crate::traits::DiscreteModel;
-use crate::types::{Input, NU, NX, State};
+use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use std::time::Instant;
 
 /// The real-time-iteration LTV-MPC: every sample it shifts its plan, rolls its model out
-/// and linearises exactly, writes the new data into a persistent Clarabel solver and solves
-/// one sparse QP. All buffers are allocated at construction.
+/// and linearises exactly, writes the new data into a persistent QP solver (Clarabel or the
+/// Riccati interior-point method, [`MpcConfig::qp`]) and solves one QP. All buffers are
+/// allocated at construction.
 ///
 /// # Example
 /// The oracle controller (the analytic vehicle as its model) on one cycle from rest:
@@ -45,8 +49,9 @@ pub struct Mpc<M: DiscreteModel> {
     lo: Input,
     hi: Input,
     state_weights: [f64; NX],
-    qp: Qp,
-    solver: DefaultSolver<f64>,
+    /// The 9-state components in the QP, in order.
+    states: Vec<usize>,
+    backend: Backend,
     /// The input plan `u_0 .. u_{N-1}` of the last cycle.
     plan: Vec<Input>,
     /// The nominal plan of this cycle (shifted previous plan).
@@ -55,7 +60,7 @@ pub struct Mpc<M: DiscreteModel> {
     lin: HorizonLinearisation,
     predicted: Vec<State>,
     last_applied: Input,
-    /// Soft velocity bounds `(component, min, max)`, in the order of `qp.soft`.
+    /// Soft velocity bounds `(component, min, max)`, in the order of the QP's soft bounds.
     soft_bounds: Vec<(usize, f64, f64)>,
     /// The offset the prediction carries at every step (offset-free tracking).
     disturbance: State,
@@ -63,6 +68,51 @@ pub struct Mpc<M: DiscreteModel> {
     expected: Option<State>,
     /// Where each input channel's weight pulls it (see `MpcConfig::input_target_tau`).
     input_target: Input,
+}
+
+/// The QP and the solver it goes to.
+enum Backend {
+    /// The partially condensed QP and the persistent Clarabel solver.
+    Clarabel { qp: Box<Qp>, solver: Box<DefaultSolver<f64>> },
+    /// The stage-wise QP with its own interior-point solver.
+    Riccati(Box<RiccatiQp>),
+}
+
+impl Backend {
+    /// `du_k` of the last solution.
+    fn input_deviation(&self, k: usize) -> Input {
+        match self {
+            Backend::Clarabel { qp, solver } => Input::from_fn(|j, _| solver.solution.x[qp.u_index(k, j)]),
+            Backend::Riccati(qp) => Input::from_fn(|j, _| qp.u[k * NU + j]),
+        }
+    }
+
+    /// `dx_k` of kept component `s` (of `m`) in the last solution, where the QP keeps it.
+    fn state_deviation(&self, k: usize, s: usize, m: usize) -> Option<f64> {
+        match self {
+            Backend::Clarabel { qp, solver } => qp.x_index(k, s).map(|at| solver.solution.x[at]),
+            Backend::Riccati(qp) => Some(qp.x[k * m + s]),
+        }
+    }
+}
+
+/// The kept rows and columns of every `A_k`, `B_k` into the Riccati solver's stages.
+pub(super) fn write_stages(qp: &mut RiccatiQp, states: &[usize], a: &[StateMatrix], b: &[InputMatrix]) {
+    let m = states.len();
+    for k in 0..qp.n {
+        let ak = &mut qp.a[k * m * m..(k + 1) * m * m];
+        for (c, &ic) in states.iter().enumerate() {
+            for (r, &ir) in states.iter().enumerate() {
+                ak[c * m + r] = a[k][(ir, ic)];
+            }
+        }
+        let bk = &mut qp.b[k * m * NU..(k + 1) * m * NU];
+        for j in 0..NU {
+            for (r, &ir) in states.iter().enumerate() {
+                bk[j * m + r] = b[k][(ir, j)];
+            }
+        }
+    }
 }
 
 impl<M: DiscreteModel> Mpc<M> {
@@ -101,14 +151,37 @@ impl<M: DiscreteModel> Mpc<M> {
         // The slacks' quadratic price equals the exact (linear) one: it keeps the QP strictly
         // convex in them and Clarabel's iterations as few as without the bounds (a 1000 times
         // smaller one took about twice as many).
-        let qp = Qp::new(n, cfg.condensing_block, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
-        let n_ineq = qp.b.len() - qp.n_eq;
-        let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
-        // A placeholder problem with the final pattern; every cycle overwrites its data.
-        let mut b = qp.b.clone();
-        b[qp.n_eq..].fill(1.0);
-        let solver = DefaultSolver::new(&qp.p, &qp.q, &qp.a, &b, &cones, solver_settings(&cfg)?)
-            .map_err(|e| MpcError::Setup(e.to_string()))?;
+        let backend = match cfg.qp {
+            QpSolver::Clarabel => {
+                let qp =
+                    Qp::new(n, cfg.condensing_block, &w, cfg.rate_limit.is_some(), states, &soft, cfg.envelope_penalty);
+                let n_ineq = qp.b.len() - qp.n_eq;
+                let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(n_ineq)];
+                // A placeholder problem with the final pattern; every cycle overwrites its data.
+                let mut b = qp.b.clone();
+                b[qp.n_eq..].fill(1.0);
+                let solver = DefaultSolver::new(&qp.p, &qp.q, &qp.a, &b, &cones, solver_settings(&cfg)?)
+                    .map_err(|e| MpcError::Setup(e.to_string()))?;
+                Backend::Clarabel { qp: Box::new(qp), solver: Box::new(solver) }
+            }
+            QpSolver::Riccati => {
+                let m = states.len();
+                let mut qp = RiccatiQp::new(n, m, cfg.rate_limit.is_some(), &soft_steps(n), &soft);
+                for k in 1..=n {
+                    let f = if k == n { cfg.terminal } else { 1.0 };
+                    for (s, &i) in states.iter().enumerate() {
+                        qp.wx[(k - 1) * m + s] = 2.0 * f * state_weights[i];
+                    }
+                }
+                for j in 0..NU {
+                    qp.ru[j] = 2.0 * cfg.input[j];
+                    qp.rd[j] = 2.0 * cfg.input_rate[j];
+                }
+                // Priced as in Clarabel's QP: the quadratic price equals the linear one.
+                (qp.slack_linear, qp.slack_quad) = (cfg.envelope_penalty, 2.0 * cfg.envelope_penalty);
+                Backend::Riccati(Box::new(qp))
+            }
+        };
         let rest = Input::from_fn(|j, _| 0.0f64.clamp(lo[j], hi[j]));
         Ok(Self {
             ws: model.workspace(),
@@ -116,8 +189,8 @@ impl<M: DiscreteModel> Mpc<M> {
             lo,
             hi,
             state_weights,
-            qp,
-            solver,
+            states: states.to_vec(),
+            backend,
             plan: vec![rest; n],
             nominal: vec![rest; n],
             lin: HorizonLinearisation::new(n),
@@ -146,10 +219,23 @@ impl<M: DiscreteModel> Mpc<M> {
         &self.model
     }
 
-    /// The Clarabel solver inside: its `info` and `timers` describe the last solve
-    /// (iterations, and the time in KKT factorisations, solves and cone updates).
-    pub fn solver(&self) -> &DefaultSolver<f64> {
-        &self.solver
+    /// The Clarabel solver inside, when it is the QP's solver: its `info` and `timers`
+    /// describe the last solve (iterations, and the time in KKT factorisations, solves and
+    /// cone updates).
+    pub fn solver(&self) -> Option<&DefaultSolver<f64>> {
+        match &self.backend {
+            Backend::Clarabel { solver, .. } => Some(solver),
+            Backend::Riccati(_) => None,
+        }
+    }
+
+    /// The Riccati solver's account of its last solve, when it is the QP's solver
+    /// (residuals and complementarity at the end).
+    pub fn riccati_info(&self) -> Option<RiccatiInfo> {
+        match &self.backend {
+            Backend::Riccati(qp) => Some(qp.info),
+            Backend::Clarabel { .. } => None,
+        }
     }
 
     /// The predicted states `x_0 .. x_N` of the last successful cycle (the linearised
@@ -212,7 +298,7 @@ impl<M: DiscreteModel> Mpc<M> {
         {
             let miss = x - e;
             if miss.iter().all(|v| v.is_finite()) {
-                for &i in &self.qp.states {
+                for &i in &self.states {
                     self.disturbance[i] += gain * miss[i];
                 }
             }
@@ -247,25 +333,49 @@ impl<M: DiscreteModel> Mpc<M> {
     /// Writes this cycle's data into the solver, solves, and on success takes the solution
     /// as the new plan and prediction. Returns why it fell back, if it did.
     fn solve(&mut self, refs: &[Reference], t1: Instant, report: &mut CycleReport) -> Option<Fallback> {
-        self.fill_data(refs);
-        // P changes only where inner states are condensed into it.
-        let p_written = self.qp.block == 1 || self.solver.update_P(&self.qp.p_values).is_ok();
-        let written = p_written
-            && self.solver.update_A(&self.qp.a_values).is_ok()
-            && self.solver.update_q(&self.qp.q).is_ok()
-            && self.solver.update_b(&self.qp.b).is_ok();
+        self.fill_common(refs);
+        let written = match &mut self.backend {
+            Backend::Clarabel { qp, solver } => {
+                qp.condense(self.lin.a(), self.lin.b());
+                // P changes only where inner states are condensed into it.
+                let p_written = qp.block == 1 || solver.update_P(&qp.p_values).is_ok();
+                p_written
+                    && solver.update_A(&qp.a_values).is_ok()
+                    && solver.update_q(&qp.q).is_ok()
+                    && solver.update_b(&qp.b).is_ok()
+            }
+            Backend::Riccati(qp) => {
+                write_stages(qp, &self.states, self.lin.a(), self.lin.b());
+                true
+            }
+        };
         let t2 = Instant::now();
         report.update_us = (t2 - t1).as_secs_f64() * 1e6;
         if !written {
             return Some(Fallback::Solver(SolverStatus::Unsolved));
         }
-        self.solver.solve();
+        let finite = match &mut self.backend {
+            Backend::Clarabel { solver, .. } => {
+                solver.solve();
+                let sol = &solver.solution;
+                (report.status, report.iterations, report.objective) = (sol.status, sol.iterations, sol.obj_val);
+                sol.x.iter().all(|v| v.is_finite())
+            }
+            Backend::Riccati(qp) => {
+                let limits = IpmLimits {
+                    max_iter: self.cfg.solver_max_iter,
+                    tol: self.cfg.riccati_tolerance,
+                    time_limit: self.cfg.solver_time_limit,
+                };
+                qp.solve(limits);
+                (report.status, report.iterations, report.objective) =
+                    (qp.info.status, qp.info.iterations, qp.info.objective);
+                qp.u.iter().chain(&qp.x).all(|v| v.is_finite())
+            }
+        };
         report.solve_us = t2.elapsed().as_secs_f64() * 1e6;
-        let sol = &self.solver.solution;
-        (report.status, report.iterations, report.objective) = (sol.status, sol.iterations, sol.obj_val);
-        let finite = sol.x.iter().all(|v| v.is_finite());
-        if !(matches!(sol.status, SolverStatus::Solved | SolverStatus::AlmostSolved) && finite) {
-            return Some(Fallback::Solver(sol.status));
+        if !(matches!(report.status, SolverStatus::Solved | SolverStatus::AlmostSolved) && finite) {
+            return Some(Fallback::Solver(report.status));
         }
         self.accept_solution();
         report.input = self.plan[0];
@@ -275,8 +385,10 @@ impl<M: DiscreteModel> Mpc<M> {
     /// The new plan (nominal plus the QP's input deviations, clipped) and the prediction.
     fn accept_solution(&mut self) {
         let n = self.cfg.horizon;
-        let sol = &self.solver.solution.x;
-        let du = |k: usize| Input::from_fn(|j, _| sol[self.qp.u_index(k, j)]);
+        let m = self.states.len();
+        let backend = &self.backend;
+        let du = |k: usize| backend.input_deviation(k);
+        let kept = |k: usize, s: usize| backend.state_deviation(k, s, m);
         for k in 0..n {
             self.plan[k] = self.clip(&(self.nominal[k] + du(k)));
         }
@@ -287,11 +399,8 @@ impl<M: DiscreteModel> Mpc<M> {
         let mut dx = State::zeros();
         for k in 0..n {
             let mut next = a[k] * dx + b[k] * du(k);
-            for (s, &i) in self.qp.states.iter().enumerate() {
-                next[i] = match self.qp.x_index(k + 1, s) {
-                    Some(at) => sol[at],
-                    None => next[i] + self.disturbance[i],
-                };
+            for (s, &i) in self.states.iter().enumerate() {
+                next[i] = kept(k + 1, s).unwrap_or(next[i] + self.disturbance[i]);
             }
             dx = next;
             self.predicted[k + 1] = traj[k + 1] + dx;
@@ -310,19 +419,23 @@ impl<M: DiscreteModel> Mpc<M> {
         report.deadline_missed = report.cycle_us > self.cfg.deadline * 1e6;
     }
 
-    /// The QP's linear cost, bounds and dynamics for this cycle's nominal trajectory, condensed.
-    fn fill_data(&mut self, refs: &[Reference]) {
+    /// This cycle's linear costs, bounds and disturbance for the nominal trajectory, written
+    /// into the QP of whichever solver runs (Clarabel's is condensed afterwards).
+    fn fill_common(&mut self, refs: &[Reference]) {
         let n = self.cfg.horizon;
-        let qp = &mut self.qp;
-        let m = qp.states.len();
+        let m = self.states.len();
         let traj = self.lin.trajectory();
         for k in 1..=n {
             let r = refs[(k - 1).min(refs.len() - 1)];
             let mut target = [0.0; NX];
             (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
             let f = if k == n { self.cfg.terminal } else { 1.0 };
-            for (s, &i) in qp.states.iter().enumerate() {
-                qp.state_q[(k - 1) * m + s] = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
+            for (s, &i) in self.states.iter().enumerate() {
+                let q = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
+                match &mut self.backend {
+                    Backend::Clarabel { qp, .. } => qp.state_q[(k - 1) * m + s] = q,
+                    Backend::Riccati(qp) => qp.qx[(k - 1) * m + s] = q,
+                }
             }
         }
         for k in 0..n {
@@ -336,32 +449,60 @@ impl<M: DiscreteModel> Mpc<M> {
                 if k + 1 < n {
                     q -= rate_w * (self.nominal[k + 1][j] - ubar);
                 }
-                qp.input_q[k * NU + j] = q;
-                let (ub, lb) = (qp.bound_row(k, j, true), qp.bound_row(k, j, false));
-                qp.b[ub] = self.hi[j] - ubar;
-                qp.b[lb] = ubar - self.lo[j];
-                if let Some(rate) = self.cfg.rate_limit {
-                    let (ru, rl) = (qp.rate_row(k, j, true), qp.rate_row(k, j, false));
-                    qp.b[ru] = rate[j] - d_here;
-                    qp.b[rl] = rate[j] + d_here;
+                let (upper, lower) = (self.hi[j] - ubar, ubar - self.lo[j]);
+                let rate = self.cfg.rate_limit.map(|rate| (rate[j] - d_here, rate[j] + d_here));
+                match &mut self.backend {
+                    Backend::Clarabel { qp, .. } => {
+                        qp.input_q[k * NU + j] = q;
+                        let (ub, lb) = (qp.bound_row(k, j, true), qp.bound_row(k, j, false));
+                        (qp.b[ub], qp.b[lb]) = (upper, lower);
+                        if let Some((ru, rl)) = rate {
+                            let (rup, rlo) = (qp.rate_row(k, j, true), qp.rate_row(k, j, false));
+                            (qp.b[rup], qp.b[rlo]) = (ru, rl);
+                        }
+                    }
+                    Backend::Riccati(qp) => {
+                        let at = k * NU + j;
+                        (qp.qu[at], qp.u_hi[at], qp.u_lo[at]) = (q, upper, lower);
+                        if let Some((ru, rl)) = rate {
+                            (qp.r_hi[at], qp.r_lo[at]) = (ru, rl);
+                        }
+                    }
                 }
             }
         }
         // The rollout has no defect: the dynamics carry only the disturbance.
-        for (r, &i) in qp.states.iter().enumerate() {
-            qp.disturbance[r] = self.disturbance[i];
-        }
-        for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
-            for (j, &k) in qp.soft_steps.iter().enumerate() {
-                let (upper, lower, sign) = (qp.soft_row(j, b, 0), qp.soft_row(j, b, 1), qp.soft_row(j, b, 2));
-                qp.b[upper] = hi - traj[k][i];
-                qp.b[lower] = traj[k][i] - lo;
-                qp.b[sign] = 0.0;
-                let at = qp.slack_index(j, b);
-                qp.q[at] = self.cfg.envelope_penalty;
+        for (r, &i) in self.states.iter().enumerate() {
+            match &mut self.backend {
+                Backend::Clarabel { qp, .. } => qp.disturbance[r] = self.disturbance[i],
+                Backend::Riccati(qp) => qp.d[r] = self.disturbance[i],
             }
         }
-        qp.condense(self.lin.a(), self.lin.b());
+        let ns = self.soft_bounds.len();
+        for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
+            let steps = match &self.backend {
+                Backend::Clarabel { qp, .. } => qp.soft_steps.len(),
+                Backend::Riccati(qp) => qp.soft_steps.len(),
+            };
+            for j in 0..steps {
+                match &mut self.backend {
+                    Backend::Clarabel { qp, .. } => {
+                        let k = qp.soft_steps[j];
+                        let (upper, lower, sign) = (qp.soft_row(j, b, 0), qp.soft_row(j, b, 1), qp.soft_row(j, b, 2));
+                        qp.b[upper] = hi - traj[k][i];
+                        qp.b[lower] = traj[k][i] - lo;
+                        qp.b[sign] = 0.0;
+                        let at = qp.slack_index(j, b);
+                        qp.q[at] = self.cfg.envelope_penalty;
+                    }
+                    Backend::Riccati(qp) => {
+                        let k = qp.soft_steps[j];
+                        qp.h_hi[j * ns + b] = hi - traj[k][i];
+                        qp.h_lo[j * ns + b] = traj[k][i] - lo;
+                    }
+                }
+            }
+        }
     }
 }
 

@@ -1,5 +1,7 @@
-//! Real-time-iteration LTV-MPC on Clarabel, generic over the [`DiscreteModel`] interface,
-//! so the learned PINC and the analytic vehicle (the "oracle") run the same controller.
+//! Real-time-iteration LTV-MPC, generic over the [`DiscreteModel`] interface, so the learned
+//! PINC and the analytic vehicle (the "oracle") run the same controller. Its QP goes to
+//! Clarabel (the reference) or to a Riccati interior-point method built for it
+//! ([`QpSolver`]).
 //!
 //! Each sample: shift the previous input plan, roll the model out from the measured state
 //! and linearise along it, overwrite the QP's data in the persistent solver, solve once,
@@ -14,6 +16,7 @@ mod fallback;
 mod qp;
 mod reference;
 mod report;
+mod riccati;
 mod settings;
 
 pub use controller::Mpc;
@@ -22,4 +25,5 @@ pub use fallback::Fallback;
 pub use qp::Weights;
 pub use reference::Reference;
 pub use report::CycleReport;
-pub use settings::MpcConfig;
+pub use riccati::RiccatiInfo;
+pub use settings::{MpcConfig, QpSolver};

@@ -31,13 +31,16 @@ pub struct MpcConfig {
     pub rate_limit: Option<[f64; NU]>,
     /// Input bounds `(min, max)`; `None` takes the model's training envelope.
     pub bounds: Option<(Input, Input)>,
-    /// Clarabel's time limit per solve (s).
+    /// The QP solver's time limit per solve (s).
     pub solver_time_limit: f64,
-    /// Clarabel's iteration limit per solve.
+    /// The QP solver's iteration limit per solve.
     pub solver_max_iter: u32,
     /// Clarabel's duality-gap (absolute and relative) and feasibility tolerances. A real-time
     /// iteration solves a QP that is itself an approximation, re-solved next sample.
     pub solver_tolerance: f64,
+    /// The Riccati solver's tolerance on its residuals and complementarity, relative to the
+    /// largest bound and linear cost of the cycle's QP.
+    pub riccati_tolerance: f64,
     /// Let Clarabel equilibrate (rescale) the QP. Its scaling is computed once, when the
     /// solver is built from the placeholder problem (the cost weights, unit rows, zero
     /// dynamics): that balances the weights' six decades and took the shipped model from 9
@@ -68,6 +71,51 @@ pub struct MpcConfig {
     /// channel that must hold a non-zero value (heave against buoyancy, yaw against a
     /// moment) costs nothing for it at steady state and leaves no offset.
     pub input_target_tau: [f64; NU],
+    /// The QP solver of every cycle: Clarabel (the general conic solver, the reference) or
+    /// the Riccati interior-point method built for this problem (`mpc::riccati`).
+    pub qp: QpSolver,
+}
+
+/// Which solver a controller's QP goes to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QpSolver {
+    /// Clarabel on the partially condensed QP (sparse KKT factorisations).
+    #[default]
+    Clarabel,
+    /// The structure-exploiting interior-point method: a Riccati recursion per Newton step,
+    /// the stages' sizes fixed at construction, nothing allocated per cycle.
+    Riccati,
+}
+
+impl QpSolver {
+    /// Every solver, in the order the names list them.
+    pub const ALL: [QpSolver; 2] = [QpSolver::Clarabel, QpSolver::Riccati];
+
+    /// The solver's name on command lines and in logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            QpSolver::Clarabel => "clarabel",
+            QpSolver::Riccati => "riccati",
+        }
+    }
+}
+
+impl std::fmt::Display for QpSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for QpSolver {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        QpSolver::ALL.into_iter().find(|q| q.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = QpSolver::ALL.iter().map(|q| q.name()).collect();
+            format!("unknown QP solver {s:?} (one of: {})", names.join(", "))
+        })
+    }
 }
 
 impl Default for MpcConfig {
@@ -89,6 +137,7 @@ impl Default for MpcConfig {
             solver_time_limit: 0.04,
             solver_max_iter: 50,
             solver_tolerance: 1e-3,
+            riccati_tolerance: 1e-6,
             solver_equilibrate: true,
             solver_refinement: false,
             deadline: 0.08,
@@ -98,6 +147,7 @@ impl Default for MpcConfig {
             envelope_margin: 0.05,
             disturbance_gain: 0.2,
             input_target_tau: [0.0, 0.0, 2.0, 2.0],
+            qp: QpSolver::Clarabel,
         }
     }
 }
@@ -126,6 +176,9 @@ impl MpcConfig {
         }
         if !(self.envelope_margin.is_finite() && (0.0..0.5).contains(&self.envelope_margin)) {
             return Err(MpcError::Config(format!("envelope margin {} (0 to 0.5)", self.envelope_margin)));
+        }
+        if !(self.riccati_tolerance.is_finite() && self.riccati_tolerance > 0.0) {
+            return Err(MpcError::Config(format!("Riccati tolerance {} (positive)", self.riccati_tolerance)));
         }
         let all = [self.depth, self.heading, self.terminal, self.envelope_penalty]
             .into_iter()

@@ -100,3 +100,37 @@ fn estimator_samples_do_not_allocate() {
     }
     check("analytic", Rk4Vehicle::default());
 }
+
+/// A control cycle on the Riccati solver (rollout, Jacobians, the QP's data, the interior-point
+/// iterations, the plan) allocates nothing once the controller is built: on the analytic
+/// vehicle and on a network with soft envelope bounds, with and without rate limits.
+#[cfg(feature = "mpc")]
+#[test]
+fn riccati_mpc_cycles_do_not_allocate() {
+    use pinc::mpc::{Mpc, MpcConfig, QpSolver, Reference};
+    fn check<M: DiscreteModel + Clone>(name: &str, model: M, bounds: (Input, Input)) {
+        for rate_limit in [None, Some([2.0, 2.0, 5.0, 0.5])] {
+            let cfg = MpcConfig { qp: QpSolver::Riccati, bounds: Some(bounds), rate_limit, ..MpcConfig::default() };
+            let mut mpc = Mpc::new(model.clone(), cfg).unwrap();
+            let x = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
+            let refs = [Reference { depth: 1.0, heading: 0.5 }; 20];
+            mpc.step(&x, &refs);
+            let mut solved = 0;
+            let count = allocations_during(|| {
+                for _ in 0..10 {
+                    let report = mpc.step(&x, &refs);
+                    solved += usize::from(report.fallback.is_none());
+                }
+            });
+            assert_eq!(count, 0, "{name} (rate limit {rate_limit:?}) allocated {count} times in 10 cycles");
+            assert_eq!(solved, 10, "{name}: every cycle solved");
+        }
+    }
+    let bounds = (Input::new(-40.0, -40.0, -40.0, -10.0), Input::new(40.0, 40.0, 40.0, 10.0));
+    check("analytic", Rk4Vehicle::default(), bounds);
+    for (name, model) in common::variants() {
+        let p = Predictor::<f64>::from_model(&model);
+        let b = p.input_bounds().unwrap_or(bounds);
+        check(name, p, b);
+    }
+}
