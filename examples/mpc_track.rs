@@ -21,7 +21,7 @@ use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, tab
 use pinc::closed_loop::monte_carlo::Outcome;
 use pinc::closed_loop::{LogError, McapLog, RunInfo};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
-use pinc::mpc::{Mpc, MpcConfig};
+use pinc::mpc::{Mpc, MpcConfig, QpSolver};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
@@ -86,6 +86,10 @@ struct Args {
     /// equilibration and refinement on), for comparison.
     #[arg(long, conflicts_with = "condensing_block")]
     sparse_qp: bool,
+    /// The QP solver of every cycle: `clarabel` (the general conic solver, the reference) or
+    /// `riccati` (the interior-point method built for this QP, a Riccati recursion per step).
+    #[arg(long, value_name = "NAME", default_value_t = QpSolver::Clarabel)]
+    qp: QpSolver,
     /// Run N closed loops on perturbed plants (damping and added masses +-20 %, net buoyancy
     /// +-30 %, a current up to 0.2 m/s, sensor noise) for both controllers on the same draws,
     /// and summarise them instead of one run.
@@ -176,6 +180,7 @@ fn try_main(a: Args) -> Result<(), String> {
         solver_time_limit: a.solver_time_limit,
         condensing_block: a.condensing_block,
         sparse_qp: a.sparse_qp,
+        qp: a.qp,
     };
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;

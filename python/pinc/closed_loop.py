@@ -34,13 +34,15 @@ _DEFAULTS = {
     "solver_time_limit": None,
     "condensing_block": None,
     "sparse_qp": None,
+    "qp": None,
 }
 
 
 def settings(**kw):
     """Closed-loop settings: `mpc_track`'s flags as keys (model, vehicle, scenario,
     reference, duration, horizon, disturbance_gain, envelope_constraints, envelope_penalty,
-    envelope_margin, input_rate, solver_time_limit, condensing_block, sparse_qp). Unset keys keep `mpc_track`'s defaults."""
+    envelope_margin, input_rate, solver_time_limit, condensing_block, sparse_qp, qp: "clarabel" or
+    "riccati"). Unset keys keep `mpc_track`'s defaults."""
     unknown = sorted(set(kw) - set(_DEFAULTS))
     if unknown:
         raise ValueError(f"settings: unknown key(s) {unknown} (known: {sorted(_DEFAULTS)})")

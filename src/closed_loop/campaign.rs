@@ -8,7 +8,7 @@ use super::scenario::Scenario;
 use super::summary::{Summary, summarise};
 use crate::Input;
 use crate::model::PincModel;
-use crate::mpc::{Mpc, MpcConfig, MpcError};
+use crate::mpc::{Mpc, MpcConfig, MpcError, QpSolver};
 use crate::plot::{Panel, Series, figure};
 use crate::runtime::Predictor;
 use crate::traits::DiscreteModel;
@@ -50,6 +50,8 @@ pub struct Settings {
     pub condensing_block: Option<usize>,
     /// Solve the QP as before partial condensing ([`MpcConfig::with_sparse_qp`]), for comparison.
     pub sparse_qp: bool,
+    /// The QP solver: Clarabel (the default) or the Riccati interior-point method.
+    pub qp: QpSolver,
 }
 
 impl Default for Settings {
@@ -70,6 +72,7 @@ impl Default for Settings {
             solver_time_limit: None,
             condensing_block: None,
             sparse_qp: false,
+            qp: QpSolver::Clarabel,
         }
     }
 }
@@ -156,6 +159,12 @@ impl Campaign {
         };
         let bounds =
             Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
+        if s.sparse_qp && s.qp != QpSolver::Clarabel {
+            return Err(SetupError::Setting(format!(
+                "sparse_qp is a formulation of Clarabel's QP; the {} solver takes the stages as they are",
+                s.qp
+            )));
+        }
         let defaults = MpcConfig::default();
         let config = MpcConfig {
             input_rate: s.input_rate.unwrap_or(defaults.input_rate),
@@ -167,6 +176,7 @@ impl Campaign {
             envelope_margin: s.envelope_margin,
             solver_time_limit: s.solver_time_limit.unwrap_or(defaults.solver_time_limit),
             condensing_block: s.condensing_block.unwrap_or(defaults.condensing_block),
+            qp: s.qp,
             ..defaults
         };
         let config = if s.sparse_qp { config.with_sparse_qp() } else { config };

@@ -522,6 +522,7 @@ fn run_metadata(info: &RunInfo) -> Result<BTreeMap<String, String>, LogError> {
     put("weight_input_rate", serde_json::to_string(&c.input_rate)?);
     put("weight_terminal_factor", c.terminal.to_string());
     put("rate_limit", serde_json::to_string(&c.rate_limit)?);
+    put("qp_solver", c.qp.name().into());
     put("solver_time_limit_s", c.solver_time_limit.to_string());
     put("solver_max_iter", c.solver_max_iter.to_string());
     put("deadline_s", c.deadline.to_string());

@@ -301,8 +301,12 @@ impl RiccatiQp {
             // Corrector: centred, with the affine step's second-order term.
             self.dlam_aff.copy_from_slice(&self.dlam);
             self.dt_aff.copy_from_slice(&self.dt);
+            // Where the affine step was blocked early its second-order term is not a correction
+            // but a different direction: the iterates then cycle between badly centred points
+            // (seen on rate-limited cycles). Damp it by the step the affine direction could take.
+            let second = alpha_aff.min(1.0);
             for i in 0..self.rows() {
-                self.r_mu[i] = self.lam[i] * self.t[i] + self.dlam_aff[i] * self.dt_aff[i] - sigma * mu;
+                self.r_mu[i] = self.lam[i] * self.t[i] + second * self.dlam_aff[i] * self.dt_aff[i] - sigma * mu;
             }
             self.newton();
             let alpha = self.step_length();

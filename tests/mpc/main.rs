@@ -5,3 +5,4 @@ mod common;
 
 mod closed_loop;
 mod mcap_log;
+mod riccati;
