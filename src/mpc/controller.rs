@@ -15,8 +15,9 @@ use super::settings::solver_settings;
 use super::settings::{MpcConfig, QpSolver};
 use crate::runtime::{EnvelopeStatus, HorizonLinearisation};
 use crate::traits::DiscreteModel;
-use crate::types::{Input, InputMatrix, NU, NX, State, StateMatrix};
+use crate::types::{Input, NU, NX, State};
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+use nalgebra::{SVector, Vector4};
 use std::time::Instant;
 
 /// The real-time-iteration LTV-MPC: every sample it shifts its plan, rolls its model out
@@ -73,46 +74,161 @@ pub struct Mpc<M: DiscreteModel> {
 /// The QP and the solver it goes to.
 enum Backend {
     /// The partially condensed QP and the persistent Clarabel solver.
-    Clarabel { qp: Box<Qp>, solver: Box<DefaultSolver<f64>> },
-    /// The stage-wise QP with its own interior-point solver.
-    Riccati(Box<RiccatiQp>),
+    Clarabel {
+        qp: Box<Qp>,
+        solver: Box<DefaultSolver<f64>>,
+    },
+    /// The stage-wise QP with its own interior-point solver, without the horizontal position
+    /// (7 kept states) or with it (9): the stage sizes are the solver's type parameters.
+    Riccati7(Box<RiccatiQp<7>>),
+    Riccati9(Box<RiccatiQp<9>>),
+}
+
+/// Runs `$body` with `$d` bound to the backend's QP data (a [`StageData`]), whichever it is.
+macro_rules! with_stage_data {
+    ($backend:expr, $d:ident => $body:expr) => {
+        match $backend {
+            Backend::Clarabel { qp, .. } => {
+                let $d = &mut **qp;
+                $body
+            }
+            Backend::Riccati7(qp) => {
+                let $d = &mut **qp;
+                $body
+            }
+            Backend::Riccati9(qp) => {
+                let $d = &mut **qp;
+                $body
+            }
+        }
+    };
 }
 
 impl Backend {
+    fn riccati<const S: usize>(
+        cfg: &MpcConfig,
+        states: &[usize],
+        state_weights: &[f64; NX],
+        soft: &[usize],
+    ) -> Box<RiccatiQp<S>> {
+        let n = cfg.horizon;
+        let mut qp = RiccatiQp::<S>::new(n, cfg.rate_limit.is_some(), &soft_steps(n), soft);
+        for k in 1..=n {
+            let f = if k == n { cfg.terminal } else { 1.0 };
+            qp.wx[k - 1] = SVector::from_fn(|s, _| 2.0 * f * state_weights[states[s]]);
+        }
+        qp.ru = Vector4::from_fn(|j, _| 2.0 * cfg.input[j]);
+        qp.rd = Vector4::from_fn(|j, _| 2.0 * cfg.input_rate[j]);
+        // Priced as in Clarabel's QP: the quadratic price equals the linear one.
+        (qp.slack_linear, qp.slack_quad) = (cfg.envelope_penalty, 2.0 * cfg.envelope_penalty);
+        Box::new(qp)
+    }
+
     /// `du_k` of the last solution.
     fn input_deviation(&self, k: usize) -> Input {
         match self {
             Backend::Clarabel { qp, solver } => Input::from_fn(|j, _| solver.solution.x[qp.u_index(k, j)]),
-            Backend::Riccati(qp) => Input::from_fn(|j, _| qp.u[k * NU + j]),
+            Backend::Riccati7(qp) => qp.input(k),
+            Backend::Riccati9(qp) => qp.input(k),
         }
     }
 
-    /// `dx_k` of kept component `s` (of `m`) in the last solution, where the QP keeps it.
-    fn state_deviation(&self, k: usize, s: usize, m: usize) -> Option<f64> {
+    /// `dx_k` of kept component `s` in the last solution, where the QP keeps it.
+    fn state_deviation(&self, k: usize, s: usize) -> Option<f64> {
         match self {
             Backend::Clarabel { qp, solver } => qp.x_index(k, s).map(|at| solver.solution.x[at]),
-            Backend::Riccati(qp) => Some(qp.x[k * m + s]),
+            Backend::Riccati7(qp) => Some(qp.x[k][s]),
+            Backend::Riccati9(qp) => Some(qp.x[k][s]),
         }
     }
 }
 
-/// The kept rows and columns of every `A_k`, `B_k` into the Riccati solver's stages.
-pub(super) fn write_stages(qp: &mut RiccatiQp, states: &[usize], a: &[StateMatrix], b: &[InputMatrix]) {
-    let m = states.len();
-    for k in 0..qp.n {
-        let ak = &mut qp.a[k * m * m..(k + 1) * m * m];
-        for (c, &ic) in states.iter().enumerate() {
-            for (r, &ir) in states.iter().enumerate() {
-                ak[c * m + r] = a[k][(ir, ic)];
-            }
-        }
-        let bk = &mut qp.b[k * m * NU..(k + 1) * m * NU];
-        for j in 0..NU {
-            for (r, &ir) in states.iter().enumerate() {
-                bk[j * m + r] = b[k][(ir, j)];
-            }
+/// Where a cycle's stage data go: the same values, whichever QP holds them.
+trait StageData {
+    /// The linear cost of `dx_k[states[s]]`, `k = 1..=N`.
+    fn state_cost(&mut self, k: usize, s: usize, q: f64);
+    /// The linear cost of `du_k[j]`, its bounds `du <= upper`, `-du <= lower`, and the rate
+    /// limits' right-hand sides.
+    fn input_data(&mut self, k: usize, j: usize, q: f64, upper: f64, lower: f64, rate: Option<(f64, f64)>);
+    /// The disturbance on kept component `r`.
+    fn disturbance(&mut self, r: usize, v: f64);
+    /// The steps with soft bounds.
+    fn soft_step(&self, j: usize) -> Option<usize>;
+    /// Soft bound `b` at `soft_steps[j]`: `dx <= hi`, `-dx <= lo`, priced `penalty` per unit.
+    fn soft_bound(&mut self, j: usize, b: usize, hi: f64, lo: f64, penalty: f64);
+}
+
+impl StageData for Qp {
+    fn state_cost(&mut self, k: usize, s: usize, q: f64) {
+        let m = self.states.len();
+        self.state_q[(k - 1) * m + s] = q;
+    }
+
+    fn input_data(&mut self, k: usize, j: usize, q: f64, upper: f64, lower: f64, rate: Option<(f64, f64)>) {
+        self.input_q[k * NU + j] = q;
+        let (ub, lb) = (self.bound_row(k, j, true), self.bound_row(k, j, false));
+        (self.b[ub], self.b[lb]) = (upper, lower);
+        if let Some((ru, rl)) = rate {
+            let (rup, rlo) = (self.rate_row(k, j, true), self.rate_row(k, j, false));
+            (self.b[rup], self.b[rlo]) = (ru, rl);
         }
     }
+
+    fn disturbance(&mut self, r: usize, v: f64) {
+        self.disturbance[r] = v;
+    }
+
+    fn soft_step(&self, j: usize) -> Option<usize> {
+        self.soft_steps.get(j).copied()
+    }
+
+    fn soft_bound(&mut self, j: usize, b: usize, hi: f64, lo: f64, penalty: f64) {
+        let (upper, lower, sign) = (self.soft_row(j, b, 0), self.soft_row(j, b, 1), self.soft_row(j, b, 2));
+        (self.b[upper], self.b[lower], self.b[sign]) = (hi, lo, 0.0);
+        let at = self.slack_index(j, b);
+        self.q[at] = penalty;
+    }
+}
+
+impl<const S: usize> StageData for RiccatiQp<S> {
+    fn state_cost(&mut self, k: usize, s: usize, q: f64) {
+        self.qx[k - 1][s] = q;
+    }
+
+    fn input_data(&mut self, k: usize, j: usize, q: f64, upper: f64, lower: f64, rate: Option<(f64, f64)>) {
+        (self.qu[k][j], self.u_hi[k][j], self.u_lo[k][j]) = (q, upper, lower);
+        if let Some((ru, rl)) = rate {
+            (self.r_hi[k][j], self.r_lo[k][j]) = (ru, rl);
+        }
+    }
+
+    fn disturbance(&mut self, r: usize, v: f64) {
+        self.d[r] = v;
+    }
+
+    fn soft_step(&self, j: usize) -> Option<usize> {
+        self.soft_steps.get(j).copied()
+    }
+
+    fn soft_bound(&mut self, j: usize, b: usize, hi: f64, lo: f64, _penalty: f64) {
+        let at = j * self.soft.len() + b;
+        (self.h_hi[at], self.h_lo[at]) = (hi, lo);
+    }
+}
+
+/// A Riccati solve: the kept rows of the linearisation in, the solver's outcome out
+/// (status, iterations, objective, whether the solution is finite).
+fn solve_riccati<const S: usize>(
+    qp: &mut RiccatiQp<S>,
+    states: &[usize],
+    lin: &HorizonLinearisation,
+    cfg: &MpcConfig,
+) -> (SolverStatus, u32, f64, bool) {
+    qp.write_stages(states, lin.a(), lin.b());
+    let limits =
+        IpmLimits { max_iter: cfg.solver_max_iter, tol: cfg.riccati_tolerance, time_limit: cfg.solver_time_limit };
+    qp.solve(limits);
+    (qp.info.status, qp.info.iterations, qp.info.objective, qp.finite())
 }
 
 impl<M: DiscreteModel> Mpc<M> {
@@ -164,23 +280,10 @@ impl<M: DiscreteModel> Mpc<M> {
                     .map_err(|e| MpcError::Setup(e.to_string()))?;
                 Backend::Clarabel { qp: Box::new(qp), solver: Box::new(solver) }
             }
-            QpSolver::Riccati => {
-                let m = states.len();
-                let mut qp = RiccatiQp::new(n, m, cfg.rate_limit.is_some(), &soft_steps(n), &soft);
-                for k in 1..=n {
-                    let f = if k == n { cfg.terminal } else { 1.0 };
-                    for (s, &i) in states.iter().enumerate() {
-                        qp.wx[(k - 1) * m + s] = 2.0 * f * state_weights[i];
-                    }
-                }
-                for j in 0..NU {
-                    qp.ru[j] = 2.0 * cfg.input[j];
-                    qp.rd[j] = 2.0 * cfg.input_rate[j];
-                }
-                // Priced as in Clarabel's QP: the quadratic price equals the linear one.
-                (qp.slack_linear, qp.slack_quad) = (cfg.envelope_penalty, 2.0 * cfg.envelope_penalty);
-                Backend::Riccati(Box::new(qp))
+            QpSolver::Riccati if states.len() == 7 => {
+                Backend::Riccati7(Backend::riccati(&cfg, states, &state_weights, &soft))
             }
+            QpSolver::Riccati => Backend::Riccati9(Backend::riccati(&cfg, states, &state_weights, &soft)),
         };
         let rest = Input::from_fn(|j, _| 0.0f64.clamp(lo[j], hi[j]));
         Ok(Self {
@@ -225,7 +328,7 @@ impl<M: DiscreteModel> Mpc<M> {
     pub fn solver(&self) -> Option<&DefaultSolver<f64>> {
         match &self.backend {
             Backend::Clarabel { solver, .. } => Some(solver),
-            Backend::Riccati(_) => None,
+            Backend::Riccati7(_) | Backend::Riccati9(_) => None,
         }
     }
 
@@ -233,7 +336,8 @@ impl<M: DiscreteModel> Mpc<M> {
     /// (residuals and complementarity at the end).
     pub fn riccati_info(&self) -> Option<RiccatiInfo> {
         match &self.backend {
-            Backend::Riccati(qp) => Some(qp.info),
+            Backend::Riccati7(qp) => Some(qp.info),
+            Backend::Riccati9(qp) => Some(qp.info),
             Backend::Clarabel { .. } => None,
         }
     }
@@ -333,7 +437,7 @@ impl<M: DiscreteModel> Mpc<M> {
     /// Writes this cycle's data into the solver, solves, and on success takes the solution
     /// as the new plan and prediction. Returns why it fell back, if it did.
     fn solve(&mut self, refs: &[Reference], t1: Instant, report: &mut CycleReport) -> Option<Fallback> {
-        self.fill_common(refs);
+        self.fill_stage_data(refs);
         let written = match &mut self.backend {
             Backend::Clarabel { qp, solver } => {
                 qp.condense(self.lin.a(), self.lin.b());
@@ -344,34 +448,22 @@ impl<M: DiscreteModel> Mpc<M> {
                     && solver.update_q(&qp.q).is_ok()
                     && solver.update_b(&qp.b).is_ok()
             }
-            Backend::Riccati(qp) => {
-                write_stages(qp, &self.states, self.lin.a(), self.lin.b());
-                true
-            }
+            Backend::Riccati7(_) | Backend::Riccati9(_) => true,
         };
         let t2 = Instant::now();
         report.update_us = (t2 - t1).as_secs_f64() * 1e6;
         if !written {
             return Some(Fallback::Solver(SolverStatus::Unsolved));
         }
-        let finite = match &mut self.backend {
+        let finite;
+        (report.status, report.iterations, report.objective, finite) = match &mut self.backend {
             Backend::Clarabel { solver, .. } => {
                 solver.solve();
                 let sol = &solver.solution;
-                (report.status, report.iterations, report.objective) = (sol.status, sol.iterations, sol.obj_val);
-                sol.x.iter().all(|v| v.is_finite())
+                (sol.status, sol.iterations, sol.obj_val, sol.x.iter().all(|v| v.is_finite()))
             }
-            Backend::Riccati(qp) => {
-                let limits = IpmLimits {
-                    max_iter: self.cfg.solver_max_iter,
-                    tol: self.cfg.riccati_tolerance,
-                    time_limit: self.cfg.solver_time_limit,
-                };
-                qp.solve(limits);
-                (report.status, report.iterations, report.objective) =
-                    (qp.info.status, qp.info.iterations, qp.info.objective);
-                qp.u.iter().chain(&qp.x).all(|v| v.is_finite())
-            }
+            Backend::Riccati7(qp) => solve_riccati(qp, &self.states, &self.lin, &self.cfg),
+            Backend::Riccati9(qp) => solve_riccati(qp, &self.states, &self.lin, &self.cfg),
         };
         report.solve_us = t2.elapsed().as_secs_f64() * 1e6;
         if !(matches!(report.status, SolverStatus::Solved | SolverStatus::AlmostSolved) && finite) {
@@ -385,10 +477,9 @@ impl<M: DiscreteModel> Mpc<M> {
     /// The new plan (nominal plus the QP's input deviations, clipped) and the prediction.
     fn accept_solution(&mut self) {
         let n = self.cfg.horizon;
-        let m = self.states.len();
         let backend = &self.backend;
         let du = |k: usize| backend.input_deviation(k);
-        let kept = |k: usize, s: usize| backend.state_deviation(k, s, m);
+        let kept = |k: usize, s: usize| backend.state_deviation(k, s);
         for k in 0..n {
             self.plan[k] = self.clip(&(self.nominal[k] + du(k)));
         }
@@ -421,88 +512,47 @@ impl<M: DiscreteModel> Mpc<M> {
 
     /// This cycle's linear costs, bounds and disturbance for the nominal trajectory, written
     /// into the QP of whichever solver runs (Clarabel's is condensed afterwards).
-    fn fill_common(&mut self, refs: &[Reference]) {
+    fn fill_stage_data(&mut self, refs: &[Reference]) {
         let n = self.cfg.horizon;
-        let m = self.states.len();
         let traj = self.lin.trajectory();
-        for k in 1..=n {
-            let r = refs[(k - 1).min(refs.len() - 1)];
-            let mut target = [0.0; NX];
-            (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
-            let f = if k == n { self.cfg.terminal } else { 1.0 };
-            for (s, &i) in self.states.iter().enumerate() {
-                let q = 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]);
-                match &mut self.backend {
-                    Backend::Clarabel { qp, .. } => qp.state_q[(k - 1) * m + s] = q,
-                    Backend::Riccati(qp) => qp.qx[(k - 1) * m + s] = q,
+        let (cfg, states, nominal) = (&self.cfg, &self.states, &self.nominal);
+        with_stage_data!(&mut self.backend, data => {
+            for k in 1..=n {
+                let r = refs[(k - 1).min(refs.len() - 1)];
+                let mut target = [0.0; NX];
+                (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
+                let f = if k == n { cfg.terminal } else { 1.0 };
+                for (s, &i) in states.iter().enumerate() {
+                    data.state_cost(k, s, 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]));
                 }
             }
-        }
-        for k in 0..n {
-            let prev = if k == 0 { self.last_applied } else { self.nominal[k - 1] };
-            for j in 0..NU {
-                let ubar = self.nominal[k][j];
-                let rate_w = 2.0 * self.cfg.input_rate[j];
-                let d_here = ubar - prev[j];
-                let target = if self.cfg.input_target_tau[j] > 0.0 { self.input_target[j] } else { 0.0 };
-                let mut q = 2.0 * self.cfg.input[j] * (ubar - target) + rate_w * d_here;
-                if k + 1 < n {
-                    q -= rate_w * (self.nominal[k + 1][j] - ubar);
-                }
-                let (upper, lower) = (self.hi[j] - ubar, ubar - self.lo[j]);
-                let rate = self.cfg.rate_limit.map(|rate| (rate[j] - d_here, rate[j] + d_here));
-                match &mut self.backend {
-                    Backend::Clarabel { qp, .. } => {
-                        qp.input_q[k * NU + j] = q;
-                        let (ub, lb) = (qp.bound_row(k, j, true), qp.bound_row(k, j, false));
-                        (qp.b[ub], qp.b[lb]) = (upper, lower);
-                        if let Some((ru, rl)) = rate {
-                            let (rup, rlo) = (qp.rate_row(k, j, true), qp.rate_row(k, j, false));
-                            (qp.b[rup], qp.b[rlo]) = (ru, rl);
-                        }
+            for k in 0..n {
+                let prev = if k == 0 { self.last_applied } else { nominal[k - 1] };
+                for j in 0..NU {
+                    let ubar = nominal[k][j];
+                    let rate_w = 2.0 * cfg.input_rate[j];
+                    let d_here = ubar - prev[j];
+                    let target = if cfg.input_target_tau[j] > 0.0 { self.input_target[j] } else { 0.0 };
+                    let mut q = 2.0 * cfg.input[j] * (ubar - target) + rate_w * d_here;
+                    if k + 1 < n {
+                        q -= rate_w * (nominal[k + 1][j] - ubar);
                     }
-                    Backend::Riccati(qp) => {
-                        let at = k * NU + j;
-                        (qp.qu[at], qp.u_hi[at], qp.u_lo[at]) = (q, upper, lower);
-                        if let Some((ru, rl)) = rate {
-                            (qp.r_hi[at], qp.r_lo[at]) = (ru, rl);
-                        }
-                    }
+                    let rate = cfg.rate_limit.map(|rate| (rate[j] - d_here, rate[j] + d_here));
+                    data.input_data(k, j, q, self.hi[j] - ubar, ubar - self.lo[j], rate);
                 }
             }
-        }
-        // The rollout has no defect: the dynamics carry only the disturbance.
-        for (r, &i) in self.states.iter().enumerate() {
-            match &mut self.backend {
-                Backend::Clarabel { qp, .. } => qp.disturbance[r] = self.disturbance[i],
-                Backend::Riccati(qp) => qp.d[r] = self.disturbance[i],
+            // The rollout has no defect: the dynamics carry only the disturbance.
+            for (r, &i) in states.iter().enumerate() {
+                data.disturbance(r, self.disturbance[i]);
             }
-        }
-        let ns = self.soft_bounds.len();
-        for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
-            let steps = match &self.backend {
-                Backend::Clarabel { qp, .. } => qp.soft_steps.len(),
-                Backend::Riccati(qp) => qp.soft_steps.len(),
-            };
-            for j in 0..steps {
-                match &mut self.backend {
-                    Backend::Clarabel { qp, .. } => {
-                        let k = qp.soft_steps[j];
-                        let (upper, lower, sign) = (qp.soft_row(j, b, 0), qp.soft_row(j, b, 1), qp.soft_row(j, b, 2));
-                        qp.b[upper] = hi - traj[k][i];
-                        qp.b[lower] = traj[k][i] - lo;
-                        qp.b[sign] = 0.0;
-                        let at = qp.slack_index(j, b);
-                        qp.q[at] = self.cfg.envelope_penalty;
-                    }
-                    Backend::Riccati(qp) => {
-                        let k = qp.soft_steps[j];
-                        qp.h_hi[j * ns + b] = hi - traj[k][i];
-                        qp.h_lo[j * ns + b] = traj[k][i] - lo;
-                    }
+            for (b, &(i, lo, hi)) in self.soft_bounds.iter().enumerate() {
+                let mut j = 0;
+                while let Some(k) = data.soft_step(j) {
+                    data.soft_bound(j, b, hi - traj[k][i], traj[k][i] - lo, cfg.envelope_penalty);
+                    j += 1;
                 }
             }
-        }
+        });
     }
 }
 
