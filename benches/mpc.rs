@@ -1,19 +1,23 @@
-//! One real-time iteration of the LTV-MPC (shift, rollout + exact Jacobians, QP data update
-//! and condensing, one Clarabel solve), from a state in the middle of a dive and turn, for
-//! three models at horizons 20 and 80, each in the default (partially condensed) formulation
-//! and in the sparse one it replaced ([`MpcConfig::with_sparse_qp`]):
+//! One real-time iteration of the LTV-MPC (shift, rollout + exact Jacobians, QP data update,
+//! one QP solve), from a state in the middle of a dive and turn, for three models at horizons
+//! 20, 40 and 80, with Clarabel on the default (partially condensed) formulation, on the
+//! sparse one it replaced ([`MpcConfig::with_sparse_qp`]), and with the Riccati
+//! interior-point solver ([`QpSolver::Riccati`]):
 //! - `mpc_iteration_h20`: the shipped controller model (`models/mpc_pinc_thrust.pinc`);
 //! - `mpc_iteration_h20_oracle`: the analytic vehicle (RK4, exact discrete Jacobians);
 //! - `mpc_iteration_h20_paper`: the paper's network (`models/paper_pinc.pinc`);
-//! - the same at `_h80`; `.../sparse` is the formulation before.
+//! - the same at `_h40`, `_h80`; `.../sparse` is Clarabel's formulation before, `.../riccati`
+//!   the Riccati solver;
+//! - `riccati_scaling/N`: the oracle's cycle on the Riccati solver at N = 20, 40, 80, 160 (the
+//!   end of the run prints each cycle's time per interior-point iteration, linear in N).
 //!
 //! - `estimator_update`: one sample of the state estimator beside it (`pinc::estimation`: one
 //!   prediction through the model's exact Jacobians, then depth, heading and yaw rate fused),
 //!   on the same models.
 //!
 //! Run with `cargo bench --bench mpc`; criterion reports the medians, and the end of the
-//! run prints default / sparse for each pair and the estimator's cost as a fraction of the
-//! MPC iteration (all measured in this one run).
+//! run prints default / sparse and riccati / default for each model and horizon and the
+//! estimator's cost as a fraction of the MPC iteration (all measured in this one run).
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group};
@@ -23,30 +27,43 @@ mod common;
 use common::median_ns;
 use pinc::estimation::{Estimator, Measurement, NoiseSettings};
 use pinc::model::PincModel;
-use pinc::mpc::{Mpc, MpcConfig, Reference};
+use pinc::mpc::{Mpc, MpcConfig, QpSolver, Reference};
 use pinc::runtime::Predictor;
 use pinc::traits::DiscreteModel;
 use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{Input, SimState, State};
 use std::hint::black_box;
 
-const HORIZONS: [usize; 2] = [20, 80];
-const FORMULATIONS: [&str; 2] = ["default", "sparse"];
+const HORIZONS: [usize; 3] = [20, 40, 80];
+const FORMULATIONS: [&str; 3] = ["default", "sparse", "riccati"];
+const SCALING: [usize; 4] = [20, 40, 80, 160];
+
+/// The bench's controller settings: `formulation` at `horizon`, no time limit (a solve that
+/// stopped early would look fast).
+fn config(formulation: &str, horizon: usize, bounds_from: &Predictor<f64>) -> MpcConfig {
+    let cfg = MpcConfig {
+        bounds: bounds_from.input_bounds(),
+        horizon,
+        solver_time_limit: f64::INFINITY,
+        ..MpcConfig::default()
+    };
+    match formulation {
+        "sparse" => cfg.with_sparse_qp(),
+        "riccati" => MpcConfig { qp: QpSolver::Riccati, ..cfg },
+        _ => cfg,
+    }
+}
+
+fn bench_state() -> State {
+    to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]))
+}
 
 fn bench_model<M: DiscreteModel + Clone>(c: &mut Criterion, id: &str, model: M, bounds_from: &Predictor<f64>) {
-    let x: State = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
+    let x = bench_state();
     for horizon in HORIZONS {
         let mut group = c.benchmark_group(id.replace("h20", &format!("h{horizon}")));
         for formulation in FORMULATIONS {
-            // No time limit: a solve that stopped early would look fast.
-            let cfg = MpcConfig {
-                bounds: bounds_from.input_bounds(),
-                horizon,
-                solver_time_limit: f64::INFINITY,
-                ..MpcConfig::default()
-            };
-            let cfg = if formulation == "sparse" { cfg.with_sparse_qp() } else { cfg };
-            let mut mpc = Mpc::new(model.clone(), cfg).unwrap();
+            let mut mpc = Mpc::new(model.clone(), config(formulation, horizon, bounds_from)).unwrap();
             let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
             group.bench_function(formulation, |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
         }
@@ -66,6 +83,46 @@ fn mpc_iteration(c: &mut Criterion) {
     let paper = load("paper_pinc.pinc");
     let pp = Predictor::reference(&paper);
     bench_model(c, "mpc_iteration_h20_paper", Predictor::reference(&paper), &pp);
+}
+
+/// The Riccati solver's cycle on the analytic vehicle as the horizon doubles.
+fn riccati_scaling(c: &mut Criterion) {
+    let shipped = load("mpc_pinc_thrust.pinc");
+    let p = Predictor::reference(&shipped);
+    let x = bench_state();
+    let mut group = c.benchmark_group("riccati_scaling");
+    for horizon in SCALING {
+        let mut mpc = Mpc::new(Rk4Vehicle::with_dt(shipped.dt), config("riccati", horizon, &p)).unwrap();
+        let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+        group.bench_function(horizon.to_string(), |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
+    }
+    group.finish();
+}
+
+/// The Riccati solver's time per interior-point iteration (its solve time over its
+/// iterations, median of 200 cycles from the bench's state) at each horizon of
+/// [`SCALING`], and where a cycle's time goes.
+fn print_riccati_iterations() {
+    let shipped = load("mpc_pinc_thrust.pinc");
+    let p = Predictor::reference(&shipped);
+    println!(
+        "
+Riccati solver on the oracle: time per interior-point iteration (median of 200 cycles)"
+    );
+    for horizon in SCALING {
+        let mut mpc = Mpc::new(Rk4Vehicle::with_dt(shipped.dt), config("riccati", horizon, &p)).unwrap();
+        let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+        let mut per: Vec<(f64, f64, f64, u32)> = (0..200)
+            .map(|_| mpc.step(&bench_state(), &refs))
+            .map(|r| (r.solve_us / r.iterations.max(1) as f64, r.linearise_us, r.solve_us, r.iterations))
+            .collect();
+        per.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (it_us, lin_us, solve_us, iterations) = per[per.len() / 2];
+        println!(
+            "N = {horizon:3}: {it_us:7.1} us per iteration ({:.3} us per stage), {iterations} iterations, solve {solve_us:.1} us, rollout + Jacobians {lin_us:.1} us",
+            it_us / horizon as f64
+        );
+    }
 }
 
 /// One estimator sample: the model step with its Jacobians and three scalar updates.
@@ -98,26 +155,20 @@ fn estimator_update(c: &mut Criterion) {
     bench_estimator(c, "estimator_update_paper", Predictor::reference(&load("paper_pinc.pinc")));
 }
 
-criterion_group!(benches, mpc_iteration, estimator_update);
+criterion_group!(benches, mpc_iteration, riccati_scaling, estimator_update);
 
 /// Clarabel's own timers for one solve of the default formulation (after 50 cycles from the
 /// bench's state), where the time of a cycle goes.
 fn print_solver_timers<M: DiscreteModel>(id: &str, model: M, bounds_from: &Predictor<f64>, horizon: usize) {
-    let cfg = MpcConfig {
-        bounds: bounds_from.input_bounds(),
-        horizon,
-        solver_time_limit: f64::INFINITY,
-        ..MpcConfig::default()
-    };
-    let mut mpc = Mpc::new(model, cfg).unwrap();
-    let x: State = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
+    let mut mpc = Mpc::new(model, config("default", horizon, bounds_from)).unwrap();
+    let x = bench_state();
     let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
     let report = (0..50).map(|_| mpc.step(&x, &refs)).last().unwrap();
     println!(
         "\n{id}: cycle {:.1} us (rollout + Jacobians {:.1}, condensing + update {:.1}, solve {:.1}), {} iterations; Clarabel's timers:",
         report.cycle_us, report.linearise_us, report.update_us, report.solve_us, report.iterations
     );
-    if let Some(t) = &mpc.solver().timers {
+    if let Some(t) = mpc.solver().and_then(|s| s.timers.as_ref()) {
         t.print();
     }
 }
@@ -133,15 +184,21 @@ fn main() {
         print_solver_timers(&format!("mpc_iteration_h{horizon}_oracle"), Rk4Vehicle::with_dt(shipped.dt), &ps, horizon);
         print_solver_timers(&format!("mpc_iteration_h{horizon}_paper"), pp.clone(), &pp, horizon);
     }
-    println!("\ncycle time, partially condensed / sparse (medians of this run):");
-    for model in ["", "_oracle", "_paper"] {
-        for horizon in HORIZONS {
-            let id = format!("mpc_iteration_h{horizon}{model}");
-            match (median_ns(&format!("{id}/default")), median_ns(&format!("{id}/sparse"))) {
-                (Some(new), Some(old)) => {
-                    println!("{id:28} {:8.1} us / {:8.1} us = {:.2}", new / 1e3, old / 1e3, new / old)
+    print_riccati_iterations();
+    for (new, old, what) in [
+        ("default", "sparse", "Clarabel, partially condensed / sparse"),
+        ("riccati", "default", "Riccati / Clarabel partially condensed"),
+    ] {
+        println!("\ncycle time, {what} (medians of this run):");
+        for model in ["", "_oracle", "_paper"] {
+            for horizon in HORIZONS {
+                let id = format!("mpc_iteration_h{horizon}{model}");
+                match (median_ns(&format!("{id}/{new}")), median_ns(&format!("{id}/{old}"))) {
+                    (Some(new), Some(old)) => {
+                        println!("{id:28} {:8.1} us / {:8.1} us = {:.2}", new / 1e3, old / 1e3, new / old)
+                    }
+                    _ => println!("{id:28} (not measured in this run)"),
                 }
-                _ => println!("{id:28} (not measured in this run)"),
             }
         }
     }
