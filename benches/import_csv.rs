@@ -9,7 +9,7 @@
 //! Criterion prints the rate in elements per second: one element is one row. Numbers are
 //! written as a logger prints them (shortest round-trip decimal form of a computed value).
 //!
-//! Run with `cargo bench --bench import_csv`.
+//! Run with `cargo bench --features tools --bench import_csv`.
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};

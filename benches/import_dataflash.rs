@@ -4,7 +4,7 @@
 //! over), from reading the file (in the page cache) to the stream set with thruster inputs.
 //! Criterion reports bytes per second (the issue asks for at least 100 MB/s).
 //!
-//! Run with `cargo bench --bench import_dataflash`.
+//! Run with `cargo bench --features tools --bench import_dataflash`.
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};

@@ -17,7 +17,7 @@
 //!   model on the BlueROV2 (16 sub-steps); at the end, the ratio of `hybrid_step` to
 //!   `rk4_step_network` plus `step`, measured in this run.
 //!
-//! Run with `cargo bench --bench runtime`; criterion reports the median of each ID.
+//! Run with `cargo bench --features tools --bench runtime`; criterion reports the median of each ID.
 #![allow(missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{Criterion, criterion_group};

@@ -9,9 +9,9 @@ set -euo pipefail
 OUT=${1:-out/own_vehicle}
 MINUTES=${TRAIN_MINUTES:-20}
 TRUE=models/example_vehicle.toml
-cargo build --release --features train --bin pinc --example mpc_track
+cargo build --release --features train --bin pinc --bin mpc_track
 PINC=target/release/pinc
-TRACK=target/release/examples/mpc_track
+TRACK=target/release/mpc_track
 mkdir -p "$OUT/logs"
 
 # 1. Closed-loop runs of the controller that knows the vehicle (in the water: your pilot or

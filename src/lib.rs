@@ -6,8 +6,9 @@
 //! `x_hat(t) = x(0) + N([x(0), u(0), t])`; fed back on itself it rolls out long horizons.
 //!
 //! The embeddable core (`vehicle`, `model`, `runtime`) builds with
-//! `--no-default-features`; the `tools` feature adds dataset generation, evaluation and the
-//! CLI, `train` the burn trainer, `mpc` the Clarabel MPC, the closed loop and its MCAP logs.
+//! `--no-default-features`; `cli` adds vehicle files and plots, `mpc` (the default) the
+//! Clarabel MPC, the closed loop and its MCAP logs, `tools` dataset generation, log import,
+//! evaluation and the `pinc` command line, `train` the burn trainer.
 
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
@@ -24,7 +25,7 @@ pub mod traits;
 pub mod types;
 pub mod vehicle;
 
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 pub mod broken_pipe;
 #[cfg(feature = "tools")]
 pub mod dataset;
@@ -34,7 +35,7 @@ pub mod eval;
 pub mod identify;
 #[cfg(feature = "vehicle")]
 pub mod link;
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 pub mod plot;
 
 pub use types::*;

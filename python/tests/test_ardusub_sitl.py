@@ -8,7 +8,7 @@ minute and a half each. The controller's model is the simulator's vehicle identi
 own logs (tests/fixtures/ardusub/sitl_identified.toml, the owner's path of docs/VEHICLE.md);
 the estimate is checked against the simulator's truth (SIM_STATE).
 
-Needs target/release/pinc and target/release/examples/mpc_track, pymavlink and mcap.
+Needs target/release/pinc and target/release/mpc_track (`--features vehicle`), pymavlink and mcap.
 """
 
 import json

@@ -22,7 +22,7 @@ from pinc import distributed  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "models" / "mpc_pinc.pinc"
 RELEASE = ROOT / "target" / "release"
-MPC_TRACK = Path(os.environ.get("PINC_MPC_TRACK", RELEASE / "examples" / "mpc_track"))
+MPC_TRACK = Path(os.environ.get("PINC_MPC_TRACK", RELEASE / "mpc_track"))
 PINC_BIN = Path(os.environ.get("PINC_BIN", RELEASE / "pinc"))
 # A short run keeps the 40-run campaign to seconds per run pair on this machine. A solve
 # that hits the wall-clock limit falls back, which a loaded machine makes happen at random:

@@ -2,8 +2,8 @@
 `pinc vehicle excite` and `mpc_track --connect`, their safety stops, and the path from an
 excitation run to an identified vehicle.
 
-Needs the `pinc` binary and the `mpc_track` example built in release (target/release/pinc,
-target/release/examples/mpc_track, or $PINC_BIN / $MPC_TRACK_BIN), the Python bindings,
+Needs the `pinc` and `mpc_track` binaries built in release with `--features vehicle`
+(target/release/pinc and target/release/mpc_track, or $PINC_BIN / $MPC_TRACK_BIN), the Python bindings,
 pymavlink and mcap. Every run is real time: about 90 s in all.
 """
 
@@ -24,9 +24,9 @@ DT = 0.08
 
 def mpc_track_binary() -> Path:
     given = os.environ.get("MPC_TRACK_BIN")
-    path = Path(given) if given else ROOT / "target" / "release" / "examples" / "mpc_track"
+    path = Path(given) if given else ROOT / "target" / "release" / "mpc_track"
     if not path.is_file():
-        pytest.skip(f"{path} is not built: run `cargo build --release --example mpc_track` first")
+        pytest.skip(f"{path} is not built: run `cargo build --release --features vehicle --bin mpc_track` first")
     return path
 
 

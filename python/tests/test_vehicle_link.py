@@ -30,7 +30,7 @@ def pinc_binary() -> Path:
     given = os.environ.get("PINC_BIN")
     path = Path(given) if given else ROOT / "target" / "release" / "pinc"
     if not path.is_file():
-        pytest.skip(f"{path} is not built: run `cargo build --release` first (CI builds it before pytest)")
+        pytest.skip(f"{path} is not built: run `cargo build --release --features vehicle` first (CI builds it before pytest)")
     return path
 
 

@@ -155,8 +155,9 @@ fn nanos(t: f64) -> u64 {
 /// # Errors
 /// The file cannot be read.
 pub fn file_sha256(path: &Path) -> Result<String, LogError> {
+    use sha2::{Digest, Sha256};
     let bytes = std::fs::read(path).map_err(|source| LogError::Io { path: path.to_owned(), source })?;
-    Ok(crate::dataset::import::sha256_hex(&bytes))
+    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
 impl McapLog {
@@ -197,6 +198,8 @@ impl<W: Write + Seek> McapLog<W> {
         info: &RunInfo,
         #[cfg(feature = "live-view")] mut view: Option<super::live_view::LiveView>,
     ) -> Result<Self, LogError> {
+        // zstd chunks where feature `tools` builds zstd in (mcap's default then), uncompressed
+        // otherwise: the main job's build compiles no compression library.
         let options = mcap::WriteOptions::new().library(concat!("pinc ", env!("CARGO_PKG_VERSION")));
         let mut writer = options.create(out)?;
         let mut channels = [0u16; TOPICS.len()];

@@ -2,22 +2,22 @@
 //! parameters, and its zero-order-hold discretisation.
 
 mod dynamics;
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 mod file;
 mod integrator;
 mod params;
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 mod thrusters;
 
 pub use dynamics::{
     RhsInputJacobian, RhsStateJacobian, body_accelerations, rhs, rhs_jacobian_times, rhs_jacobians, rhs_sim,
     to_network, to_simulator, wrap_angle,
 };
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 pub use file::VehicleFileError;
 pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
 pub use params::{ParamsError, VehicleParams, terminal_speed};
-#[cfg(feature = "tools")]
+#[cfg(feature = "cli")]
 pub use thrusters::{Allocation, CommandUnit, Thruster, ThrusterCurve, Thrusters, standalone_thruster_tables};
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
 //! The `pinc` command line: CSV contracts, exit codes and one-line errors.
+#![cfg(feature = "tools")]
 
 mod commands;
 mod eval_vehicle;

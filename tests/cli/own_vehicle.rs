@@ -5,7 +5,7 @@
 #![cfg(all(feature = "train", feature = "mpc"))]
 
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 const VEHICLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/example_vehicle.toml");
@@ -19,19 +19,9 @@ fn pinc(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_pinc")).args(args).output().expect("run pinc")
 }
 
-/// The `mpc_track` example beside the `pinc` binary, built first if this test runs alone.
-fn mpc_track() -> PathBuf {
-    let bin = Path::new(env!("CARGO_BIN_EXE_pinc")).with_file_name("examples").join("mpc_track");
-    if !bin.exists() {
-        let release = bin.parent().and_then(Path::parent).is_some_and(|p| p.ends_with("release"));
-        let mut cargo = Command::new(env!("CARGO"));
-        cargo.args(["build", "--example", "mpc_track", "--all-features"]).current_dir(env!("CARGO_MANIFEST_DIR"));
-        if release {
-            cargo.arg("--release");
-        }
-        assert!(cargo.status().unwrap().success(), "building mpc_track");
-    }
-    bin
+/// The `mpc_track` binary (built by `cargo test` beside `pinc`).
+fn mpc_track() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_mpc_track"))
 }
 
 fn json(text: &str) -> Value {
@@ -47,7 +37,7 @@ fn closed_loop_logs_and_an_excitation_run_identify_train_and_control_another_veh
     // Two closed-loop runs of the oracle (the controller that knows the plant) on the vehicle.
     for reference in ["default", "zigzag"] {
         let r = format!("{refs}/{reference}.csv");
-        let out = Command::new(mpc_track())
+        let out = mpc_track()
             .args(["--oracle", "--vehicle", VEHICLE, "--reference", &r, "--out-dir", &logs, "--json"])
             .output()
             .unwrap();
@@ -136,7 +126,7 @@ fn closed_loop_logs_and_an_excitation_run_identify_train_and_control_another_veh
     assert!(inspect.contains("pinc train --data"), "{inspect}");
 
     // The new model in the loop against the true vehicle (the short run the budget allows).
-    let out = Command::new(mpc_track())
+    let out = mpc_track()
         .args(["--model", &model, "--vehicle", VEHICLE, "--duration", "8", "--out-dir", &d("run"), "--json"])
         .output()
         .unwrap();
@@ -176,10 +166,7 @@ fn bad_input_on_the_path_is_a_one_line_error_and_leaves_nothing_behind() {
     assert!(!Path::new(&out).exists(), "nothing written");
     // A log without the topics.
     let logs = d("logs");
-    ok(
-        Command::new(mpc_track()).args(["--oracle", "--duration", "2", "--out-dir", &logs, "--json"]).output().unwrap(),
-        "mpc_track",
-    );
+    ok(mpc_track().args(["--oracle", "--duration", "2", "--out-dir", &logs, "--json"]).output().unwrap(), "mpc_track");
     let log = format!("{logs}/mpc_default_oracle.mcap");
     fails(
         pinc(&["dataset", "import", "--out", &out, "--state-topic", "/odometry", &log]),
@@ -198,6 +185,6 @@ fn bad_input_on_the_path_is_a_one_line_error_and_leaves_nothing_behind() {
     // And a reference file with a bad line for the controller.
     let r = d("ref.csv");
     std::fs::write(&r, "t,depth_m,heading_deg\n0,1,0\n5,x,0\n").unwrap();
-    let out = Command::new(mpc_track()).args(["--reference", &r, "--out-dir", &logs]).output().unwrap();
+    let out = mpc_track().args(["--reference", &r, "--out-dir", &logs]).output().unwrap();
     fails(out, &format!("{r}: line 3: depth_m: \"x\" is not a finite number"));
 }

@@ -1,4 +1,5 @@
 //! The dataset presets and their storage, and the evaluation metrics.
+#![cfg(feature = "tools")]
 
 #[path = "../common/mod.rs"]
 mod common;

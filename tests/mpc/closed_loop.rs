@@ -275,6 +275,7 @@ fn perturbed_runs_are_judged_and_a_diverging_plant_is_a_counted_failure_not_a_cr
 }
 
 #[test]
+#[cfg(feature = "tools")] // the BlueROV2's thrust limits are the dataset presets'
 fn the_full_thrust_model_tracks_like_the_oracle_and_its_velocities_stay_in_its_envelope() {
     // models/mpc_pinc_thrust.pinc: trained on the BlueROV2's whole thrust range (the mpc
     // preset); the MPC's bounds are that range. Measured (docs/GUIDE_CONTROLLER.md): RMS 0.1055 m / 3.71 deg

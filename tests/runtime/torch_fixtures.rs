@@ -1,5 +1,6 @@
 //! Import + runtime against outputs PyTorch computed for the same random weights
 //! (tests/fixtures, made outside this project: float32 on CPU, layout of the paper's code).
+#![cfg(feature = "tools")]
 
 use pinc::model::{Activation, import_state_dict};
 use pinc::runtime::{Predictor, Real};

@@ -174,7 +174,7 @@ enum Command {
     /// `mpc_track --connect URL --model OUT/model.pinc` (docs/FIT.md).
     #[cfg(all(feature = "train", feature = "vehicle"))]
     Fit(Box<fit_cmd::FitArgs>),
-    /// Fit a model to your vehicle: needs the `train` feature (burn), which this build does not have.
+    /// Fit a model to your vehicle: needs the `train` (burn) and `vehicle` features, which this build does not have.
     #[cfg(not(all(feature = "train", feature = "vehicle")))]
     #[command(disable_help_flag = true)]
     Fit {
@@ -187,6 +187,14 @@ enum Command {
     Vehicle {
         #[command(subcommand)]
         action: vehicle_cmd::VehicleAction,
+    },
+    /// A live ArduSub vehicle: needs the `vehicle` feature (MAVLink), which this build does not have.
+    #[cfg(not(feature = "vehicle"))]
+    #[command(disable_help_flag = true)]
+    Vehicle {
+        /// Whatever was given; nothing runs without the feature.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
     },
 }
 
@@ -271,12 +279,19 @@ fn main() -> ExitCode {
         #[cfg(not(all(feature = "train", feature = "vehicle")))]
         Command::Fit { .. } => {
             eprintln!(
-                "error: this pinc was built without the trainer; run `cargo run --release --features train -- fit ...`"
+                "error: this pinc was built without the trainer or the vehicle link; run `cargo run --release --features train,vehicle -- fit ...`"
             );
             return ExitCode::from(2);
         }
         #[cfg(feature = "vehicle")]
         Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
+        #[cfg(not(feature = "vehicle"))]
+        Command::Vehicle { .. } => {
+            eprintln!(
+                "error: this pinc was built without the vehicle link; run `cargo run --release --features vehicle -- vehicle ...`"
+            );
+            return ExitCode::from(2);
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

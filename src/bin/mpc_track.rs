@@ -2,9 +2,9 @@
 //! `--oracle`, on the analytic model) against the simulated BlueROV2.
 //!
 //! ```sh
-//! cargo run --release --example mpc_track                       # PINC-MPC, scenario default
-//! cargo run --release --example mpc_track -- --oracle --scenario disturbed --json
-//! cargo run --release --example mpc_track -- --reference examples/references/zigzag.csv
+//! cargo run --release --bin mpc_track                       # PINC-MPC, scenario default
+//! cargo run --release --bin mpc_track -- --oracle --scenario disturbed --json
+//! cargo run --release --bin mpc_track -- --reference examples/references/zigzag.csv
 //! ```
 //!
 //! Prints a summary table (or `--json`) and writes a PNG of the run and its MCAP log (open it
@@ -12,7 +12,9 @@
 //!
 //! With `--connect URL --vehicle V.toml` the plant is a live ArduSub vehicle instead
 //! (docs/VEHICLE.md): one MPC cycle per fresh state, the wrench sent as commands, every
-//! safety trigger stopping the run with the neutral command.
+//! safety trigger stopping the run with the neutral command. That needs the `vehicle` feature
+//! (`cargo run --release --features vehicle --bin mpc_track -- --connect URL ...`), `--foxglove`
+//! the `live-view` feature; the default build leaves both out.
 
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -145,6 +147,10 @@ enum ScenarioName {
 
 fn main() -> ExitCode {
     pinc::broken_pipe::exit_quietly_on_broken_pipe();
+    if let Some(e) = left_out_flag() {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     match try_main(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if pinc::broken_pipe::is_broken_pipe(&e) => ExitCode::SUCCESS,
@@ -153,6 +159,22 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
+}
+
+/// A flag of a feature this build left out, with the command that builds it in (clap would
+/// only say that the flag is unknown).
+fn left_out_flag() -> Option<String> {
+    let flags =
+        [("--connect", "vehicle", cfg!(feature = "vehicle")), ("--foxglove", "live-view", cfg!(feature = "live-view"))];
+    let given = |flag: &str| {
+        let given_as = |a: &str| a == flag || a.strip_prefix(flag).is_some_and(|rest| rest.starts_with('='));
+        std::env::args_os().skip(1).any(|a| a.to_str().is_some_and(given_as))
+    };
+    let (flag, feature, _) = flags.into_iter().find(|&(flag, _, built)| !built && given(flag))?;
+    Some(format!(
+        "{flag} needs the `{feature}` feature, which this build left out: \
+         cargo run --release --features {feature} --bin mpc_track -- {flag} ..."
+    ))
 }
 
 fn try_main(a: Args) -> Result<(), String> {
