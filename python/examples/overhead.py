@@ -27,11 +27,13 @@ def main():
     p = pinc.Predictor(str(ROOT / "models" / "mpc_pinc_thrust.pinc"))
     x = np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.0, 0.05, 0.0])
     u = np.array([2.0, 0.1, 5.0, 0.05])
+    out = np.empty(9)
     U20 = np.tile(u, (20, 1))
     U65 = np.tile(u, (65, 1))
     xb, ub = np.tile(x, (1000, 1)), np.tile(U65, (1000, 1, 1))
     times = {
         "step_us": best_us(lambda: p.step(x, u), 20000),
+        "step_into_us": best_us(lambda: p.step_into(x, u, out), 20000),
         "rollout_65_us": best_us(lambda: p.rollout(x, U65), 2000),
         "linearise_h20_us": best_us(lambda: p.linearise(x, U20), 2000),
         "rollout_batch_1000x65_ms": best_us(lambda: p.rollout_batch(xb, ub), 5) / 1e3,

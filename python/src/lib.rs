@@ -6,7 +6,10 @@
 //! (a `ValueError`).
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayViewD, Dimension};
-use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn};
+use numpy::{
+    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn, PyArrayMethods, PyReadonlyArray1,
+    PyReadwriteArray1,
+};
 use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::{Outcome, robustness};
 use pinc::model::PincModel;
@@ -43,6 +46,17 @@ fn checked<'a>(arg: &str, a: &'a Array<'_>, shape: &[Option<usize>]) -> PyResult
     };
     if !all_finite && let Some((i, x)) = v.indexed_iter().find(|(_, x)| !x.is_finite()) {
         return Err(PyValueError::new_err(format!("{arg}{:?} = {x} is not finite", i.slice())));
+    }
+    Ok(v)
+}
+
+/// A contiguous 1-D argument of `N` finite values (`N` from the expected length).
+fn vector<'a, const N: usize>(arg: &str, v: &'a [f64]) -> PyResult<&'a [f64]> {
+    if v.len() != N {
+        return Err(PyValueError::new_err(format!("{arg}: expected shape ({N}), got ({})", v.len())));
+    }
+    if let Some((i, x)) = v.iter().enumerate().find(|(_, x)| !x.is_finite()) {
+        return Err(PyValueError::new_err(format!("{arg}[{i}] = {x} is not finite")));
     }
     Ok(v)
 }
@@ -146,6 +160,31 @@ impl Predictor {
         let mut ws = self.ws.lock().expect("workspace lock");
         self.inner.step_dt(&mut ws, &x, &u, dt, &mut out).map_err(runtime_err)?;
         Ok(Array1::from_iter(out.iter().copied()).into_pyarray(py))
+    }
+
+    /// One step into a caller's array: `x` (9,) and `u` (4,) float64 arrays, `out` a writable
+    /// contiguous float64 array (9,) that receives the next state; `dt` as in `step`. Nothing
+    /// is allocated and no argument is converted: the call for a controller's loop (`step`
+    /// takes any array-like and returns a new array).
+    #[pyo3(signature = (x, u, out, dt = None))]
+    fn step_into(
+        &self,
+        x: PyReadonlyArray1<'_, f64>,
+        u: PyReadonlyArray1<'_, f64>,
+        mut out: PyReadwriteArray1<'_, f64>,
+        dt: Option<f64>,
+    ) -> PyResult<()> {
+        let x = State::from_column_slice(vector::<NX>("x", x.as_slice()?)?);
+        let u = Input::from_column_slice(vector::<NU>("u", u.as_slice()?)?);
+        let out = out.as_slice_mut()?;
+        if out.len() != NX {
+            return Err(PyValueError::new_err(format!("out: expected shape ({NX}), got ({})", out.len())));
+        }
+        let mut next = State::zeros();
+        let mut ws = self.ws.lock().expect("workspace lock");
+        self.inner.step_dt(&mut ws, &x, &u, dt.unwrap_or(self.inner.dt()), &mut next).map_err(runtime_err)?;
+        out.copy_from_slice(next.as_slice());
+        Ok(())
     }
 
     /// Rollout: `x0` (9,), `U` (N, 4) -> (N + 1, 9), the first row `x0`.

@@ -94,6 +94,27 @@ def test_one_run_is_mpc_tracks_and_draws_repeat():
     assert nominal["samples"] == 200 and nominal["rms_depth_m"] < 1.0
 
 
+def test_the_riccati_solver_runs_the_same_closed_loop(tmp_path):
+    """`qp="riccati"` reaches the controller: the same run as Clarabel's to the solvers'
+    real-time tolerances, on a perturbed plant too; an unknown solver is refused by name."""
+    riccati = {**SETTINGS, "qp": "riccati"}
+    for seed in (None, 3):
+        a, b = closed_loop.run(SETTINGS, seed=seed), closed_loop.run(riccati, seed=seed)
+        assert b.get("fallbacks", 0) == 0 and b.get("success", True), b
+        for k in ("rms_depth_m", "rms_heading_deg"):
+            assert b[k] == pytest.approx(a[k], rel=0.01), (k, a[k], b[k])
+    nominal = closed_loop.run(riccati)
+    assert nominal["samples"] == 200
+    if MPC_TRACK.exists():
+        out = tmp_path / "riccati"
+        args = ["--model", MODEL, "--scenario", "disturbed", "--duration", "16", "--qp", "riccati", "--json", "--out-dir", out]
+        p = subprocess.run([str(MPC_TRACK), *map(str, args)], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        assert json.loads(p.stdout)["rms_depth_m"] == pytest.approx(nominal["rms_depth_m"], rel=1e-3)
+    with pytest.raises(Exception, match="riccatti"):
+        closed_loop.run({**SETTINGS, "qp": "riccatti"})
+
+
 def test_campaign_on_two_nodes_equals_mpc_track_despite_a_killed_worker(cluster, tmp_path):
     address, marks = cluster
     expected = mpc_track_monte_carlo(tmp_path, RUNS)

@@ -103,6 +103,43 @@ def test_step_takes_array_likes_and_dt(p):
     assert p.dt == 0.08
 
 
+def test_step_into_writes_steps_result_into_the_callers_array(p):
+    x = np.array([0, 0, 1, 1, 0, 0.2, 0, 0, 0], dtype=float)
+    u = np.array([2, 0, 5, 0.1])
+    out = np.full(9, np.nan)
+    assert p.step_into(x, u, out) is None
+    np.testing.assert_array_equal(out, p.step(x, u))
+    p.step_into(x, u, out, dt=0.06)
+    np.testing.assert_array_equal(out, p.step(x, u, dt=0.06))
+    # A row of a 2-D buffer is a contiguous (9,) view: a rollout written in place.
+    traj = np.zeros((4, 9))
+    traj[0] = x
+    for k in range(3):
+        p.step_into(traj[k], u, traj[k + 1])
+    np.testing.assert_allclose(traj, p.rollout(x, np.tile(u, (3, 1))), rtol=0, atol=1e-12)
+
+
+def test_step_into_refuses_what_it_cannot_write_or_read(p):
+    x, u = np.zeros(9), np.zeros(4)
+    x[3] = 1.0
+    with pytest.raises(ValueError, match=r"out: expected shape \(9\), got \(8\)"):
+        p.step_into(x, u, np.zeros(8))
+    with pytest.raises(ValueError, match=r"u: expected shape \(4\), got \(3\)"):
+        p.step_into(x, np.zeros(3), np.zeros(9))
+    with pytest.raises(ValueError, match=r"x\[2\] = NaN is not finite"):
+        p.step_into(np.array([0, 0, np.nan, 1, 0, 0, 0, 0, 0]), u, np.zeros(9))
+    with pytest.raises(ValueError, match="contiguous"):
+        p.step_into(x, u, np.zeros(18)[::2])
+    with pytest.raises(TypeError):
+        p.step_into(x, u, np.zeros(9, dtype=np.float32))
+    with pytest.raises(TypeError):
+        p.step_into(list(x), u, np.zeros(9))
+    out = np.zeros(9)
+    out.flags.writeable = False
+    with pytest.raises((TypeError, ValueError)):
+        p.step_into(x, u, out)
+
+
 def test_envelope_names_every_component(p):
     e = p.envelope
     assert list(e) == ["x", "y", "z", "cos_psi", "sin_psi", "u", "v", "w", "r", "X", "Y", "Z", "Mz"]

@@ -61,6 +61,12 @@ pub(crate) struct IpmLimits {
 const STEP_TO_BOUNDARY: f64 = 0.995;
 /// Steps shorter than this for three iterations in a row end the solve as stalled.
 const STALL_STEP: f64 = 1e-8;
+/// The start's smallest row slack and a soft slack's margin beyond its bound's violation:
+/// measured on the shipped model and the oracle (default scenario and the bench's state),
+/// these took the mean iterations from 5.0 / 5.0 and 8.6 / 7.7 to 4.9 / 4.0 and 5.4 / 3.4
+/// against a start at `t >= 1`, `lambda = 1`, slacks 1 beyond their violation.
+const INITIAL_ROW_SLACK: f64 = 0.1;
+const INITIAL_SLACK_MARGIN: f64 = 0.01;
 
 type Sq<const M: usize> = SMatrix<f64, M, M>;
 type In<const M: usize> = SMatrix<f64, M, NU>;
@@ -367,23 +373,24 @@ impl<const M: usize> RiccatiQp<M> {
         costs.max(if self.s.is_empty() { 0.0 } else { self.slack_linear.abs() })
     }
 
-    /// The nominal plan (zero deviations), slacks covering the soft bounds, and every row's
-    /// slack at least 1 with a unit multiplier.
+    /// The starting point: the nominal plan (zero deviations), each slack 0.01 beyond its soft
+    /// bound's violation, every row's `t` its distance to its bound (at least 0.1) and
+    /// `lambda = 1 / t`, so every row starts at the same complementarity `lambda t = 1` (a
+    /// centred start); a soft bound's sign row takes the slack's price instead (what it
+    /// carries while the bound is inactive).
     fn initialise(&mut self) {
         self.x.fill(Vx::zeros());
         self.u.fill(Vector4::zeros());
         self.pi.fill(Vx::zeros());
         for (i, s) in self.s.iter_mut().enumerate() {
-            *s = (-self.h_hi[i]).max(-self.h_lo[i]).max(0.0) + 1.0;
+            *s = (-self.h_hi[i]).max(-self.h_lo[i]).max(0.0) + INITIAL_SLACK_MARGIN;
         }
-        self.lam.fill(1.0);
         self.row_values();
         for i in 0..self.rows() {
             // r_row holds C z - e here (no t yet).
-            self.t[i] = (-self.r_row[i]).max(1.0);
+            self.t[i] = (-self.r_row[i]).max(INITIAL_ROW_SLACK);
+            self.lam[i] = 1.0 / self.t[i];
         }
-        // A slack's sign row carries the slack's whole price while its bounds are inactive:
-        // starting its multiplier there saves the iterations that would grow it from 1.
         let base = self.soft_base();
         for b in 0..self.s.len() {
             self.lam[base + 3 * b + 2] = self.slack_linear.max(1.0);
@@ -538,12 +545,18 @@ impl<const M: usize> RiccatiQp<M> {
             // S~ = [G' A, diag(svu)]; Y = L^-1 S~.
             let yx = linv * g.tr_mul(a);
             let yv = Matrix4::from_fn(|r, c| linv[(r, c)] * self.svu[k][c]);
-            // P_xx = Q_xx + A' P_xx+ A - Yx' Yx; P_xv = -Yx' Yv; P_vv = Q_vv - Yv' Yv.
-            let mut pxx = a.tr_mul(&(self.pxx[k + 1] * a)) - yx.tr_mul(&yx);
-            for i in 0..M {
-                pxx[(i, i)] += self.qxx[k][i];
+            // P_xx = Q_xx + A' P_xx+ A - Yx' Yx (symmetric: one triangle computed);
+            // P_xv = -Yx' Yv; P_vv = Q_vv - Yv' Yv.
+            let pa = self.pxx[k + 1] * a;
+            let pxx = &mut self.pxx[k];
+            for c in 0..M {
+                for r in c..M {
+                    let v = a.column(r).dot(&pa.column(c)) - yx.column(r).dot(&yx.column(c));
+                    pxx[(r, c)] = v;
+                    pxx[(c, r)] = v;
+                }
+                pxx[(c, c)] += self.qxx[k][c];
             }
-            self.pxx[k] = pxx;
             self.pxv[k] = -yx.tr_mul(&yv);
             self.pvv[k] = Matrix4::from_diagonal(&self.qvv[k]) - yv.tr_mul(&yv);
             self.yx[k] = yx;

@@ -38,8 +38,10 @@ pub struct MpcConfig {
     /// Clarabel's duality-gap (absolute and relative) and feasibility tolerances. A real-time
     /// iteration solves a QP that is itself an approximation, re-solved next sample.
     pub solver_tolerance: f64,
-    /// The Riccati solver's tolerance on its residuals and complementarity, relative to the
-    /// largest bound and linear cost of the cycle's QP.
+    /// The Riccati solver's tolerance on its residuals and duality gap, relative to the
+    /// largest bound, linear cost and objective of the cycle's QP. 1e-4 (against Clarabel's
+    /// 1e-3): the default scenario's RMS errors equal 1e-6's to five digits, one or two
+    /// iterations fewer.
     pub riccati_tolerance: f64,
     /// Let Clarabel equilibrate (rescale) the QP. Its scaling is computed once, when the
     /// solver is built from the placeholder problem (the cost weights, unit rows, zero
@@ -137,7 +139,7 @@ impl Default for MpcConfig {
             solver_time_limit: 0.04,
             solver_max_iter: 50,
             solver_tolerance: 1e-3,
-            riccati_tolerance: 1e-6,
+            riccati_tolerance: 1e-4,
             solver_equilibrate: true,
             solver_refinement: false,
             deadline: 0.08,
