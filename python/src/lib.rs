@@ -6,9 +6,9 @@
 //! (a `ValueError`).
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayViewD, Dimension};
+use numpy::npyffi::NPY_ARRAY_WRITEABLE;
 use numpy::{
-    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn, PyArrayMethods, PyReadonlyArray1,
-    PyReadwriteArray1,
+    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods,
 };
 use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::{Outcome, robustness};
@@ -169,21 +169,30 @@ impl Predictor {
     #[pyo3(signature = (x, u, out, dt = None))]
     fn step_into(
         &self,
-        x: PyReadonlyArray1<'_, f64>,
-        u: PyReadonlyArray1<'_, f64>,
-        mut out: PyReadwriteArray1<'_, f64>,
+        x: &Bound<'_, PyArray1<f64>>,
+        u: &Bound<'_, PyArray1<f64>>,
+        out: &Bound<'_, PyArray1<f64>>,
         dt: Option<f64>,
     ) -> PyResult<()> {
-        let x = State::from_column_slice(vector::<NX>("x", x.as_slice()?)?);
-        let u = Input::from_column_slice(vector::<NU>("u", u.as_slice()?)?);
-        let out = out.as_slice_mut()?;
+        // The arrays are read and written without numpy's borrow tracking, which cost about as
+        // much as the step itself here (three borrows, each a lookup and a release). SAFETY:
+        // the GIL is held throughout and no Python code runs while a slice lives, and each
+        // slice ends before the next begins, so nothing else reads or writes the data
+        // meanwhile (`out` may even be `x`).
+        let x = State::from_column_slice(vector::<NX>("x", unsafe { x.as_slice() }?)?);
+        let u = Input::from_column_slice(vector::<NU>("u", unsafe { u.as_slice() }?)?);
+        // SAFETY: a field read of the array object the GIL keeps alive.
+        if unsafe { (*out.as_array_ptr()).flags } & NPY_ARRAY_WRITEABLE == 0 {
+            return Err(PyValueError::new_err("out: the array is read-only"));
+        }
         if out.len() != NX {
             return Err(PyValueError::new_err(format!("out: expected shape ({NX}), got ({})", out.len())));
         }
         let mut next = State::zeros();
         let mut ws = self.ws.lock().expect("workspace lock");
         self.inner.step_dt(&mut ws, &x, &u, dt.unwrap_or(self.inner.dt()), &mut next).map_err(runtime_err)?;
-        out.copy_from_slice(next.as_slice());
+        // SAFETY: as above; the slice is the only reference to `out`'s data while it lives.
+        unsafe { out.as_slice_mut() }?.copy_from_slice(next.as_slice());
         Ok(())
     }
 
