@@ -373,17 +373,24 @@ impl<const M: usize> RiccatiQp<M> {
         costs.max(if self.s.is_empty() { 0.0 } else { self.slack_linear.abs() })
     }
 
-    /// The starting point: the nominal plan (zero deviations), each slack 0.01 beyond its soft
-    /// bound's violation, every row's `t` its distance to its bound (at least 0.1) and
+    /// The starting point: the nominal plan (zero input deviations) with the states it gives
+    /// (so the dynamics hold from the start), each slack 0.01 beyond its soft bound's violation, every row's `t` its distance to its bound (at least 0.1) and
     /// `lambda = 1 / t`, so every row starts at the same complementarity `lambda t = 1` (a
     /// centred start); a soft bound's sign row takes the slack's price instead (what it
     /// carries while the bound is inactive).
     fn initialise(&mut self) {
-        self.x.fill(Vx::zeros());
         self.u.fill(Vector4::zeros());
         self.pi.fill(Vx::zeros());
-        for (i, s) in self.s.iter_mut().enumerate() {
-            *s = (-self.h_hi[i]).max(-self.h_lo[i]).max(0.0) + INITIAL_SLACK_MARGIN;
+        self.x[0] = Vx::zeros();
+        for k in 0..self.n {
+            self.x[k + 1] = self.a[k] * self.x[k] + self.d;
+        }
+        let ns = self.soft.len();
+        for (j, &k) in self.soft_steps.iter().enumerate() {
+            for (i, &c) in self.soft.iter().enumerate() {
+                let (b, xc) = (j * ns + i, self.x[k][c]);
+                self.s[b] = (xc - self.h_hi[b]).max(-xc - self.h_lo[b]).max(0.0) + INITIAL_SLACK_MARGIN;
+            }
         }
         self.row_values();
         for i in 0..self.rows() {
