@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from test_vehicle_link import ROOT, fake_factory, free_udp_port, read_mcap, run_pinc  # noqa: F401
 
@@ -141,10 +142,10 @@ def rms(summary):
     return summary["rms_depth_m"], summary["rms_heading_deg"]
 
 
-def in_process_and_connected(fake_factory, tmp_path, position_delay):
+def in_process_and_connected(fake_factory, tmp_path, position_delay, *extra):
     """20 s of the default scenario in process and against the fake (held until armed, its
-    position `position_delay` s late, "inf" for none): both summaries."""
-    common = ["--duration", "20", "--json", "--vehicle", str(SITL)]
+    position `position_delay` s late, "inf" for none), with `extra` flags: both summaries."""
+    common = ["--duration", "20", "--json", "--vehicle", str(SITL), *extra]
     r = subprocess.run([str(mpc_track_binary()), *common, "--out-dir", str(tmp_path / "sim")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
@@ -175,6 +176,19 @@ def test_mpc_track_connected_tracks_like_the_in_process_run(fake_factory, tmp_pa
     print(f"state age median {ages[len(ages) // 2] * 1e3:.1f} ms, max {ages[-1] * 1e3:.1f} ms; "
           f"latency median {latencies[len(latencies) // 2] * 1e3:.2f} ms, max {latencies[-1] * 1e3:.2f} ms")
     assert ages[len(ages) // 2] < DT / 2 and latencies[len(latencies) // 2] < DT / 2
+
+
+def test_the_riccati_solver_flies_the_connected_loop(fake_factory, tmp_path):
+    # The live session takes the QP solver from the same settings: on the fake, the Riccati
+    # solver tracks as in process, every cycle solved, and the log says which solver ran.
+    sim, live = in_process_and_connected(fake_factory, tmp_path, "0", "--qp", "riccati")
+    print("in-process", rms(sim), "connected", rms(live))
+    assert live["samples"] >= 245 and live["stopped"] is None and live["fallbacks"] == 0
+    for got, want in zip(rms(live), rms(sim)):
+        assert abs(got - want) <= 0.1 * want, (rms(live), rms(sim))
+    with open(live["log"], "rb") as f:
+        run = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["run"]
+    assert run["qp_solver"] == "riccati"
 
 
 def test_mpc_track_without_the_estimator_refuses_without_body_velocities(fake_factory, tmp_path):
