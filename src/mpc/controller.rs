@@ -105,6 +105,7 @@ macro_rules! with_stage_data {
 }
 
 impl Backend {
+    /// The Riccati solver's QP for `cfg`, its constant weights written.
     fn riccati<const S: usize>(
         cfg: &MpcConfig,
         states: &[usize],
@@ -152,7 +153,7 @@ trait StageData {
     fn input_data(&mut self, k: usize, j: usize, q: f64, upper: f64, lower: f64, rate: Option<(f64, f64)>);
     /// The disturbance on kept component `r`.
     fn disturbance(&mut self, r: usize, v: f64);
-    /// The steps with soft bounds.
+    /// The step of the `j`-th set of soft bounds (`None` past the last).
     fn soft_step(&self, j: usize) -> Option<usize>;
     /// Soft bound `b` at `soft_steps[j]`: `dx <= hi`, `-dx <= lo`, priced `penalty` per unit.
     fn soft_bound(&mut self, j: usize, b: usize, hi: f64, lo: f64, penalty: f64);

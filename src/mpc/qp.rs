@@ -539,10 +539,30 @@ impl Qp {
     }
 }
 
+/// Clarabel on the condensed QP as it stands, to `tol`: the solution `z` (tests' reference).
+#[cfg(test)]
+pub(crate) fn solve_condensed(qp: &Qp, tol: f64) -> Vec<f64> {
+    use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+    let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(qp.b.len() - qp.n_eq)];
+    let settings = DefaultSettingsBuilder::default()
+        .verbose(false)
+        .presolve_enable(false)
+        .tol_gap_abs(tol)
+        .tol_gap_rel(tol)
+        .tol_feas(tol)
+        .build()
+        .unwrap();
+    let p = CscMatrix::new(qp.p.m, qp.p.n, qp.p.colptr.clone(), qp.p.rowval.clone(), qp.p_values.clone());
+    let am = CscMatrix::new(qp.a.m, qp.a.n, qp.a.colptr.clone(), qp.a.rowval.clone(), qp.a_values.clone());
+    let mut solver = DefaultSolver::new(&p, &qp.q, &am, &qp.b, &cones, settings).unwrap();
+    solver.solve();
+    assert_eq!(solver.solution.status, SolverStatus::Solved);
+    solver.solution.x
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SupportedConeT};
 
     fn weights() -> Weights {
         Weights {
@@ -614,21 +634,7 @@ mod tests {
             }
         }
         qp.condense(a, b);
-        let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(qp.b.len() - qp.n_eq)];
-        let settings = DefaultSettingsBuilder::default()
-            .verbose(false)
-            .presolve_enable(false)
-            .tol_gap_abs(1e-10)
-            .tol_gap_rel(1e-10)
-            .tol_feas(1e-10)
-            .build()
-            .unwrap();
-        let p = CscMatrix::new(qp.p.m, qp.p.n, qp.p.colptr.clone(), qp.p.rowval.clone(), qp.p_values.clone());
-        let am = CscMatrix::new(qp.a.m, qp.a.n, qp.a.colptr.clone(), qp.a.rowval.clone(), qp.a_values.clone());
-        let mut solver = DefaultSolver::new(&p, &qp.q, &am, &qp.b, &cones, settings).unwrap();
-        solver.solve();
-        assert_eq!(solver.solution.status, clarabel::solver::SolverStatus::Solved);
-        let z = &solver.solution.x;
+        let z = &solve_condensed(qp, 1e-10);
         let du: Vec<f64> =
             (0..n).flat_map(|k| (0..NU).map(move |j| (k, j))).map(|(k, j)| z[qp.u_index(k, j)]).collect();
         let mut dx = vec![vec![0.0; m]];

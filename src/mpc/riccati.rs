@@ -272,8 +272,8 @@ impl<const M: usize> RiccatiQp<M> {
         self.u.iter().all(|u| u.iter().all(|v| v.is_finite())) && self.x.iter().all(|x| x.iter().all(|v| v.is_finite()))
     }
 
-    /// Solves the QP from the data written into the public fields, from a cold start (the
-    /// nominal plan, unit multipliers). The solution is in `x`, `u` whatever the status; it is
+    /// Solves the QP from the data written into the public fields, from the centred start of
+    /// [`Self::initialise`] (nothing is carried over from the last solve). The solution is in `x`, `u` whatever the status; it is
     /// the optimum only when the status is `Solved` (or `AlmostSolved`).
     pub(crate) fn solve(&mut self, limits: IpmLimits) -> SolverStatus {
         let start = Instant::now();
@@ -769,10 +769,8 @@ fn lower_inverse(r: &Matrix4<f64>) -> Option<Matrix4<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mpc::qp::{ALL_STATES, Qp, WITHOUT_POSITION, Weights, soft_steps};
+    use crate::mpc::qp::{ALL_STATES, Qp, WITHOUT_POSITION, Weights, soft_steps, solve_condensed};
     use crate::types::{InputMatrix, StateMatrix};
-    use clarabel::algebra::CscMatrix;
-    use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SupportedConeT};
     use nalgebra::{DMatrix, DVector, SVector, Vector4};
 
     /// A deterministic value in [-1, 1) from three integers.
@@ -889,24 +887,8 @@ mod tests {
                 }
             }
             qp.condense(&self.a, &self.b);
-            let cones = [SupportedConeT::ZeroConeT(qp.n_eq), SupportedConeT::NonnegativeConeT(qp.b.len() - qp.n_eq)];
-            let settings = DefaultSettingsBuilder::default()
-                .verbose(false)
-                .presolve_enable(false)
-                .tol_gap_abs(1e-11)
-                .tol_gap_rel(1e-11)
-                .tol_feas(1e-11)
-                .build()
-                .unwrap();
-            let p = CscMatrix::new(qp.p.m, qp.p.n, qp.p.colptr.clone(), qp.p.rowval.clone(), qp.p_values.clone());
-            let am = CscMatrix::new(qp.a.m, qp.a.n, qp.a.colptr.clone(), qp.a.rowval.clone(), qp.a_values.clone());
-            let mut solver = DefaultSolver::new(&p, &qp.q, &am, &qp.b, &cones, settings).unwrap();
-            solver.solve();
-            assert_eq!(solver.solution.status, SolverStatus::Solved);
-            (0..n)
-                .flat_map(|k| (0..NU).map(move |j| (k, j)))
-                .map(|(k, j)| solver.solution.x[qp.u_index(k, j)])
-                .collect()
+            let z = solve_condensed(&qp, 1e-11);
+            (0..n).flat_map(|k| (0..NU).map(move |j| (k, j))).map(|(k, j)| z[qp.u_index(k, j)]).collect()
         }
 
         /// The equality-constrained QP (no inequality rows) as one dense KKT system: `du`, `dx`.
