@@ -177,10 +177,11 @@ fn left_out_flag() -> Option<String> {
     ))
 }
 
-fn try_main(a: Args) -> Result<(), String> {
-    // The controller and scenario come from the library's one set-up path (shared with the
-    // Python package, so a seed's run is the same everywhere).
-    let settings = Settings {
+/// The closed loop's settings from the flags: the controller and scenario come from the
+/// library's one set-up path (shared with the Python package, so a seed's run is the same
+/// everywhere).
+fn settings(a: &Args) -> Result<Settings, String> {
+    Ok(Settings {
         model: a.model.clone(),
         vehicle: a.vehicle.clone(),
         scenario: match a.scenario {
@@ -203,7 +204,11 @@ fn try_main(a: Args) -> Result<(), String> {
         condensing_block: a.condensing_block,
         sparse_qp: a.sparse_qp,
         qp: a.qp,
-    };
+    })
+}
+
+fn try_main(a: Args) -> Result<(), String> {
+    let settings = settings(&a)?;
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;
     let (model, vehicle, scenario, cfg, bounds) = (model, *vehicle, scenario, cfg.clone(), *bounds);

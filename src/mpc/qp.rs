@@ -539,6 +539,17 @@ impl Qp {
     }
 }
 
+/// A deterministic value in [-1, 1) from three integers, for the QP tests' random problems
+/// (no RNG crate needed here).
+#[cfg(test)]
+pub(crate) fn hash(a: usize, b: usize, c: usize) -> f64 {
+    let x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (c as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+    let x = (x ^ (x >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+}
+
 /// Clarabel on the condensed QP as it stands, to `tol`: the solution `z` (tests' reference).
 #[cfg(test)]
 pub(crate) fn solve_condensed(qp: &Qp, tol: f64) -> Vec<f64> {
@@ -582,15 +593,6 @@ mod tests {
             }
         }
         d
-    }
-
-    /// A deterministic value in [-1, 1) from three integers (no RNG crate needed here).
-    fn hash(a: usize, b: usize, c: usize) -> f64 {
-        let x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-            ^ (c as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
-        let x = (x ^ (x >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
     /// A stable-ish linearisation: near-identity `A_k`, dense small `B_k`.

@@ -769,18 +769,9 @@ fn lower_inverse(r: &Matrix4<f64>) -> Option<Matrix4<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mpc::qp::{ALL_STATES, Qp, WITHOUT_POSITION, Weights, soft_steps, solve_condensed};
+    use crate::mpc::qp::{ALL_STATES, Qp, WITHOUT_POSITION, Weights, hash, soft_steps, solve_condensed};
     use crate::types::{InputMatrix, StateMatrix};
     use nalgebra::{DMatrix, DVector, SVector, Vector4};
-
-    /// A deterministic value in [-1, 1) from three integers.
-    fn hash(a: usize, b: usize, c: usize) -> f64 {
-        let x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-            ^ (c as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
-        let x = (x ^ (x >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    }
 
     /// One random problem of the MPC's shape: near-identity dynamics, dense inputs, diagonal
     /// weights, bounds `bound` wide around the nominal, soft bounds `soft_width` wide.
