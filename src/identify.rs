@@ -17,9 +17,26 @@ pub const ESTIMATED: [&str; 13] =
     ["volume", "x_ud", "y_vd", "z_wd", "n_rd", "x_u", "y_v", "z_w", "n_r", "x_uu", "y_vv", "z_ww", "n_rr"];
 /// The degrees of freedom whose velocities are fitted.
 pub const DOF: [&str; 4] = ["u", "v", "w", "r"];
-/// A coefficient whose standard error exceeds this fraction of its value is not identifiable
-/// from the data (it is not five standard errors away from zero) and keeps the base value.
+/// A coefficient whose standard error exceeds this fraction of what it is judged against
+/// ([`judged_against`]) is not identifiable from the data and keeps the base value.
 pub const MAX_RELATIVE_STD_ERR: f64 = 0.2;
+
+/// What a coefficient's standard error is judged against: an added mass or inertia by the
+/// effective mass or inertia it makes (`m - x_ud`, `izz - n_rd`), every other coefficient by
+/// its own value. The motion sees only the effective mass, and the added part of it is the
+/// difference between the vehicle's and the base file's: where the base's `m` or `izz` is
+/// already close, that difference is near zero and no recording, however long, would bring
+/// its standard error under a fraction of it (ArduSub's simulator: `izz - n_rd` 0.268 against
+/// a base `izz` of 0.245 leaves `n_rd` at -0.023), while the effective inertia the controller
+/// uses is well determined.
+pub fn judged_against(p: &VehicleParams, key: &str) -> f64 {
+    match key {
+        "x_ud" | "y_vd" | "z_wd" => p.m - get(p, key),
+        "n_rd" => p.izz - p.n_rd,
+        _ => get(p, key),
+    }
+    .abs()
+}
 /// Sample periods integrated per residual: the effect of a coefficient grows with the
 /// horizon while the noise of the start and end measurements does not, and a start's noise
 /// enters the regressors that the one-period equation error would correlate with.
@@ -316,11 +333,11 @@ pub fn identify(sets: &[&TrajectorySet], base: &VehicleParams) -> Result<Identif
             let i = active[j];
             match &covariance {
                 Some(c) if jtj[(j, j)] > 0.0 => {
-                    c[(j, j)].max(0.0).sqrt() * scale[i] / get(&p, ESTIMATED[i]).abs().max(1e-300)
+                    c[(j, j)].max(0.0).sqrt() * scale[i] / judged_against(&p, ESTIMATED[i]).max(1e-300)
                 }
                 _ => {
                     if jtj[(j, j)] > 0.0 {
-                        1.0 / (jtj[(j, j)].sqrt()) * scale[i] / get(&p, ESTIMATED[i]).abs().max(1e-300)
+                        1.0 / (jtj[(j, j)].sqrt()) * scale[i] / judged_against(&p, ESTIMATED[i]).max(1e-300)
                     } else {
                         f64::INFINITY
                     }

@@ -2,6 +2,7 @@
 //! generation with the analytic vehicle, and `.npy` + JSON storage numpy can read.
 
 mod collocation;
+pub mod design;
 mod error;
 mod excitation;
 mod generate;

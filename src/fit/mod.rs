@@ -23,6 +23,7 @@
 
 pub mod report;
 pub mod sensors;
+pub mod watch;
 
 use crate::dataset::import::{ImportOptions, Recording, import, mavlink_log, sha256_hex};
 use crate::dataset::{Dataset, TrajectorySet};
@@ -313,32 +314,41 @@ fn recording_of(path: &Path, run: &Replay) -> Recording {
     rec
 }
 
-/// Runs the pipeline; `on_stage` hears of each stage, `on_epoch` of each training epoch.
-///
-/// # Errors
-/// [`FitError`], naming the file or stage.
-pub fn fit(
-    settings: &FitSettings,
-    interrupt: &AtomicBool,
-    mut on_stage: impl FnMut(Stage),
-    on_epoch: impl FnMut(&crate::train::EpochRecord),
-) -> Result<Fit, FitError> {
-    check(settings)?;
-    on_stage(Stage::Read);
-    let vehicle_err = |message: String| FitError::Input { path: settings.vehicle.clone(), message };
-    let base = VehicleParams::load(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
-    let thrusters = Thrusters::load(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
-    let thrusters_toml =
-        crate::vehicle::standalone_thruster_tables(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
-    let mut logs = Vec::new();
-    for path in &settings.recordings {
-        let input = |message: String| FitError::Input { path: path.clone(), message };
-        let bytes = std::fs::read(path).map_err(|e| input(e.to_string()))?;
-        let content = read_recording(path, &thrusters, settings.water_density).map_err(input)?;
-        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), content });
-    }
-    // `live`: the estimator as a live session runs it (its process noise unscaled).
-    let replay_as = |vehicle: &VehicleParams, sensors: &SensorModel, live: bool| -> Result<Vec<Replay>, FitError> {
+/// The recordings and the starting vehicle a fit works on.
+struct Pipeline<'a> {
+    settings: &'a FitSettings,
+    base: VehicleParams,
+    thrusters: Thrusters,
+    logs: Vec<Log>,
+}
+
+/// What the estimate-and-identify stages (1-5) found.
+pub struct Identified {
+    /// The identified vehicle.
+    pub identification: Identification,
+    /// The sensor model.
+    pub sensors: SensorModel,
+    /// Depth lags tried and the residual sum of squares at each.
+    pub lag_scan: Vec<(f64, f64)>,
+    /// What the depth lag was measured against.
+    pub lag_method: LagMethod,
+    /// Readings too few to measure their noise.
+    pub sensors_defaulted: Vec<&'static str>,
+    /// Whether a position or velocity source was fused.
+    pub horizontal: bool,
+    /// Estimate-and-identify passes on the fitted sensors.
+    pub passes: usize,
+    /// The filter's mean heave gain after the passes and after each time it was taken in.
+    pub heave_gains: Vec<f64>,
+    runs: Vec<Replay>,
+    dataset: Dataset,
+}
+
+impl Pipeline<'_> {
+    /// Each recording replayed through the estimator on `vehicle` and `sensors`; `live`: the
+    /// estimator as a live session runs it (its process noise unscaled).
+    fn replay_as(&self, vehicle: &VehicleParams, sensors: &SensorModel, live: bool) -> Result<Vec<Replay>, FitError> {
+        let settings = self.settings;
         let replay_settings = ReplaySettings {
             dt: settings.dt,
             surface_pressure: settings.surface_pressure,
@@ -346,21 +356,30 @@ pub fn fit(
             noise: noise_of(sensors, if live { 1.0 } else { FIT_PROCESS_SCALE }),
             ignore_position: false,
         };
-        logs.iter()
+        self.logs
+            .iter()
             .map(|log| {
                 let model = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(settings.dt) };
                 match &log.content {
-                    Content::Mavlink(messages) => replay(messages, model, Some(thrusters.clone()), &replay_settings),
+                    Content::Mavlink(messages) => {
+                        replay(messages, model, Some(self.thrusters.clone()), &replay_settings)
+                    }
                     Content::Streams(streams) => replay_streams(streams, model, &replay_settings),
                 }
                 .map_err(|e| FitError::Input { path: log.path.clone(), message: e.to_string() })
             })
             .collect()
-    };
-    let replay_all = |vehicle: &VehicleParams, sensors: &SensorModel| replay_as(vehicle, sensors, false);
-    let dataset_of = |runs: &[Replay]| -> Result<Dataset, FitError> {
-        let recordings: Vec<Recording> = logs.iter().zip(runs).map(|(l, r)| recording_of(&l.path, r)).collect();
-        let hashes: Vec<String> = logs.iter().map(|l| l.sha256.clone()).collect();
+    }
+
+    fn replay_all(&self, vehicle: &VehicleParams, sensors: &SensorModel) -> Result<Vec<Replay>, FitError> {
+        self.replay_as(vehicle, sensors, false)
+    }
+
+    /// The smoothed estimates as a dataset: windows, split in time.
+    fn dataset_of(&self, runs: &[Replay]) -> Result<Dataset, FitError> {
+        let settings = self.settings;
+        let recordings: Vec<Recording> = self.logs.iter().zip(runs).map(|(l, r)| recording_of(&l.path, r)).collect();
+        let hashes: Vec<String> = self.logs.iter().map(|l| l.sha256.clone()).collect();
         let options = ImportOptions {
             format: "mavlink".into(),
             dt: settings.dt,
@@ -373,113 +392,197 @@ pub fn fit(
             dt_from_log: false,
         };
         import(&recordings, &hashes, &options).map_err(|e| FitError::Data(e.to_string()))
-    };
-    let identify_on = |data: &Dataset, horizontal: bool| -> Result<Identification, FitError> {
+    }
+
+    /// The vehicle identified on the train split; surge and sway kept from the starting file
+    /// without a position source.
+    fn identify_on(&self, data: &Dataset, horizontal: bool) -> Result<Identification, FitError> {
         let train_set = data.set("train").filter(|s| s.count > 0).ok_or_else(|| {
             FitError::Data("the train split is empty: the recordings are too short for one window".into())
         })?;
-        let mut id = identify(&[train_set], &base).map_err(|e| FitError::Data(format!("identification: {e}")))?;
+        let mut id = identify(&[train_set], &self.base).map_err(|e| FitError::Data(format!("identification: {e}")))?;
         if !horizontal {
             // Without a position source the estimated surge and sway are the starting file's
             // own motion: a fit of them would echo it, so they stay the starting file's.
             for &k in report::AXES[..2].iter().flat_map(|(_, keys)| keys.iter()) {
                 if let Some(slot) = id.vehicle.get_mut(k) {
-                    *slot = coefficient(&base, k);
+                    *slot = coefficient(&self.base, k);
                 }
             }
         }
         Ok(id)
-    };
+    }
 
-    // Pass 1: the starting vehicle and the estimator's default sensors.
-    on_stage(Stage::Estimate);
-    let first = replay_all(&base, &default_sensors())?;
-    let horizontal = first.iter().any(|r| r.horizontal);
-    on_stage(Stage::Identify);
-    let rough = identify_on(&dataset_of(&first)?, horizontal)?;
+    /// The sensors' noise from the readings, then the depth lag, from the first pass.
+    fn sensors(
+        &self,
+        first: &[Replay],
+        on_stage: &mut impl FnMut(Stage),
+    ) -> (SensorModel, Vec<&'static str>, Vec<(f64, f64)>, LagMethod) {
+        let measurements: Vec<_> = first.iter().flat_map(|r| r.measurements.iter().copied()).collect();
+        let (mut sensors, mut sensors_defaulted) = sensors::noise_model(&measurements, &default_sensors());
+        let lags = sensors::lag_candidates();
+        on_stage(Stage::SensorLag(lags.len()));
+        let mut lag_scan = vec![(0.0, 0.0); lags.len()];
+        let mut scanned = 0;
+        // Against the autopilot's vertical velocity where the recordings have it (its integral
+        // has the depth's shape without a lag), else against the heave equation.
+        let velocities: Vec<_> = first.iter().map(|r| sensors::vertical_velocities(&r.measurements)).collect();
+        let lag_method = if velocities.iter().any(|v| v.len() >= 100) {
+            LagMethod::VerticalVelocity
+        } else {
+            LagMethod::HeaveEquation
+        };
+        for (run, velocity) in first.iter().zip(&velocities) {
+            let depth = sensors::readings(&run.measurements)[0].clone();
+            let scan = match lag_method {
+                LagMethod::VerticalVelocity => sensors::depth_lag_from_vertical_velocity(&depth, velocity, &lags),
+                LagMethod::HeaveEquation => {
+                    let heave: Vec<(f64, f64)> = run.applied.iter().map(|(t, u)| (*t, u[2])).collect();
+                    sensors::depth_lag_scan(&depth, &heave, &lags)
+                }
+            };
+            if let Some(scan) = scan {
+                for (sum, (lag, rss)) in lag_scan.iter_mut().zip(scan) {
+                    *sum = (lag, sum.1 + rss);
+                }
+                scanned += 1;
+            }
+        }
+        // Only a minimum inside the range is a lag; one at an end says the readings are not
+        // explained (a feedback or a sensor's sample-and-hold can do that to the heave equation).
+        let best =
+            lag_scan.iter().enumerate().filter(|(_, (_, v))| v.is_finite()).min_by(|a, b| a.1.1.total_cmp(&b.1.1));
+        match best {
+            Some((k, &(lag, _))) if scanned > 0 && k > 0 && k + 1 < lag_scan.len() => sensors.depth_delay = lag,
+            _ => sensors_defaulted.push("depth lag"),
+        }
+        (sensors, sensors_defaulted, lag_scan, lag_method)
+    }
 
-    // The sensors: noise from the readings, then the depth lag.
-    let measurements: Vec<_> = first.iter().flat_map(|r| r.measurements.iter().copied()).collect();
-    let (mut sensors, mut sensors_defaulted) = sensors::noise_model(&measurements, &default_sensors());
-    let lags = sensors::lag_candidates();
-    on_stage(Stage::SensorLag(lags.len()));
-    let mut lag_scan = vec![(0.0, 0.0); lags.len()];
-    let mut scanned = 0;
-    // Against the autopilot's vertical velocity where the recordings have it (its integral
-    // has the depth's shape without a lag), else against the heave equation.
-    let velocities: Vec<_> = first.iter().map(|r| sensors::vertical_velocities(&r.measurements)).collect();
-    let lag_method =
-        if velocities.iter().any(|v| v.len() >= 100) { LagMethod::VerticalVelocity } else { LagMethod::HeaveEquation };
-    for (run, velocity) in first.iter().zip(&velocities) {
-        let depth = sensors::readings(&run.measurements)[0].clone();
-        let scan = match lag_method {
-            LagMethod::VerticalVelocity => sensors::depth_lag_from_vertical_velocity(&depth, velocity, &lags),
-            LagMethod::HeaveEquation => {
-                let heave: Vec<(f64, f64)> = run.applied.iter().map(|(t, u)| (*t, u[2])).collect();
-                sensors::depth_lag_scan(&depth, &heave, &lags)
+    /// Stages 1-5: estimate on the starting vehicle, identify, fit the sensors, estimate and
+    /// identify again until the heave and yaw coefficients settle, take in the heave gain.
+    fn identified(&self, on_stage: &mut impl FnMut(Stage)) -> Result<Identified, FitError> {
+        // Pass 1: the starting vehicle and the estimator's default sensors.
+        on_stage(Stage::Estimate);
+        let first = self.replay_all(&self.base, &default_sensors())?;
+        let horizontal = first.iter().any(|r| r.horizontal);
+        on_stage(Stage::Identify);
+        let rough = self.identify_on(&self.dataset_of(&first)?, horizontal)?;
+        let (sensors, sensors_defaulted, lag_scan, lag_method) = self.sensors(&first, on_stage);
+
+        // Pass 2: the identified vehicle and the fitted sensors.
+        on_stage(Stage::Refine);
+        let mut vehicle = rough.vehicle;
+        let mut passes = 0;
+        let (runs, dataset, mut identification) = loop {
+            let runs = self.replay_all(&vehicle, &sensors)?;
+            let data = self.dataset_of(&runs)?;
+            let id = self.identify_on(&data, horizontal)?;
+            passes += 1;
+            let moved = ["volume", "z_wd", "z_w", "z_ww", "n_rd", "n_r", "n_rr"].iter().any(|k| {
+                let (a, b) = (coefficient(&vehicle, k), coefficient(&id.vehicle, k));
+                (a - b).abs() > PASS_TOLERANCE * a.abs().max(b.abs()).max(1e-9)
+            });
+            vehicle = id.vehicle;
+            if !moved || passes == MAX_PASSES {
+                break (runs, data, id);
             }
         };
-        if let Some(scan) = scan {
-            for (sum, (lag, rss)) in lag_scan.iter_mut().zip(scan) {
-                *sum = (lag, sum.1 + rss);
+
+        // The heave force the identified vehicle still misses: the heave gain (docs/MODEL.md
+        // section 12) that the estimator, run as a live session runs it, estimates from the
+        // depth itself, where the identification from smoothed velocities leaves part of it
+        // (measured on the firmware's recording: a gain of about 0.3 in flight after the
+        // passes). The heave equation takes the gain in until the estimator finds none.
+        let mut heave_gains = Vec::new();
+        loop {
+            let gain = mean_heave_gain(&self.replay_as(&identification.vehicle, &sensors, true)?);
+            heave_gains.push(gain);
+            if gain.abs() < HEAVE_GAIN_TOLERANCE || heave_gains.len() > MAX_HEAVE_GAIN_STEPS {
+                break;
             }
-            scanned += 1;
+            identification.vehicle = with_heave_gain(identification.vehicle, gain);
         }
+        let (runs, dataset) = if heave_gains.len() > 1 {
+            let runs = self.replay_all(&identification.vehicle, &sensors)?;
+            let data = self.dataset_of(&runs)?;
+            (runs, data)
+        } else {
+            (runs, dataset)
+        };
+        Ok(Identified {
+            identification,
+            sensors,
+            lag_scan,
+            lag_method,
+            sensors_defaulted,
+            horizontal,
+            passes,
+            heave_gains,
+            runs,
+            dataset,
+        })
     }
-    // Only a minimum inside the range is a lag; one at an end says the readings are not
-    // explained (a feedback or a sensor's sample-and-hold can do that to the heave equation).
-    let best = lag_scan.iter().enumerate().filter(|(_, (_, v))| v.is_finite()).min_by(|a, b| a.1.1.total_cmp(&b.1.1));
-    match best {
-        Some((k, &(lag, _))) if scanned > 0 && k > 0 && k + 1 < lag_scan.len() => sensors.depth_delay = lag,
-        _ => sensors_defaulted.push("depth lag"),
-    }
+}
 
-    // Pass 2: the identified vehicle and the fitted sensors.
-    on_stage(Stage::Refine);
-    let mut vehicle = rough.vehicle;
-    let mut passes = 0;
-    let (second, dataset, identification) = loop {
-        let runs = replay_all(&vehicle, &sensors)?;
-        let data = dataset_of(&runs)?;
-        let id = identify_on(&data, horizontal)?;
-        passes += 1;
-        let moved = ["volume", "z_wd", "z_w", "z_ww", "n_rd", "n_r", "n_rr"].iter().any(|k| {
-            let (a, b) = (coefficient(&vehicle, k), coefficient(&id.vehicle, k));
-            (a - b).abs() > PASS_TOLERANCE * a.abs().max(b.abs()).max(1e-9)
-        });
-        vehicle = id.vehicle;
-        if !moved || passes == MAX_PASSES {
-            break (runs, data, id);
-        }
-    };
+/// Whether the recording so far determines what the controller needs (a recording's watch,
+/// `pinc vehicle excite`): the fit's stages 1-5 on `messages` (a `.tlog`'s or a live link's
+/// MAVLink, in arrival order), then the report's findings per coefficient and axis.
+///
+/// # Errors
+/// As [`fit`]'s first stages: too short a recording, a vehicle file that cannot be read.
+pub fn determinacy(
+    settings: &FitSettings,
+    messages: Vec<(u64, u8, mavlink::dialects::ardupilotmega::MavMessage)>,
+) -> Result<(report::Findings, Identified), FitError> {
+    check(settings)?;
+    let (base, thrusters, _) = starting_vehicle(settings)?;
+    let log = Log { path: PathBuf::from("(live)"), sha256: String::new(), content: Content::Mavlink(messages) };
+    let pipeline = Pipeline { settings, base, thrusters, logs: vec![log] };
+    let found = pipeline.identified(&mut |_| {})?;
+    let findings = report::findings(&found.identification, &base, found.horizontal, &found.sensors_defaulted, None);
+    Ok((findings, found))
+}
 
-    // The heave force the identified vehicle still misses: the heave gain (docs/MODEL.md
-    // section 12) that the estimator, run as a live session runs it, estimates from the depth
-    // itself, where the identification from smoothed velocities leaves part of it (measured on
-    // the firmware's recording: a gain of about 0.3 in flight after the passes). The heave
-    // equation takes the gain in until the estimator finds none.
-    let mut identification = identification;
-    let mut heave_gains = Vec::new();
-    loop {
-        let gain = mean_heave_gain(&replay_as(&identification.vehicle, &sensors, true)?);
-        heave_gains.push(gain);
-        if gain.abs() < HEAVE_GAIN_TOLERANCE || heave_gains.len() > MAX_HEAVE_GAIN_STEPS {
-            break;
-        }
-        identification.vehicle = with_heave_gain(identification.vehicle, gain);
+/// The starting vehicle file: its coefficients, its thrusters, and the thrusters' tables as
+/// TOML that stands alone.
+fn starting_vehicle(settings: &FitSettings) -> Result<(VehicleParams, Thrusters, String), FitError> {
+    let vehicle_err = |message: String| FitError::Input { path: settings.vehicle.clone(), message };
+    let base = VehicleParams::load(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
+    let thrusters = Thrusters::load(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
+    let thrusters_toml =
+        crate::vehicle::standalone_thruster_tables(&settings.vehicle).map_err(|e| vehicle_err(e.to_string()))?;
+    Ok((base, thrusters, thrusters_toml))
+}
+
+/// Runs the pipeline; `on_stage` hears of each stage, `on_epoch` of each training epoch.
+///
+/// # Errors
+/// [`FitError`], naming the file or stage.
+pub fn fit(
+    settings: &FitSettings,
+    interrupt: &AtomicBool,
+    mut on_stage: impl FnMut(Stage),
+    on_epoch: impl FnMut(&crate::train::EpochRecord),
+) -> Result<Fit, FitError> {
+    check(settings)?;
+    on_stage(Stage::Read);
+    let (base, thrusters, thrusters_toml) = starting_vehicle(settings)?;
+    let mut logs = Vec::new();
+    for path in &settings.recordings {
+        let input = |message: String| FitError::Input { path: path.clone(), message };
+        let bytes = std::fs::read(path).map_err(|e| input(e.to_string()))?;
+        let content = read_recording(path, &thrusters, settings.water_density).map_err(input)?;
+        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), content });
     }
-    let (second, dataset) = if heave_gains.len() > 1 {
-        let runs = replay_all(&identification.vehicle, &sensors)?;
-        let data = dataset_of(&runs)?;
-        (runs, data)
-    } else {
-        (second, dataset)
-    };
+    let pipeline = Pipeline { settings, base, thrusters, logs };
+    let found = pipeline.identified(&mut on_stage)?;
 
     // The hybrid on the identified vehicle.
     on_stage(Stage::Train(settings.epochs));
-    let cfg = train_config(settings, identification.vehicle);
-    let (train_set, dev) = splits(&dataset)?;
+    let cfg = train_config(settings, found.identification.vehicle);
+    let (train_set, dev) = splits(&found.dataset)?;
     let source = format!(
         "pinc fit {}",
         settings.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ")
@@ -488,33 +591,35 @@ pub fn fit(
         train(&cfg, train_set, dev, &source, interrupt, on_epoch).map_err(|e| FitError::Train(e.to_string()))?;
 
     on_stage(Stage::Report);
-    let recordings = logs
+    let recordings = pipeline
+        .logs
         .iter()
-        .zip(&second)
+        .zip(&found.runs)
         .map(|(l, r)| {
             let span = r.smoothed.last().map_or(0.0, |s| s.t) - r.smoothed.first().map_or(0.0, |s| s.t);
             (l.path.clone(), l.sha256.clone(), span)
         })
         .collect();
-    let findings = report::findings(&identification, &base, horizontal, &sensors_defaulted, &training);
+    let findings =
+        report::findings(&found.identification, &base, found.horizontal, &found.sensors_defaulted, Some(&training));
     let mut model = training.model.clone();
     // Timings stay out of the file: the same inputs give the same bytes.
     for key in ["train_seconds", "step_ms"] {
         model.provenance.metrics.remove(key);
     }
-    model.fitted = Some(FittedVehicle { thrusters_toml, sensors, warnings: findings.warnings.clone() });
+    model.fitted = Some(FittedVehicle { thrusters_toml, sensors: found.sensors, warnings: findings.warnings.clone() });
     Ok(Fit {
-        identification,
-        sensors,
-        lag_scan,
-        lag_method,
-        sensors_defaulted,
-        horizontal,
-        passes,
-        heave_gains,
+        identification: found.identification,
+        sensors: found.sensors,
+        lag_scan: found.lag_scan,
+        lag_method: found.lag_method,
+        sensors_defaulted: found.sensors_defaulted,
+        horizontal: found.horizontal,
+        passes: found.passes,
+        heave_gains: found.heave_gains,
         model,
         training,
-        dataset,
+        dataset: found.dataset,
         recordings,
         report: findings,
     })

@@ -4,7 +4,7 @@
 
 use super::{Fit, FitError};
 use crate::dataset::TrajectorySet;
-use crate::identify::{ESTIMATED, Identification, MAX_RELATIVE_STD_ERR};
+use crate::identify::{ESTIMATED, Identification, MAX_RELATIVE_STD_ERR, judged_against};
 use crate::plot::{Panel, Series, figure};
 use crate::runtime::Predictor;
 use crate::train::TrainOutcome;
@@ -74,7 +74,7 @@ pub fn findings(
     start: &VehicleParams,
     horizontal: bool,
     sensors_defaulted: &[&str],
-    training: &TrainOutcome,
+    training: Option<&TrainOutcome>,
 ) -> Findings {
     let surge_sway = |k: &str| AXES[..2].iter().any(|(_, ks)| ks.contains(&k));
     let coefficients: Vec<CoefficientFinding> = ESTIMATED
@@ -91,13 +91,15 @@ pub fn findings(
                         .to_string(),
                 )
             } else if let Some(se) = std_err {
-                ("identified", format!("standard error {:.1} % of the value", 100.0 * se / fitted.abs().max(1e-12)))
+                let against = judged_against(&id.vehicle, name);
+                let what = if against == fitted.abs() { "the value" } else { "the effective mass or inertia" };
+                ("identified", format!("standard error {:.1} % of {what}", 100.0 * se / against.max(1e-12)))
             } else {
                 (
                     "not_excited",
                     format!(
-                        "the recordings do not excite it enough (standard error over {:.0} % of the value); kept from \
-                         the starting file",
+                        "the recordings do not excite it enough (standard error over {:.0} % of the value, or of the \
+                         effective mass or inertia for an added one); kept from the starting file",
                         100.0 * MAX_RELATIVE_STD_ERR
                     ),
                 )
@@ -151,14 +153,14 @@ pub fn findings(
             format!("sensors: too few {s} readings to measure their noise; the estimator's default is kept")
         });
     }
-    if let Some(epoch) = super::cut_by_time(training) {
+    if let Some(epoch) = training.and_then(super::cut_by_time) {
         notes.push(format!(
             "training: the time cap cut it after epoch {epoch} of {}; the same settings without the cap (or on a faster \
              machine) train further",
-            training.history.len().max(epoch)
+            training.map_or(epoch, |t| t.history.len().max(epoch))
         ));
     }
-    if training.best_epoch == 0 {
+    if training.is_some_and(|t| t.best_epoch == 0) {
         notes.push(
             "training: no correction beat the identified physics clearly on the dev data; the model is its physics \
              (longer recordings let a correction show)"

@@ -55,15 +55,17 @@ enum Command {
         #[arg(long)]
         record: bool,
     },
-    /// Write an excitation input file (X,Y,Z,Mz per sample period): random steps, ramps and
-    /// multisines on every channel within the controller's envelope, to run on a vehicle
-    /// (open loop) so that every coefficient can be identified from the log.
+    /// Write an excitation input file (X,Y,Z,Mz per sample period) to play on a vehicle with
+    /// `pinc vehicle excite`. By default it is designed for `pinc fit` (docs/FIT.md): reversals
+    /// between levels of a ladder on the chosen axes, pauses at zero, the other axes still;
+    /// `--design generic` gives random steps, ramps and multisines on every channel.
     Excitation {
         /// Output CSV.
         #[arg(long)]
         out: PathBuf,
-        /// Length (s).
-        #[arg(long, default_value_t = 120.0)]
+        /// Length (s): `pinc vehicle excite` stops earlier once the fit's coefficients are
+        /// determined.
+        #[arg(long, default_value_t = 600.0)]
         duration: f64,
         /// Sample period (s).
         #[arg(long, default_value_t = pinc::DEFAULT_DT)]
@@ -71,7 +73,15 @@ enum Command {
         /// Seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Segment length (s): each segment draws its own steps, ramps or multisines.
+        /// `fit` (designed for the fit's coefficients) or `generic`.
+        #[arg(long, default_value = "fit")]
+        design: String,
+        /// Axes the designed excitation drives: heave and yaw for a stock vehicle; add surge
+        /// and sway where a position source (DVL, GPS, positioning system) measures them.
+        #[arg(long, value_delimiter = ',', default_value = "heave,yaw")]
+        axes: Vec<String>,
+        /// Segment length of the generic excitation (s): each segment draws its own steps,
+        /// ramps or multisines.
         #[arg(long, default_value_t = 10.0)]
         segment: f64,
         /// Vehicle file whose [[thruster]] tables bound the inputs [default: the BlueROV2 constants].
@@ -238,8 +248,9 @@ fn main() -> ExitCode {
         Command::Simulate { x0, inputs, dt, vehicle, record } => {
             load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v, record))
         }
-        Command::Excitation { out, duration, dt, seed, segment, vehicle } => {
-            run_excitation(&out, duration, dt, seed, segment, vehicle.as_deref())
+        Command::Excitation { out, duration, dt, seed, design, axes, segment, vehicle } => {
+            let design = ExcitationDesign { kind: design, axes, segment };
+            run_excitation(&out, duration, dt, seed, &design, vehicle.as_deref())
         }
         Command::GenData { preset, out, seed, vehicle } => load_vehicle(vehicle.as_deref()).and_then(|v| {
             // The `mpc` preset takes its input bounds from the file's thrusters when it has some.
@@ -333,36 +344,58 @@ fn thruster_bounds(path: Option<&Path>) -> Result<Option<dataset::InputBounds>, 
     path.map_or(Ok(None), |p| dataset::input_bounds_from_file(p).map_err(|e| e.to_string()))
 }
 
+/// How `pinc excitation` draws its inputs.
+struct ExcitationDesign {
+    /// `fit` or `generic`.
+    kind: String,
+    /// The axes of the designed excitation.
+    axes: Vec<String>,
+    /// The generic excitation's segment length (s).
+    segment: f64,
+}
+
 fn run_excitation(
     out: &Path,
     duration: f64,
     dt: f64,
     seed: u64,
-    segment: f64,
+    design: &ExcitationDesign,
     vehicle: Option<&Path>,
 ) -> Result<(), String> {
     use rand::SeedableRng;
-    for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", segment)] {
+    for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", design.segment)] {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{name} must be a positive number of seconds, got {v}"));
         }
     }
     let n = (duration / dt).round() as usize;
-    let per = ((segment / dt).round() as usize).max(1);
-    // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
-    let excitation = match thruster_bounds(vehicle)? {
-        Some((lo, hi)) => dataset::Excitation::Mixed { lo, hi },
-        None => dataset::DatasetPreset::mpc().sets[0].excitation.clone(),
-    };
+    let bounds = thruster_bounds(vehicle)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut inputs = Vec::with_capacity(n);
-    while inputs.len() < n {
-        let len = per.min(n - inputs.len());
-        inputs.extend(dataset::sample_inputs(&excitation, &mut rng, len, dt));
-    }
+    let inputs = match design.kind.as_str() {
+        "fit" => {
+            let axes = dataset::design::axes_from_names(&design.axes)?;
+            let (lo, hi) = bounds.unwrap_or((dataset::BLUEROV2_INPUT_LO, dataset::BLUEROV2_INPUT_HI));
+            dataset::design::designed_inputs(&mut rng, n, dt, lo, hi, axes)
+        }
+        "generic" => {
+            let per = ((design.segment / dt).round() as usize).max(1);
+            // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
+            let excitation = match bounds {
+                Some((lo, hi)) => dataset::Excitation::Mixed { lo, hi },
+                None => dataset::DatasetPreset::mpc().sets[0].excitation.clone(),
+            };
+            let mut inputs = Vec::with_capacity(n);
+            while inputs.len() < n {
+                let len = per.min(n - inputs.len());
+                inputs.extend(dataset::sample_inputs(&excitation, &mut rng, len, dt));
+            }
+            inputs
+        }
+        other => return Err(format!("--design: `{other}` is not a design (fit, generic)")),
+    };
     let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
     write_inputs(std::io::BufWriter::new(file), &inputs).map_err(|e| format!("{}: {e}", out.display()))?;
-    println!("{n} inputs ({duration} s at {dt} s, seed {seed}) -> {}", out.display());
+    println!("{n} inputs ({duration} s at {dt} s, seed {seed}, design {}) -> {}", design.kind, out.display());
     Ok(())
 }
 

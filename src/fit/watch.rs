@@ -1,0 +1,164 @@
+//! A recording watched as it is made (`pinc vehicle excite`): at intervals the fit's own
+//! stages 1-5 ([`super::determinacy`]) run on a worker thread over the messages so far, and
+//! the watch says which coefficients and axes are determined yet, since when, and whether
+//! the fit's report would pass. The session stops exciting once it would.
+
+use super::report::Findings;
+use super::{FitSettings, determinacy};
+use mavlink::dialects::ardupilotmega::MavMessage;
+use std::collections::BTreeMap;
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+
+/// What one look at the recording found.
+#[derive(Debug, Clone)]
+pub struct Verdict {
+    /// Seconds of recording it looked at.
+    pub at: f64,
+    /// The fit's findings on them (its warnings empty: the report would pass).
+    pub findings: Findings,
+}
+
+impl Verdict {
+    /// Whether the fit's report on the recording so far passes.
+    pub fn passes(&self) -> bool {
+        self.findings.warnings.is_empty()
+    }
+
+    /// One line: the axes determined, those not yet and what each still lacks.
+    pub fn line(&self) -> String {
+        let axes: Vec<String> = self
+            .findings
+            .axes
+            .iter()
+            .map(|a| if a.determined { format!("{} determined", a.axis) } else { format!("{} not yet", a.axis) })
+            .collect();
+        let verdict = if self.passes() {
+            "the fit's report would pass".to_string()
+        } else {
+            format!("the fit would warn: {}", self.findings.warnings.join("; "))
+        };
+        format!("watch at {:.0} s of recording: {}; {verdict}", self.at, axes.join(", "))
+    }
+}
+
+/// Messages to look at, and the seconds of recording they hold.
+type Job = (f64, Vec<(u64, u8, MavMessage)>);
+
+/// The watch: the messages so far, and a worker that looks at a copy of them.
+pub struct Watch {
+    messages: Vec<(u64, u8, MavMessage)>,
+    start: Option<f64>,
+    every: f64,
+    next: f64,
+    busy: bool,
+    jobs: Option<mpsc::Sender<Job>>,
+    verdicts: mpsc::Receiver<(f64, Result<Findings, String>)>,
+    worker: Option<JoinHandle<()>>,
+    /// Since when (s of recording) each coefficient and axis has been determined, without a
+    /// break up to the last look.
+    since: BTreeMap<String, f64>,
+    last: Option<Verdict>,
+}
+
+impl Watch {
+    /// A watch that looks every `every` seconds of recording, first at `first`, with the fit's
+    /// `settings` (their recordings are ignored: the watch has its own messages).
+    pub fn new(settings: FitSettings, first: f64, every: f64) -> Self {
+        let (jobs, inbox) = mpsc::channel::<Job>();
+        let (outbox, verdicts) = mpsc::channel();
+        let worker = std::thread::Builder::new()
+            .name("pinc-watch".into())
+            .spawn(move || {
+                for (at, messages) in inbox {
+                    let found = determinacy(&settings, messages).map(|(f, _)| f).map_err(|e| e.to_string());
+                    if outbox.send((at, found)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .ok();
+        Self {
+            messages: Vec::new(),
+            start: None,
+            every,
+            next: first,
+            busy: false,
+            jobs: worker.as_ref().map(|_| jobs),
+            verdicts,
+            worker,
+            since: BTreeMap::new(),
+            last: None,
+        }
+    }
+
+    /// A message from the autopilot (system `sys`) at autopilot time `t` (s).
+    pub fn message(&mut self, t: f64, sys: u8, message: &MavMessage) {
+        let start = *self.start.get_or_insert(t);
+        self.messages.push((((t - start).max(0.0) * 1e6) as u64, sys, message.clone()));
+    }
+
+    /// Seconds of recording so far at autopilot time `t`.
+    fn recorded(&self, t: f64) -> f64 {
+        self.start.map_or(0.0, |s| t - s)
+    }
+
+    /// At autopilot time `t`: hands the worker the messages so far when a look is due and it
+    /// is idle, and returns a finished look (or why it could not look), if one came.
+    pub fn poll(&mut self, t: f64) -> Option<Result<Verdict, String>> {
+        let at = self.recorded(t);
+        if !self.busy
+            && at >= self.next
+            && let Some(jobs) = &self.jobs
+        {
+            if jobs.send((at, self.messages.clone())).is_ok() {
+                self.busy = true;
+            }
+            self.next = at + self.every;
+        }
+        let (at, found) = self.verdicts.try_recv().ok()?;
+        self.busy = false;
+        Some(found.map(|findings| {
+            let verdict = Verdict { at, findings };
+            self.note(&verdict);
+            verdict
+        }))
+    }
+
+    fn note(&mut self, v: &Verdict) {
+        let determined = v
+            .findings
+            .coefficients
+            .iter()
+            .map(|c| (c.name.to_string(), c.status == "identified"))
+            .chain(v.findings.axes.iter().map(|a| (format!("{} axis", a.axis), a.determined)));
+        for (name, now) in determined {
+            if now {
+                self.since.entry(name).or_insert(v.at);
+            } else {
+                self.since.remove(&name);
+            }
+        }
+        self.last = Some(v.clone());
+    }
+
+    /// The last look, if any.
+    pub fn last(&self) -> Option<&Verdict> {
+        self.last.as_ref()
+    }
+
+    /// Since when each coefficient and axis determined at the last look has been.
+    pub fn since(&self) -> &BTreeMap<String, f64> {
+        &self.since
+    }
+}
+
+impl Drop for Watch {
+    fn drop(&mut self) {
+        // Closing the channel ends the worker after its current look.
+        self.jobs = None;
+        if let Some(w) = self.worker.take() {
+            let _ = w.join();
+        }
+    }
+}
