@@ -21,18 +21,33 @@ pub const DOF: [&str; 4] = ["u", "v", "w", "r"];
 /// ([`judged_against`]) is not identifiable from the data and keeps the base value.
 pub const MAX_RELATIVE_STD_ERR: f64 = 0.2;
 
-/// What a coefficient's standard error is judged against: an added mass or inertia by the
-/// effective mass or inertia it makes (`m - x_ud`, `izz - n_rd`), every other coefficient by
-/// its own value. The motion sees only the effective mass, and the added part of it is the
-/// difference between the vehicle's and the base file's: where the base's `m` or `izz` is
-/// already close, that difference is near zero and no recording, however long, would bring
-/// its standard error under a fraction of it (ArduSub's simulator: `izz - n_rd` 0.268 against
-/// a base `izz` of 0.245 leaves `n_rd` at -0.023), while the effective inertia the controller
-/// uses is well determined.
-pub fn judged_against(p: &VehicleParams, key: &str) -> f64 {
+/// What a coefficient's standard error is judged against, given the data's RMS body
+/// velocities `speeds` (`[u, v, w, r]`):
+/// - an added mass or inertia by the effective mass or inertia it makes (`m - x_ud`,
+///   `izz - n_rd`). The motion sees only the effective mass, and the added part is the
+///   difference between the vehicle's and the base file's: where the base's `m` or `izz` is
+///   already close, that difference is near zero and no recording would bring its standard
+///   error under a fraction of it (ArduSub's simulator: `izz - n_rd` 0.268 against a base
+///   `izz` of 0.245 leaves `n_rd` at -0.023), while the effective inertia is well determined.
+/// - a damping term by the axis's whole damping at the data's RMS speed, per unit of speed
+///   (`|n_r| + |n_rr| r_rms` for both yaw terms, in the term's own units). A vehicle with no
+///   linear damping (the simulator's) has a linear term near zero, which no data determines
+///   relative to itself; dropped, it took the base's value (-4.64 for the yaw), and the fit
+///   bent the inertia and the quadratic term around it.
+/// - the volume by itself.
+pub fn judged_against(p: &VehicleParams, key: &str, speeds: [f64; 4]) -> f64 {
+    let damping = |linear: f64, quadratic: f64, speed: f64, of_linear: bool| {
+        let speed = speed.max(1e-6);
+        let per_speed = linear.abs() + quadratic.abs() * speed;
+        if of_linear { per_speed } else { per_speed / speed }
+    };
     match key {
         "x_ud" | "y_vd" | "z_wd" => p.m - get(p, key),
         "n_rd" => p.izz - p.n_rd,
+        "x_u" | "x_uu" => damping(p.x_u, p.x_uu, speeds[0], key == "x_u"),
+        "y_v" | "y_vv" => damping(p.y_v, p.y_vv, speeds[1], key == "y_v"),
+        "z_w" | "z_ww" => damping(p.z_w, p.z_ww, speeds[2], key == "z_w"),
+        "n_r" | "n_rr" => damping(p.n_r, p.n_rr, speeds[3], key == "n_r"),
         _ => get(p, key),
     }
     .abs()
@@ -91,6 +106,9 @@ pub struct Identification {
     pub rms_residual: [f64; 4],
     /// Sample periods used.
     pub samples: usize,
+    /// RMS of each body velocity `[u, v, w, r]` over the data: the speeds the damping terms
+    /// are judged at ([`judged_against`]).
+    pub speeds: [f64; 4],
 }
 
 impl Identification {
@@ -312,6 +330,13 @@ pub fn identify(sets: &[&TrajectorySet], base: &VehicleParams) -> Result<Identif
     }
     let floor = |x: f64| x.max(1e-12);
     sigma = sigma.map(|s| floor((s / data.len() as f64).sqrt()));
+    let mut speeds = [0.0; 4];
+    for s in &data {
+        for d in 0..4 {
+            speeds[d] += s.v0[d] * s.v0[d];
+        }
+    }
+    let speeds = speeds.map(|s| (s / data.len() as f64).sqrt());
     let mut problem = Problem { intervals: &data, scale, sigma };
     let mut active: Vec<usize> = (0..P).collect();
     let mut not_identifiable = Vec::new();
@@ -333,11 +358,11 @@ pub fn identify(sets: &[&TrajectorySet], base: &VehicleParams) -> Result<Identif
             let i = active[j];
             match &covariance {
                 Some(c) if jtj[(j, j)] > 0.0 => {
-                    c[(j, j)].max(0.0).sqrt() * scale[i] / judged_against(&p, ESTIMATED[i]).max(1e-300)
+                    c[(j, j)].max(0.0).sqrt() * scale[i] / judged_against(&p, ESTIMATED[i], speeds).max(1e-300)
                 }
                 _ => {
                     if jtj[(j, j)] > 0.0 {
-                        1.0 / (jtj[(j, j)].sqrt()) * scale[i] / judged_against(&p, ESTIMATED[i]).max(1e-300)
+                        1.0 / (jtj[(j, j)].sqrt()) * scale[i] / judged_against(&p, ESTIMATED[i], speeds).max(1e-300)
                     } else {
                         f64::INFINITY
                     }
@@ -368,6 +393,7 @@ pub fn identify(sets: &[&TrajectorySet], base: &VehicleParams) -> Result<Identif
                     not_identifiable,
                     rms_residual: rms,
                     samples: data.len() * HORIZON,
+                    speeds,
                 });
             }
         }

@@ -113,6 +113,11 @@ const PREDICTION: usize = 5;
 const SOLVER: usize = 6;
 const LOG: usize = 7;
 
+/// Log time after which an MCAP writer closes its open chunk and flushes the file (ns): a log
+/// or recording cut off (the process killed, the power lost) loses at most this much of what
+/// it held, where the writer's size-based chunks (768 KiB) held about 5 s of a live session.
+pub const CHUNK_INTERVAL_NS: u64 = 1_000_000_000;
+
 /// A closed-loop log being written. Dropping it without [`McapLog::finish`] still leaves a
 /// readable file (the writer finishes on drop), but without the summary record.
 pub struct McapLog<W: Write + Seek = BufWriter<File>> {
@@ -129,6 +134,8 @@ pub struct McapLog<W: Write + Seek = BufWriter<File>> {
     was_on_circle: bool,
     /// The channels of a live run (`/link/cycle`, `/estimate`), each created on first use.
     live_channels: BTreeMap<&'static str, u16>,
+    /// Log time (ns) of the first message of the open chunk.
+    chunk_start: Option<u64>,
     /// Every message also served as it is written (`--foxglove`).
     #[cfg(feature = "live-view")]
     view: Option<super::live_view::LiveView>,
@@ -222,6 +229,7 @@ impl<W: Write + Seek> McapLog<W> {
             was_inside: true,
             was_on_circle: true,
             live_channels: BTreeMap::new(),
+            chunk_start: None,
             #[cfg(feature = "live-view")]
             view,
         };
@@ -309,6 +317,12 @@ impl<W: Write + Seek> McapLog<W> {
         let header = MessageHeader { channel_id, sequence: self.sequence, log_time: nanos(t), publish_time: nanos(t) };
         self.sequence = self.sequence.wrapping_add(1);
         self.writer.write_to_known_channel(&header, &data)?;
+        let start = *self.chunk_start.get_or_insert(header.log_time);
+        if header.log_time.saturating_sub(start) >= CHUNK_INTERVAL_NS {
+            // Closes the chunk and flushes the file: a run cut off keeps what it logged.
+            self.writer.flush()?;
+            self.chunk_start = None;
+        }
         #[cfg(feature = "live-view")]
         if let Some(v) = &self.view {
             v.log(channel_id, header.log_time, &data);

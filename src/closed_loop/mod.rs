@@ -13,7 +13,7 @@ mod run;
 mod scenario;
 mod summary;
 
-pub use log::{Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
+pub use log::{CHUNK_INTERVAL_NS, Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
 pub use run::{Sample, run, run_on};
 pub use scenario::{Plant, ReferenceFileError, Scenario, Track};
 pub use summary::{HOLD_LEAD_S, HOLD_SETTLE_S, Summary, summarise};

@@ -68,6 +68,9 @@ pub struct FitSettings {
     pub surface_pressure: f64,
     /// Water density (kg/m^3).
     pub water_density: f64,
+    /// A vehicle file scored on the same held-out windows, for comparison only (a simulator's
+    /// own file, a model fitted before); nothing of it enters the fit.
+    pub reference: Option<PathBuf>,
 }
 
 impl FitSettings {
@@ -86,6 +89,7 @@ impl FitSettings {
             width: 32,
             surface_pressure: 1013.25,
             water_density: 1000.0,
+            reference: None,
         }
     }
 }
@@ -144,6 +148,8 @@ struct Log {
     path: PathBuf,
     sha256: String,
     content: Content,
+    /// Where it was cut off, if it was.
+    cut: Option<crate::dataset::import::McapCut>,
 }
 
 /// A recording's MAVLink messages (`.tlog`, pinc's MCAP), or the streams of an ArduPilot
@@ -153,13 +159,19 @@ enum Content {
     Streams(Box<crate::dataset::import::StreamSet>),
 }
 
-/// Reads a recording by its extension: `.tlog` and `.mcap` as MAVLink, `.bin` as an
-/// ArduPilot dataflash log (its thruster outputs through `thrusters`).
-fn read_recording(path: &Path, thrusters: &Thrusters, water_density: f64) -> Result<Content, String> {
+/// Reads a recording by its extension (through a `.partial`): `.tlog` and `.mcap` as
+/// MAVLink, `.bin` as an ArduPilot dataflash log (its thruster outputs through `thrusters`);
+/// where a cut-off MCAP ended.
+fn read_recording(
+    path: &Path,
+    thrusters: &Thrusters,
+    water_density: f64,
+) -> Result<(Content, Option<crate::dataset::import::McapCut>), String> {
     use crate::dataset::import::{ArdupilotOptions, InputSource, read_bin};
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("tlog" | "mcap") => mavlink_log(path).map(|l| Content::Mavlink(l.messages)).map_err(|e| e.to_string()),
+    match crate::dataset::import::log_extension(path).as_deref() {
+        Some("tlog" | "mcap") => {
+            mavlink_log(path).map(|l| (Content::Mavlink(l.messages), l.cut)).map_err(|e| e.to_string())
+        }
         Some("bin") => {
             let t = thrusters.clone();
             let options = ArdupilotOptions {
@@ -168,7 +180,7 @@ fn read_recording(path: &Path, thrusters: &Thrusters, water_density: f64) -> Res
                 water_density,
                 ..ArdupilotOptions::default()
             };
-            read_bin(path, &options).map(|s| Content::Streams(Box::new(s))).map_err(|e| e.to_string())
+            read_bin(path, &options).map(|s| (Content::Streams(Box::new(s)), None)).map_err(|e| e.to_string())
         }
         _ => Err("a recording is a .tlog, a pinc MCAP (`pinc vehicle excite` / `record`) or an ArduPilot .BIN".into()),
     }
@@ -232,6 +244,8 @@ pub struct Fit {
     pub recordings: Vec<(PathBuf, String, f64)>,
     /// The report's findings (the model's warnings among them).
     pub report: report::Findings,
+    /// The reference vehicle file and its coefficients ([`FitSettings::reference`]).
+    pub reference: Option<(PathBuf, VehicleParams)>,
 }
 
 /// The default sensor model before a fit: the estimator's defaults.
@@ -449,12 +463,17 @@ impl Pipeline<'_> {
                 scanned += 1;
             }
         }
-        // Only a minimum inside the range is a lag; one at an end says the readings are not
-        // explained (a feedback or a sensor's sample-and-hold can do that to the heave equation).
+        // A minimum inside the range is a lag; one at its far end says the readings are not
+        // explained (a feedback or a sensor's sample-and-hold can do that to the heave
+        // equation). At zero, against the vertical velocity's integral (which has no lag of its
+        // own), the reading lags by less than a step of the scan: zero is the answer (with a
+        // GPS the autopilot's vertical velocity gave this on ArduSub's simulator); against the
+        // heave equation it stays unexplained.
         let best =
             lag_scan.iter().enumerate().filter(|(_, (_, v))| v.is_finite()).min_by(|a, b| a.1.1.total_cmp(&b.1.1));
+        let inside = |k: usize| k + 1 < lag_scan.len() && (k > 0 || lag_method == LagMethod::VerticalVelocity);
         match best {
-            Some((k, &(lag, _))) if scanned > 0 && k > 0 && k + 1 < lag_scan.len() => sensors.depth_delay = lag,
+            Some((k, &(lag, _))) if scanned > 0 && inside(k) => sensors.depth_delay = lag,
             _ => sensors_defaulted.push("depth lag"),
         }
         (sensors, sensors_defaulted, lag_scan, lag_method)
@@ -538,7 +557,8 @@ pub fn determinacy(
 ) -> Result<(report::Findings, Identified), FitError> {
     check(settings)?;
     let (base, thrusters, _) = starting_vehicle(settings)?;
-    let log = Log { path: PathBuf::from("(live)"), sha256: String::new(), content: Content::Mavlink(messages) };
+    let log =
+        Log { path: PathBuf::from("(live)"), sha256: String::new(), content: Content::Mavlink(messages), cut: None };
     let pipeline = Pipeline { settings, base, thrusters, logs: vec![log] };
     let found = pipeline.identified(&mut |_| {})?;
     let findings = report::findings(&found.identification, &base, found.horizontal, &found.sensors_defaulted, None);
@@ -569,12 +589,19 @@ pub fn fit(
     check(settings)?;
     on_stage(Stage::Read);
     let (base, thrusters, thrusters_toml) = starting_vehicle(settings)?;
+    let reference = match &settings.reference {
+        Some(path) => Some((
+            path.clone(),
+            VehicleParams::load(path).map_err(|e| FitError::Input { path: path.clone(), message: e.to_string() })?,
+        )),
+        None => None,
+    };
     let mut logs = Vec::new();
     for path in &settings.recordings {
         let input = |message: String| FitError::Input { path: path.clone(), message };
         let bytes = std::fs::read(path).map_err(|e| input(e.to_string()))?;
-        let content = read_recording(path, &thrusters, settings.water_density).map_err(input)?;
-        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), content });
+        let (content, cut) = read_recording(path, &thrusters, settings.water_density).map_err(input)?;
+        logs.push(Log { path: path.clone(), sha256: sha256_hex(&bytes), content, cut });
     }
     let pipeline = Pipeline { settings, base, thrusters, logs };
     let found = pipeline.identified(&mut on_stage)?;
@@ -591,7 +618,7 @@ pub fn fit(
         train(&cfg, train_set, dev, &source, interrupt, on_epoch).map_err(|e| FitError::Train(e.to_string()))?;
 
     on_stage(Stage::Report);
-    let recordings = pipeline
+    let recordings: Vec<(PathBuf, String, f64)> = pipeline
         .logs
         .iter()
         .zip(&found.runs)
@@ -600,8 +627,14 @@ pub fn fit(
             (l.path.clone(), l.sha256.clone(), span)
         })
         .collect();
-    let findings =
+    let mut findings =
         report::findings(&found.identification, &base, found.horizontal, &found.sensors_defaulted, Some(&training));
+    for (log, span) in pipeline.logs.iter().zip(&recordings) {
+        if let Some(cut) = &log.cut {
+            let line = format!("{}: {cut}; fitted from the {:.0} s it holds", log.path.display(), span.2);
+            findings.notes.insert(0, line);
+        }
+    }
     let mut model = training.model.clone();
     // Timings stay out of the file: the same inputs give the same bytes.
     for key in ["train_seconds", "step_ms"] {
@@ -622,6 +655,7 @@ pub fn fit(
         dataset: found.dataset,
         recordings,
         report: findings,
+        reference,
     })
 }
 

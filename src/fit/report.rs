@@ -91,15 +91,20 @@ pub fn findings(
                         .to_string(),
                 )
             } else if let Some(se) = std_err {
-                let against = judged_against(&id.vehicle, name);
-                let what = if against == fitted.abs() { "the value" } else { "the effective mass or inertia" };
+                let against = judged_against(&id.vehicle, name, id.speeds);
+                let what = match name {
+                    _ if against == fitted.abs() => "the value",
+                    "x_ud" | "y_vd" | "z_wd" | "n_rd" => "the effective mass or inertia",
+                    _ => "the axis's damping at the data's RMS speed",
+                };
                 ("identified", format!("standard error {:.1} % of {what}", 100.0 * se / against.max(1e-12)))
             } else {
                 (
                     "not_excited",
                     format!(
-                        "the recordings do not excite it enough (standard error over {:.0} % of the value, or of the \
-                         effective mass or inertia for an added one); kept from the starting file",
+                        "the recordings do not excite it enough (standard error over {:.0} % of what it is judged \
+                         against: its value, the effective mass or inertia, or the axis's damping); kept from the \
+                         starting file",
                         100.0 * MAX_RELATIVE_STD_ERR
                     ),
                 )
@@ -146,7 +151,8 @@ pub fn findings(
         .collect();
     for &s in sensors_defaulted {
         warnings.push(if s == "depth lag" {
-            "sensors: the depth lag is not determined (the best lag is at an end of 0-0.3 s on these recordings); the \
+            "sensors: the depth lag is not determined (the best lag is at the end of 0-0.3 s, or at 0 against the heave \
+             equation, on these recordings); the \
              estimator's default is kept"
                 .to_string()
         } else {
@@ -186,6 +192,17 @@ pub struct HeldOut {
     pub physics_vpt_s: f64,
     /// The hybrid's.
     pub hybrid_vpt_s: f64,
+    /// The reference vehicle file's physics on the same windows (`--reference`).
+    pub reference: Option<ReferenceScore>,
+}
+
+/// A reference vehicle file scored on the held-out windows.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReferenceScore {
+    /// The file.
+    pub file: PathBuf,
+    /// `[depth m, heading rad, u, v, w m/s, r rad/s]` RMS of its RK4 step.
+    pub rms: [f64; 6],
 }
 
 /// The quantities of [`HeldOut`].
@@ -221,15 +238,23 @@ fn add_errors(sums: &mut [f64; 6], pred: &[State], truth: &[State]) -> usize {
     pred.len().min(truth.len())
 }
 
-/// [`HeldOut`] of `model` (and its physics) on `test`.
-pub fn held_out(model: &crate::model::PincModel, test: &TrajectorySet) -> HeldOut {
+/// [`HeldOut`] of `model` (and its physics, and a reference vehicle's) on `test`.
+pub fn held_out(
+    model: &crate::model::PincModel,
+    test: &TrajectorySet,
+    reference: Option<&(PathBuf, VehicleParams)>,
+) -> HeldOut {
     let physics = Rk4Vehicle { params: model.vehicle, ..Rk4Vehicle::with_dt(test.dt) };
     let hybrid = Predictor::<f64>::reference(model);
-    let (mut sp, mut sh, mut n) = ([0.0; 6], [0.0; 6], 0usize);
+    let other = reference.map(|(_, p)| Rk4Vehicle { params: *p, ..Rk4Vehicle::with_dt(test.dt) });
+    let (mut sp, mut sh, mut sr, mut n) = ([0.0; 6], [0.0; 6], [0.0; 6], 0usize);
     for i in 0..test.count {
         let (states, inputs) = test.trajectory(i);
         n += add_errors(&mut sp, &rollout(&physics, &states[0], inputs), states);
         add_errors(&mut sh, &rollout(&hybrid, &states[0], inputs), states);
+        if let Some(other) = &other {
+            add_errors(&mut sr, &rollout(other, &states[0], inputs), states);
+        }
     }
     let rms = |s: [f64; 6]| s.map(|v| (v / n.max(1) as f64).sqrt());
     let vpt_p = crate::eval::evaluate_set_discrete(&physics, test).map_or(f64::NAN, |m| m.vpt_s);
@@ -241,6 +266,7 @@ pub fn held_out(model: &crate::model::PincModel, test: &TrajectorySet) -> HeldOu
         hybrid_rms: rms(sh),
         physics_vpt_s: vpt_p,
         hybrid_vpt_s: vpt_h,
+        reference: reference.map(|(file, _)| ReferenceScore { file: file.clone(), rms: rms(sr) }),
     }
 }
 
@@ -394,6 +420,9 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     };
     md += &row("identified physics", &held.physics_rms);
     md += &row("hybrid", &held.hybrid_rms);
+    if let Some(r) = &held.reference {
+        md += &row(&format!("reference `{}` (compared only)", r.file.display()), &r.rms);
+    }
     md += &format!(
         "\nMean valid prediction time: physics {:.2} s, hybrid {:.2} s. Units: m, rad, m/s, rad/s. Plot: report.png.\n",
         held.physics_vpt_s, held.hybrid_vpt_s
@@ -439,7 +468,7 @@ pub fn write(fit: &Fit, folder: &Path, command: &str) -> Result<Written, FitErro
         .set("test")
         .filter(|s| s.count > 0)
         .ok_or_else(|| FitError::Data("the held-out split is empty: record longer".into()))?;
-    let held = held_out(&fit.model, test);
+    let held = held_out(&fit.model, test, fit.reference.as_ref());
     let put = |name: &str, bytes: &[u8]| -> Result<(), FitError> {
         let p = partial.join(name);
         std::fs::write(&p, bytes).map_err(|e| out(&p, e.to_string()))

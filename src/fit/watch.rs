@@ -55,10 +55,82 @@ pub struct Watch {
     jobs: Option<mpsc::Sender<Job>>,
     verdicts: mpsc::Receiver<(f64, Result<Findings, String>)>,
     worker: Option<JoinHandle<()>>,
+    progress: Progress,
+}
+
+/// What the looks so far found.
+#[derive(Debug, Clone, Default)]
+pub struct Progress {
     /// Since when (s of recording) each coefficient and axis has been determined, without a
     /// break up to the last look.
-    since: BTreeMap<String, f64>,
-    last: Option<Verdict>,
+    pub since: BTreeMap<String, f64>,
+    /// The last look.
+    pub last: Option<Verdict>,
+}
+
+impl Progress {
+    fn note(&mut self, v: &Verdict) {
+        let determined = v
+            .findings
+            .coefficients
+            .iter()
+            .map(|c| (c.name.to_string(), c.status == "identified"))
+            .chain(v.findings.axes.iter().map(|a| (format!("{} axis", a.axis), a.determined)));
+        for (name, now) in determined {
+            if now {
+                self.since.entry(name).or_insert(v.at);
+            } else {
+                self.since.remove(&name);
+            }
+        }
+        self.last = Some(v.clone());
+    }
+
+    /// One line: the last look's verdict and since when each thing has been determined.
+    pub fn summary(&self) -> Option<String> {
+        let last = self.last.as_ref()?;
+        let mut parts: Vec<(&String, &f64)> = self.since.iter().collect();
+        // The axes first, then the coefficients, each by the time they took.
+        parts.sort_by(|a, b| b.0.ends_with(" axis").cmp(&a.0.ends_with(" axis")).then(a.1.total_cmp(b.1)));
+        let parts: Vec<String> = parts.iter().map(|(k, at)| format!("{k} {at:.0} s")).collect();
+        Some(format!(
+            "watch: at its last look ({:.0} s of recording) the fit's report {}; determined since: {}",
+            last.at,
+            if last.passes() { "passes" } else { "would warn" },
+            if parts.is_empty() { "nothing".to_string() } else { parts.join(", ") }
+        ))
+    }
+}
+
+/// The watch replayed over a recording's messages (time stamps in µs): a look at every
+/// `every` seconds of it, the first at twice that, as `pinc vehicle excite` makes them live;
+/// `on_look` hears of each.
+pub fn replay(
+    settings: &FitSettings,
+    messages: &[(u64, u8, MavMessage)],
+    every: f64,
+    mut on_look: impl FnMut(&Result<Verdict, String>),
+) -> Progress {
+    let mut progress = Progress::default();
+    let Some(start) = messages.first().map(|m| m.0) else { return progress };
+    let end = messages.last().map_or(start, |m| m.0);
+    let mut at = 2.0 * every;
+    loop {
+        let cut = start + (at.min((end - start) as f64 * 1e-6) * 1e6) as u64;
+        let upto = messages.partition_point(|m| m.0 <= cut);
+        let look = determinacy(settings, messages[..upto].to_vec())
+            .map(|(findings, _)| Verdict { at: (cut - start) as f64 * 1e-6, findings })
+            .map_err(|e| e.to_string());
+        if let Ok(v) = &look {
+            progress.note(v);
+        }
+        on_look(&look);
+        if cut >= end {
+            break;
+        }
+        at += every;
+    }
+    progress
 }
 
 impl Watch {
@@ -87,8 +159,7 @@ impl Watch {
             jobs: worker.as_ref().map(|_| jobs),
             verdicts,
             worker,
-            since: BTreeMap::new(),
-            last: None,
+            progress: Progress::default(),
         }
     }
 
@@ -120,36 +191,14 @@ impl Watch {
         self.busy = false;
         Some(found.map(|findings| {
             let verdict = Verdict { at, findings };
-            self.note(&verdict);
+            self.progress.note(&verdict);
             verdict
         }))
     }
 
-    fn note(&mut self, v: &Verdict) {
-        let determined = v
-            .findings
-            .coefficients
-            .iter()
-            .map(|c| (c.name.to_string(), c.status == "identified"))
-            .chain(v.findings.axes.iter().map(|a| (format!("{} axis", a.axis), a.determined)));
-        for (name, now) in determined {
-            if now {
-                self.since.entry(name).or_insert(v.at);
-            } else {
-                self.since.remove(&name);
-            }
-        }
-        self.last = Some(v.clone());
-    }
-
-    /// The last look, if any.
-    pub fn last(&self) -> Option<&Verdict> {
-        self.last.as_ref()
-    }
-
-    /// Since when each coefficient and axis determined at the last look has been.
-    pub fn since(&self) -> &BTreeMap<String, f64> {
-        &self.since
+    /// What the looks so far found.
+    pub fn progress(&self) -> &Progress {
+        &self.progress
     }
 }
 

@@ -82,6 +82,8 @@ pub struct Recorder {
     channels: HashMap<String, u16>,
     sequence: u32,
     stats: RecordStats,
+    /// Log time (ns) of the first message of the open chunk.
+    chunk_start: Option<u64>,
 }
 
 /// The `.partial` name a recording is written under.
@@ -124,6 +126,7 @@ impl Recorder {
             channels: HashMap::new(),
             sequence: 0,
             stats: RecordStats::default(),
+            chunk_start: None,
         })
     }
 
@@ -163,7 +166,14 @@ impl Recorder {
         let header = MessageHeader { channel_id, sequence: self.sequence, log_time: nanos(t), publish_time: nanos(t) };
         self.sequence = self.sequence.wrapping_add(1);
         self.stats.messages += 1;
-        let e = self.writer.as_mut().expect("writer lives until finish").write_to_known_channel(&header, &data);
+        let writer = self.writer.as_mut().expect("writer lives until finish");
+        let mut e = writer.write_to_known_channel(&header, &data);
+        let start = *self.chunk_start.get_or_insert(header.log_time);
+        if e.is_ok() && header.log_time.saturating_sub(start) >= crate::closed_loop::CHUNK_INTERVAL_NS {
+            // Closes the chunk and flushes the file: what it holds survives a cut.
+            e = writer.flush();
+            self.chunk_start = None;
+        }
         e.map_err(|source| RecordError::Mcap { path: self.partial.clone(), source })
     }
 

@@ -47,6 +47,15 @@ pub struct FitArgs {
     /// Water density (kg/m^3) for depth from pressure.
     #[arg(long, default_value_t = 1000.0)]
     pub water_density: f64,
+    /// A vehicle file scored on the same held-out windows beside the fit (a simulator's own
+    /// file, an earlier fit), for comparison only: nothing of it enters the fit.
+    #[arg(long, value_name = "FILE")]
+    pub reference: Option<PathBuf>,
+    /// Fit nothing: replay `pinc vehicle excite`'s watch over the recording (one, `.tlog` or
+    /// MCAP) with a look every this many seconds of it (the first at twice that): when the
+    /// fit's report would have passed, and since when each coefficient was determined.
+    #[arg(long, value_name = "SECONDS")]
+    pub watch_every: Option<f64>,
     /// Print the report as JSON (no progress display).
     #[arg(long)]
     pub json: bool,
@@ -62,6 +71,10 @@ pub fn run_fit(a: FitArgs) -> Result<(), String> {
     settings.width = a.width;
     settings.surface_pressure = a.surface_pressure;
     settings.water_density = a.water_density;
+    settings.reference = a.reference.clone();
+    if let Some(every) = a.watch_every {
+        return run_watch_replay(&settings, every, a.json);
+    }
     let command = std::env::args().map(|s| if s.contains(' ') { format!("{s:?}") } else { s }).collect::<Vec<_>>();
     let command = command.join(" ");
     let interrupt = Arc::new(AtomicBool::new(false));
@@ -114,5 +127,41 @@ pub fn run_fit(a: FitArgs) -> Result<(), String> {
         written.folder.display(),
         written.model.display()
     );
+    Ok(())
+}
+
+/// `pinc fit --watch-every S`: the excite's watch replayed over one recording.
+fn run_watch_replay(settings: &FitSettings, every: f64, json: bool) -> Result<(), String> {
+    if !(every.is_finite() && every > 0.0) {
+        return Err(format!("--watch-every must be a positive number of seconds, got {every}"));
+    }
+    let [path] = settings.recordings.as_slice() else {
+        return Err("--watch-every replays one recording (a .tlog or a pinc MCAP)".into());
+    };
+    let log = pinc::dataset::import::mavlink_log(path).map_err(|e| e.to_string())?;
+    let mut looks = Vec::new();
+    let progress = pinc::fit::watch::replay(settings, &log.messages, every, |look| match look {
+        Ok(v) => {
+            if !json {
+                println!("{}", v.line());
+            }
+            looks.push(serde_json::json!({"at_s": v.at, "passes": v.passes(), "axes": v.findings.axes,
+                "warnings": v.findings.warnings}));
+        }
+        Err(e) => {
+            if !json {
+                println!("the fit cannot look yet: {e}");
+            }
+            looks.push(serde_json::json!({"error": e}));
+        }
+    });
+    let first_pass = looks.iter().find(|l| l["passes"] == true).and_then(|l| l["at_s"].as_f64());
+    if json {
+        let v = serde_json::json!({"recording": path.display().to_string(), "every_s": every, "looks": looks,
+            "passes_from_s": first_pass, "determined_since_s": progress.since});
+        println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
+    } else if let Some(line) = progress.summary() {
+        println!("{line}");
+    }
     Ok(())
 }

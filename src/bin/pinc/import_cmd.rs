@@ -207,7 +207,7 @@ fn format_of(path: &Path) -> Option<LogFormat> {
     if path.is_dir() {
         return Some(LogFormat::Ros2);
     }
-    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+    match pinc::dataset::import::log_extension(path).as_deref() {
         Some("csv") => Some(LogFormat::Csv),
         Some("mcap") if mcap_is_cdr(path) => Some(LogFormat::Ros2),
         Some("mcap") => Some(LogFormat::Mcap),

@@ -35,12 +35,15 @@ fn numbers<const N: usize>(msg: &Value, field: &str, names: [&str; N]) -> Result
 pub fn read_mcap(path: &Path, topics: &McapTopics) -> Result<Recording, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
+    let (stream, mut cut) = super::mcap_cut::message_stream(&bytes).map_err(malformed)?;
     let mut states: BTreeMap<u64, SimState> = BTreeMap::new();
     let mut commands: BTreeMap<u64, Input> = BTreeMap::new();
     let mut seen = BTreeSet::new();
     for message in stream {
         let message = message.map_err(|e| malformed(format!("damaged MCAP: {e}")))?;
+        if let Some(c) = &mut cut {
+            c.last_log_time = Some(message.log_time.max(c.last_log_time.unwrap_or(0)));
+        }
         let topic = message.channel.topic.as_str();
         seen.insert(topic.to_string());
         let (is_state, field) = if topic == topics.state_topic {
@@ -70,6 +73,7 @@ pub fn read_mcap(path: &Path, topics: &McapTopics) -> Result<Recording, ImportEr
         }
     }
     let mut rec = Recording::empty(path);
+    rec.notes.extend(cut.map(|c| c.to_string()));
     for (time, s) in states {
         rec.t.push(time as f64 * 1e-9);
         rec.states.push(s);

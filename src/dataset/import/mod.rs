@@ -7,6 +7,7 @@ mod csv_log;
 mod csv_mapping;
 mod csv_rows;
 mod dataflash;
+mod mcap_cut;
 mod mcap_log;
 mod resample;
 mod ros2;
@@ -25,6 +26,7 @@ pub use csv_mapping::{
     read_mapped_csv,
 };
 pub use dataflash::read_bin;
+pub use mcap_cut::Cut as McapCut;
 pub use mcap_log::read_mcap;
 pub use resample::{default_gap_tolerance, log_dt, ned_to_body, resample, stream_set_of};
 pub use ros2::{Ros2Options, read_ros2};
@@ -71,6 +73,15 @@ impl Recording {
     pub fn empty(path: &std::path::Path) -> Self {
         Self { path: path.to_path_buf(), t: Vec::new(), states: Vec::new(), inputs: Vec::new(), notes: Vec::new() }
     }
+}
+
+/// A log's format extension in lower case, looking through the `.partial` a recording is
+/// written under until it is finished (`pool.mcap.partial` is an `mcap`): a session cut off
+/// leaves that name, and what it holds is read.
+pub fn log_extension(path: &std::path::Path) -> Option<String> {
+    let name = path.file_name()?.to_str()?.to_ascii_lowercase();
+    let name = name.strip_suffix(".partial").unwrap_or(&name);
+    name.rsplit_once('.').map(|(_, ext)| ext.to_string())
 }
 
 /// What can go wrong while importing: every variant names the file.

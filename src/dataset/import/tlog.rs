@@ -82,6 +82,8 @@ pub struct TlogMessages {
     pub damaged: usize,
     /// The file ends inside a frame.
     pub torn: bool,
+    /// Where a cut-off MCAP recording ended (its whole records were read).
+    pub cut: Option<super::mcap_cut::Cut>,
 }
 
 /// Reads every decodable frame of a `.tlog` (not only those the streams use).
@@ -90,7 +92,7 @@ pub struct TlogMessages {
 /// The file cannot be read or holds no valid frame.
 pub fn tlog_messages(path: &Path) -> Result<TlogMessages, ImportError> {
     let buf = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
+    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false, cut: None };
     let mut p = 0;
     while p + STAMP < buf.len() {
         let q = p + STAMP;
@@ -347,10 +349,13 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
 pub fn mcap_messages(path: &Path) -> Result<TlogMessages, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| malformed(format!("not an MCAP file: {e}")))?;
-    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false };
+    let (stream, cut) = super::mcap_cut::message_stream(&bytes).map_err(malformed)?;
+    let mut out = TlogMessages { messages: Vec::new(), damaged: 0, torn: false, cut };
     for m in stream {
         let m = m.map_err(|e| malformed(e.to_string()))?;
+        if let Some(c) = &mut out.cut {
+            c.last_log_time = Some(m.log_time.max(c.last_log_time.unwrap_or(0)));
+        }
         if !m.channel.topic.starts_with("/mavlink/") {
             continue;
         }
@@ -376,7 +381,7 @@ pub fn mcap_messages(path: &Path) -> Result<TlogMessages, ImportError> {
 /// As [`tlog_messages`] and [`mcap_messages`]; an MCAP in a build without the `vehicle`
 /// feature.
 pub fn mavlink_log(path: &Path) -> Result<TlogMessages, ImportError> {
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
+    if super::log_extension(path).as_deref() == Some("mcap") {
         #[cfg(feature = "vehicle")]
         return mcap_messages(path);
         #[cfg(not(feature = "vehicle"))]

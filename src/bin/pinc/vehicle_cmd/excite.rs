@@ -301,16 +301,7 @@ mod watch {
 
     /// Since when each coefficient and axis has been determined, in one line.
     pub(super) fn summary(w: &Watch) -> Option<String> {
-        let last = w.inner.last()?;
-        let since = w.inner.since();
-        let mut parts: Vec<String> = since.iter().map(|(k, at)| format!("{k} {at:.0} s")).collect();
-        parts.sort_by(|a, b| a.ends_with("axis").cmp(&b.ends_with("axis")).reverse());
-        Some(format!(
-            "watch: at its last look ({:.0} s of recording) the fit's report {}; determined since: {}",
-            last.at,
-            if last.passes() { "passes" } else { "would warn" },
-            if parts.is_empty() { "nothing".to_string() } else { parts.join(", ") }
-        ))
+        w.inner.progress().summary()
     }
 }
 
