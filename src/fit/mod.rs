@@ -555,7 +555,8 @@ pub fn determinacy(
     settings: &FitSettings,
     messages: Vec<(u64, u8, mavlink::dialects::ardupilotmega::MavMessage)>,
 ) -> Result<(report::Findings, Identified), FitError> {
-    check(settings)?;
+    // The messages are the recording: the settings' list of files may be empty.
+    check(&FitSettings { recordings: vec![PathBuf::from("(live)")], ..settings.clone() })?;
     let (base, thrusters, _) = starting_vehicle(settings)?;
     let log =
         Log { path: PathBuf::from("(live)"), sha256: String::new(), content: Content::Mavlink(messages), cut: None };
@@ -608,7 +609,7 @@ pub fn fit(
 
     // The hybrid on the identified vehicle.
     on_stage(Stage::Train(settings.epochs));
-    let cfg = train_config(settings, found.identification.vehicle);
+    let cfg = train_config(settings, found.identification.vehicle, found.horizontal);
     let (train_set, dev) = splits(&found.dataset)?;
     let source = format!(
         "pinc fit {}",
@@ -673,10 +674,13 @@ fn splits(data: &Dataset) -> Result<(&TrajectorySet, &TrajectorySet), FitError> 
 /// velocities and the input only, anchored at rest, on the data and rollout losses (the
 /// physics is the identified vehicle's own), a cosine schedule over the epochs, on ndarray
 /// (deterministic on one machine).
-pub fn train_config(settings: &FitSettings, vehicle: VehicleParams) -> TrainConfig {
+pub fn train_config(settings: &FitSettings, vehicle: VehicleParams, horizontal: bool) -> TrainConfig {
     let mut cfg = TrainConfig::paper();
     cfg.architecture = crate::model::Architecture::paper(settings.layers, settings.width);
-    cfg.architecture.state_inputs = (5..crate::NX as u8).collect();
+    // The body velocities it can learn from: without a position source `u` and `v` are the
+    // starting file's own motion (zero under a designed heave-and-yaw excitation), so the
+    // correction sees `w` and `r` only.
+    cfg.architecture.state_inputs = if horizontal { (5..crate::NX as u8).collect() } else { vec![7, 8] };
     cfg = cfg.with_losses(&[LossKind::Data, LossKind::Rollout]);
     cfg.epochs = settings.epochs;
     cfg.lr = 1e-3;

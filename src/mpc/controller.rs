@@ -254,6 +254,7 @@ impl<M: DiscreteModel> Mpc<M> {
         // The body velocities the network sees, inside its envelope less the margin.
         let soft_bounds: Vec<(usize, f64, f64)> = match model.state_bounds() {
             Some((lo, hi)) if cfg.envelope_constraints => (5..NX)
+                .filter(|&i| lo[i].is_finite() && hi[i].is_finite())
                 .map(|i| {
                     let margin = cfg.envelope_margin * (hi[i] - lo[i]);
                     (i, lo[i] + margin, hi[i] - margin)

@@ -1,14 +1,14 @@
 //! `pinc fit` on a stock vehicle's recording from ArduSub's firmware
-//! (tests/fixtures/ardusub/stock_band_600s.mcap, see trim_recording.py): the same inputs give
-//! the same bytes, the report says what the data determined, a damaged recording writes
-//! nothing.
+//! (tests/fixtures/ardusub/stock_designed_60s.mcap, see RECORDINGS.md there): the same inputs
+//! give the same bytes, the report says what the data determined, a recording cut off is fitted
+//! from what it holds, a damaged one writes nothing.
 #![cfg(all(feature = "train", feature = "vehicle"))]
 
 use pinc::model::PincModel;
 use std::path::Path;
 use std::process::{Command, Output};
 
-const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/ardusub/stock_band_600s.mcap");
+const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/ardusub/stock_designed_60s.mcap");
 const VEHICLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/ardusub/sitl_vectored.toml");
 
 fn fit(recording: &str, out: &Path) -> Output {
@@ -40,26 +40,36 @@ fn a_stock_recording_fits_the_same_model_twice_and_says_what_it_determined() {
     let status = |name: &str| {
         report["coefficients"].as_array().unwrap().iter().find(|c| c["name"] == name).unwrap()["status"].clone()
     };
-    // No position source: surge and sway are the starting file's, said so; heave is fitted
-    // (its added mass is not determined on this recording: the simulator's vehicle has none,
-    // and the fit says so).
+    // No position source: surge and sway are the starting file's, said so; heave and yaw are
+    // determined from the 60 s of the designed excitation, and the report passes.
     for k in ["x_ud", "y_vd", "x_uu", "y_vv"] {
         assert_eq!(status(k), "no_position_source", "{k}");
     }
-    for k in ["volume", "z_w", "z_ww"] {
+    for k in ["volume", "z_wd", "z_w", "z_ww", "n_rd", "n_r", "n_rr"] {
         assert_eq!(status(k), "identified", "{k}");
     }
+    assert_eq!(report["passed"], true, "{}", report["warnings"]);
+    // The simulator's yaw: quadratic damping 7.08 N m/(rad/s)^2 and no linear term (its
+    // README); the fit finds both within 5 % of the quadratic term.
+    let coefficient = |name: &str| {
+        report["coefficients"].as_array().unwrap().iter().find(|c| c["name"] == name).unwrap()["fitted"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!((coefficient("n_rr") + 7.08).abs() < 0.35, "{}", coefficient("n_rr"));
+    assert!(coefficient("n_r").abs() < 0.35, "{}", coefficient("n_r"));
     // The simulator's depth sensor has 0.12 m of noise (its README): the fit measures it
     // from the readings within a third.
     let depth_std = report["sensors"]["depth_std_m"].as_f64().unwrap();
     assert!((0.08..=0.16).contains(&depth_std), "{depth_std}");
     // The recording holds the autopilot's vertical velocity: the depth lag is measured against
-    // it. The simulator's readings at their own stamps lag its truth by 0.02-0.04 s.
+    // it. The simulator's readings at their own stamps lag its truth by 0.02-0.04 s; on these
+    // 60 s the scan's best is 0 (under its 0.02 s step).
     assert_eq!(report["sensors"]["lag_method"], "vertical_velocity");
     let lag = report["sensors"]["depth_delay_s"].as_f64().unwrap();
-    assert!((0.02..=0.06).contains(&lag), "{lag}");
-    // The held-out comparison and the plot are there.
-    assert!(report["held_out"]["windows"].as_u64().unwrap() > 10);
+    assert!((0.0..=0.06).contains(&lag), "{lag}");
+    // The held-out comparison (15 % of 60 s: 4 windows of 2 s) and the plot are there.
+    assert!(report["held_out"]["windows"].as_u64().unwrap() >= 3);
     for name in ["report.md", "report.png", "training.csv"] {
         assert!(a.join(name).metadata().unwrap().len() > 100, "{name}");
     }
@@ -76,12 +86,41 @@ fn a_stock_recording_fits_the_same_model_twice_and_says_what_it_determined() {
     pinc::vehicle::Thrusters::load(a.join("vehicle.toml")).unwrap();
 }
 
+/// Cut at two thirds (a session killed), the recording is fitted from its whole chunks, and
+/// the report says where it ended; the same cut with bytes of a whole chunk overwritten is
+/// refused, naming the file, and writes nothing.
 #[test]
-fn a_damaged_recording_is_named_and_nothing_is_written() {
+fn a_cut_recording_is_fitted_from_what_it_holds_and_a_damaged_one_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let bytes = std::fs::read(FIXTURE).unwrap();
+    let cut = dir.path().join("pool.mcap.partial");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let out = dir.path().join("cut");
+    let r = fit(cut.to_str().unwrap(), &out);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    let note = report["notes"][0].as_str().unwrap();
+    assert!(note.contains("pool.mcap.partial: the file was cut off: read up to byte"), "{note}");
+    let held = report["recordings"][0]["estimated_s"].as_f64().unwrap();
+    // The writer closes a chunk every second: two thirds of the bytes are about two thirds of
+    // the 60 s.
+    assert!((30.0..45.0).contains(&held), "{held} s");
+
+    // Damage inside the compressed records of the chunk that holds the file's middle (found by
+    // the records' framing: an opcode byte and a little-endian u64 length after the 8-byte
+    // magic; 0x06 is a chunk).
+    let mut damaged = bytes[..bytes.len() * 2 / 3].to_vec();
+    let mut at = 8;
+    let chunk = loop {
+        let length = u64::from_le_bytes(damaged[at + 1..at + 9].try_into().unwrap()) as usize;
+        if damaged[at] == 0x06 && at + 9 + length > damaged.len() / 2 {
+            break at;
+        }
+        at += 9 + length;
+    };
+    damaged[chunk + 100..chunk + 164].fill(0xff);
     let torn = dir.path().join("torn.mcap");
-    std::fs::write(&torn, &bytes[..bytes.len() / 3]).unwrap();
+    std::fs::write(&torn, &damaged).unwrap();
     let out = dir.path().join("out");
     let r = fit(torn.to_str().unwrap(), &out);
     assert_eq!(r.status.code(), Some(1));
