@@ -84,11 +84,18 @@ pub fn findings(
             // An echo's standard error is the fit of the starting file to its own motion.
             let (fitted, std_err) = (super::coefficient(&id.vehicle, name), id.std_err_of(name).filter(|_| !echo));
             let (status, why) = if echo {
+                let kept = if matches!(name, "x_ud" | "y_vd") {
+                    "the surge and sway added masses set to the mean of the starting file's two (their difference \
+                     couples the yaw into surge and sway, which the recordings cannot confirm)"
+                } else {
+                    "kept from the starting file"
+                };
                 (
                     "no_position_source",
-                    "no position or velocity sensor: the estimated surge and sway come from the starting file's own \
-                     model, so they cannot correct it; kept from the starting file"
-                        .to_string(),
+                    format!(
+                        "no position or velocity sensor: the estimated surge and sway come from the starting file's \
+                         own model, so they cannot correct it; {kept}"
+                    ),
                 )
             } else if let Some(se) = std_err {
                 let against = judged_against(&id.vehicle, name, id.speeds);

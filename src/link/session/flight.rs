@@ -1,0 +1,557 @@
+//! One session's cycles, each in stages: what the autopilot measured and applied into the
+//! estimator ([`Flight::observe`]), the estimate and the state to control on
+//! ([`Flight::estimate`]), waiting until the autopilot and the estimate are ready
+//! ([`Flight::wait_to_start`]), the command (pinc's MPC: [`Flight::mpc_cycle`]; the autopilot's
+//! hold: [`Flight::hold_cycle`]), and the cycle's record ([`Flight::record`]).
+
+use super::targets::send_targets;
+use super::truth::Truth;
+use super::{AnyEstimator, AutopilotHold, EKF_STATUS_WAIT, Flyer, SessionOptions, Setup};
+use crate::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
+use crate::estimation::mavlink::Observation;
+use crate::estimation::{Estimate, Measurement};
+use crate::link::autopilot_estimate::HeadingReference;
+use crate::link::drive::{Drive, Fresh, Note, Sent, Stopped};
+use crate::link::link::{Autopilot, Received, SubMode};
+use crate::link::safety::Trigger;
+use crate::link::state::Capability;
+use crate::mpc::CycleReport;
+use crate::runtime::EnvelopeStatus;
+use crate::traits::DiscreteModel;
+use crate::types::{Input, NU, SimState};
+use crate::vehicle::to_network;
+use serde_json::json;
+use std::cell::RefCell;
+use std::time::{Duration, Instant};
+
+/// What a session keeps as it flies: the log, the notes still to write, the samples and
+/// every count the summary reports.
+pub(super) struct Flight<'l> {
+    pub(super) log: &'l mut McapLog,
+    pub(super) log_error: Option<LogError>,
+    pub(super) notes: Vec<Note>,
+    pub(super) hold: Option<AutopilotHold>,
+    dt: f64,
+    position_free: bool,
+    wait_position: Duration,
+    give_up: Duration,
+    /// Input bounds, for the delivered-to-commanded ratios and the bound check.
+    lo: Input,
+    hi: Input,
+    pub(super) samples: Vec<Sample>,
+    waited: Instant,
+    /// Autopilot time of the first cycle: the scenario's time 0.
+    pub(super) t0: Option<f64>,
+    horizontal_before: Option<bool>,
+    pub(super) ages: Vec<f64>,
+    pub(super) latencies: Vec<f64>,
+    pub(super) estimates: Vec<Estimate>,
+    pub(super) truths: Vec<Truth>,
+    pub(super) control_after: Option<f64>,
+    /// Per channel: sum of applied x asked, of asked^2, and the count (a least-squares gain of
+    /// the outputs on the commands), and the last command with its autopilot time.
+    pub(super) delivered: [(f64, f64, usize); NU],
+    last_command: Option<(f64, Input)>,
+    last_applied: Input,
+    /// The autopilot's word on its own estimate: the reasons it is not ready (said once each),
+    /// whether its position is measured, and the heading it reports.
+    pub(super) not_ready_said: Vec<String>,
+    position_measured_before: Option<bool>,
+    pub(super) dead_reckoned: u64,
+    /// The autopilot's vertical velocities taken (its reader counts those its EKF did not
+    /// vouch for).
+    pub(super) vertical_velocities: u64,
+    pub(super) heading_reference: Option<HeadingReference>,
+    hold_xy: (f64, f64),
+    /// When the hold's mode was last asked for, and since when the autopilot is in it.
+    mode_asked: Option<f64>,
+    pub(super) mode_entered: Option<f64>,
+    /// The raw depth sensor's reading at each cycle (autopilot time), against the truth.
+    pub(super) raw_depths: Vec<(f64, f64)>,
+    pub(super) js_gain: f64,
+}
+
+/// The state to control on, or why not yet.
+pub(super) struct Estimated {
+    estimate: Option<Estimate>,
+    horizontal: bool,
+    state: Option<SimState>,
+}
+
+impl<'l> Flight<'l> {
+    pub(super) fn new<M>(setup: &Setup<M>, log: &'l mut McapLog) -> Self {
+        Self {
+            log,
+            log_error: None,
+            notes: Vec::new(),
+            hold: setup.hold,
+            dt: setup.dt,
+            position_free: setup.position_free,
+            wait_position: setup.wait_position,
+            give_up: setup.give_up,
+            lo: Input::repeat(f64::NEG_INFINITY),
+            hi: Input::repeat(f64::INFINITY),
+            samples: Vec::new(),
+            waited: Instant::now(),
+            t0: None,
+            horizontal_before: None,
+            ages: Vec::new(),
+            latencies: Vec::new(),
+            estimates: Vec::new(),
+            truths: Vec::new(),
+            control_after: None,
+            delivered: [(0.0, 0.0, 0); NU],
+            last_command: None,
+            last_applied: Input::zeros(),
+            not_ready_said: Vec::new(),
+            position_measured_before: None,
+            dead_reckoned: 0,
+            vertical_velocities: 0,
+            heading_reference: None,
+            hold_xy: (0.0, 0.0),
+            mode_asked: None,
+            mode_entered: None,
+            raw_depths: Vec::new(),
+            js_gain: 1.0,
+        }
+    }
+
+    /// A log line at autopilot time `at` (on the scenario's clock once it started); the first
+    /// write error is kept and the session goes on.
+    pub(super) fn log_line(&mut self, at: f64, level: Level, text: &str) {
+        let t = self.t0.map_or(0.0, |s| (at - s).max(0.0));
+        self.log_error = self.log_error.take().or(self.log.log(t, level, text).err());
+    }
+
+    /// The notes gathered so far, into the log.
+    pub(super) fn write_notes(&mut self) {
+        for n in std::mem::take(&mut self.notes) {
+            self.log_line(n.t, n.level, &n.text);
+        }
+    }
+
+    /// The session's first lines: who flies, on which estimate, under which limits, and the
+    /// fit report's warnings of a fitted model.
+    pub(super) fn say_start<M>(&mut self, o: &SessionOptions, setup: &Setup<M>, autopilot: &Autopilot) {
+        let estimator_line = if o.estimator.no_estimator {
+            "no state estimator (the raw state; body velocities from the autopilot's EKF)".to_string()
+        } else {
+            format!(
+                "state estimator on the {} model (depth std {} m, heading std {} rad)",
+                o.estimator.estimator_model, setup.noise.depth_std, setup.noise.heading_std
+            )
+        };
+        let flown_by = match setup.hold {
+            Some(h) => format!("the autopilot's own {} flies the references", h.name()),
+            None => format!("pinc's MPC flies the references, commands by {}", setup.commander.way().name()),
+        };
+        let line = format!(
+            "live vehicle on {} (system {}), {flown_by}; {estimator_line}; {}",
+            o.connect,
+            autopilot.system_id,
+            setup.settings.limits.describe()
+        );
+        self.log_line(0.0, Level::Info, &line);
+        // A fitted model whose report failed flies, but says why it may fly badly first.
+        for w in o.fitted.map_or(&[][..], |f| &f.warnings[..]) {
+            let line = format!("the model's fit report failed: {w}");
+            eprintln!("warning: {line}");
+            self.log_line(0.0, Level::Warning, &line);
+        }
+    }
+
+    /// The drive could not start (arming refused, the link): said, and nothing flown.
+    pub(super) fn refused(mut self, mut stopped: Stopped) -> super::LiveRun {
+        self.notes.append(&mut stopped.notes);
+        self.write_notes();
+        let reason = stopped.trigger.map_or_else(|| "stopped".to_string(), |t| t.to_string());
+        self.log_line(0.0, Level::Error, &reason);
+        eprintln!("{reason}");
+        super::LiveRun { samples: Vec::new(), log_error: self.log_error, stopped: Some(reason), live: None }
+    }
+
+    /// The cycles, from the first fresh state to the scenario's end or a stop.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn fly<M: DiscreteModel + Clone>(
+        &mut self,
+        drive: &mut Drive,
+        estimator: &mut AnyEstimator<M>,
+        flyer: &mut Flyer<M>,
+        scenario: &Scenario,
+        o: &SessionOptions,
+        truths: &RefCell<Vec<Truth>>,
+        mut seen: impl FnMut(&Received, f64),
+    ) -> Result<(), Trigger> {
+        self.js_gain = drive.commander().js_gain();
+        if let Flyer::Mpc(mpc) = &*flyer {
+            (self.lo, self.hi) = mpc.bounds();
+        }
+        let n = match &*flyer {
+            Flyer::Mpc(mpc) => mpc.config().horizon,
+            Flyer::Autopilot { .. } => 1,
+        };
+        let mut refs = vec![scenario.reference(0.0); n];
+        loop {
+            let fresh = drive.next_state(&mut seen)?;
+            self.notes.extend(drive.take_notes());
+            self.observe(drive, estimator, fresh.state.t);
+            let now = self.estimate(estimator, &fresh, o)?;
+            let start = match self.t0 {
+                Some(s) => s,
+                None => match self.wait_to_start(drive, estimator, &fresh, &now, o)? {
+                    Some(s) => s,
+                    None => continue,
+                },
+            };
+            self.write_notes();
+            let Some(state) = now.state else {
+                let why = if o.estimator.no_estimator {
+                    format!("the raw state lost a part: {}", fresh.state.capability)
+                } else {
+                    "the state estimate stopped (a gap in the measurements longer than 2 s)".to_string()
+                };
+                return Err(Trigger::Error(why));
+            };
+            // An estimate that no longer follows what the vehicle measures steers a vehicle it
+            // has lost: stop.
+            if let Some(lost) = each!(&*estimator, tr => tr.ekf().health().lost()) {
+                return Err(Trigger::EstimateLost(lost.to_string()));
+            }
+            let t = fresh.state.t - start;
+            if t >= scenario.duration() - 1e-9 {
+                return Ok(());
+            }
+            let (cycle, prediction, sent) = match flyer {
+                Flyer::Mpc(mpc) => {
+                    for (j, r) in refs.iter_mut().enumerate() {
+                        *r = scenario.reference(t + (j + 1) as f64 * self.dt);
+                    }
+                    self.mpc_cycle(drive, estimator, mpc, &fresh, &state, &refs)?
+                }
+                Flyer::Autopilot { hold, .. } => self.hold_cycle(drive, estimator, *hold, &fresh, scenario, t)?,
+            };
+            self.record(
+                &fresh,
+                &sent,
+                &now,
+                estimator,
+                truths,
+                Sample { t, state, reference: scenario.reference(t), cycle, prediction, bound_violation: false },
+            );
+        }
+    }
+
+    /// What the autopilot measured and applied since the last cycle, into the estimator: a
+    /// position it does not measure (lost, dead-reckoned or held) is left out, and the outputs
+    /// are set against what pinc asked.
+    fn observe<M: DiscreteModel>(&mut self, drive: &mut Drive, estimator: &mut AnyEstimator<M>, t: f64) {
+        let position_measured = drive.position_measured();
+        if self.position_measured_before.is_some_and(|b| b != position_measured) {
+            self.notes.push(Note {
+                t,
+                level: if position_measured { Level::Info } else { Level::Warning },
+                text: if position_measured {
+                    "the autopilot measures its position again (EKF_STATUS_REPORT): its position is fused".into()
+                } else {
+                    "the autopilot no longer measures its position (its GPS lost the fix, or EKF_STATUS_REPORT \
+                     says dead reckoning or held): LOCAL_POSITION_NED is no longer fused"
+                        .into()
+                },
+                from_autopilot: false,
+            });
+        }
+        self.position_measured_before = Some(position_measured);
+        let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
+        let observations: Vec<Observation> = drive.drain_observations().collect();
+        for mut ob in observations {
+            match ob {
+                // A dead-reckoned position's vertical velocity is still the EKF's estimate from
+                // its accelerometers and depth: that part is kept.
+                Observation::Measured(Measurement::VelocityNed { t, vd, .. })
+                    if !position_measured && vertical_velocity_valid =>
+                {
+                    self.dead_reckoned += 1;
+                    self.vertical_velocities += 1;
+                    ob = Observation::Measured(Measurement::VerticalVelocity { t, vd });
+                }
+                Observation::Measured(Measurement::Position { .. } | Measurement::VelocityNed { .. })
+                    if !position_measured =>
+                {
+                    self.dead_reckoned += 1;
+                    continue;
+                }
+                Observation::Measured(Measurement::VerticalVelocity { .. }) => self.vertical_velocities += 1,
+                Observation::Applied(t, applied) => self.applied(t, applied),
+                _ => {}
+            }
+            each!(&mut *estimator, tr => match ob {
+                Observation::Measured(m) => tr.measure(m),
+                Observation::Applied(t, u) => tr.applied(t, u),
+                Observation::Unfused(_) => {}
+            });
+        }
+    }
+
+    /// The outputs the autopilot reports against what pinc asked for, once the command has
+    /// had time to reach them (half a sample).
+    fn applied(&mut self, t: f64, applied: Input) {
+        self.last_applied = applied;
+        if let Some((sent_t, asked)) = self.last_command
+            && t > sent_t + 0.5 * self.dt
+        {
+            for j in 0..NU {
+                if asked[j].abs() > 0.05 * (self.hi[j] - self.lo[j]).abs() {
+                    self.delivered[j].0 += applied[j] * asked[j];
+                    self.delivered[j].1 += asked[j] * asked[j];
+                    self.delivered[j].2 += 1;
+                }
+            }
+        }
+    }
+
+    /// The estimate at the fresh state's time, whether a position source is fused (said when
+    /// that changes), and the state the controller runs on: the estimate, or without one the
+    /// raw full state.
+    fn estimate<M: DiscreteModel>(
+        &mut self,
+        estimator: &mut AnyEstimator<M>,
+        fresh: &Fresh,
+        o: &SessionOptions,
+    ) -> Result<Estimated, Trigger> {
+        let estimate = if o.estimator.no_estimator {
+            None
+        } else {
+            each!(&mut *estimator, tr => tr.advance(fresh.state.t))
+                .map_err(|e| Trigger::Error(format!("state estimator: {e}")))?
+        };
+        let horizontal = each!(&*estimator, tr => tr.horizontal_observed(fresh.state.t));
+        if self.horizontal_before.is_some_and(|b| b != horizontal) || (horizontal && self.horizontal_before.is_none()) {
+            let text = if horizontal {
+                "position source present: position and velocity fused into the estimate"
+            } else {
+                "position source lost: running on the estimate (depth, heading, yaw rate and the model)"
+            };
+            let level = if horizontal { Level::Info } else { Level::Warning };
+            self.notes.push(Note { t: fresh.state.t, level, text: text.into(), from_autopilot: false });
+        }
+        self.horizontal_before = Some(horizontal);
+        let state = match (&estimate, o.estimator.no_estimator) {
+            (Some(e), _) if horizontal || self.position_free => Some(e.sim),
+            (None, true) if fresh.state.capability == Capability::Full => Some(SimState::from(fresh.state.sim)),
+            _ => None,
+        };
+        Ok(Estimated { estimate, horizontal, state })
+    }
+
+    /// Before the first cycle: neutral while the autopilot's estimate is not usable, the state
+    /// estimate has not started or (`--wait-position`) no position source came; a stop once
+    /// that lasts too long. `Some(t0)` once control starts (the reasons said, the heading's
+    /// reference said and logged), `None` to wait another sample.
+    fn wait_to_start<M: DiscreteModel>(
+        &mut self,
+        drive: &mut Drive,
+        estimator: &mut AnyEstimator<M>,
+        fresh: &Fresh,
+        now: &Estimated,
+        o: &SessionOptions,
+    ) -> Result<Option<f64>, Trigger> {
+        // The autopilot's own estimate first: attitude and heading usable.
+        let not_ready: Vec<String> = match drive.ekf_status() {
+            Some(s) => s.not_ready(),
+            None if self.waited.elapsed() < EKF_STATUS_WAIT => {
+                vec!["no EKF_STATUS_REPORT from the autopilot yet".to_string()]
+            }
+            None => Vec::new(),
+        };
+        for why in &not_ready {
+            if !self.not_ready_said.contains(why) {
+                let text = format!("waiting for the autopilot: {why}");
+                eprintln!("{text}");
+                self.notes.push(Note { t: fresh.state.t, level: Level::Warning, text, from_autopilot: false });
+                self.not_ready_said.push(why.clone());
+            }
+        }
+        let waiting_for_position = !now.horizontal && self.waited.elapsed() < self.wait_position;
+        if now.state.is_none() || waiting_for_position || !not_ready.is_empty() {
+            if self.waited.elapsed() > self.give_up && (now.state.is_none() || !not_ready.is_empty()) {
+                return Err(self.gave_up(&not_ready, fresh, o));
+            }
+            drive.send_neutral(fresh)?;
+            each!(&mut *estimator, tr => tr.commanded(Input::zeros()));
+            return Ok(None);
+        }
+        if self.not_ready_said.is_empty() && drive.ekf_status().is_none() {
+            self.notes.push(Note {
+                t: fresh.state.t,
+                level: Level::Warning,
+                text: "the autopilot sent no EKF_STATUS_REPORT: its estimate's health is unknown".into(),
+                from_autopilot: false,
+            });
+        }
+        let reference = HeadingReference::of(drive.params(), drive.ekf_status().is_some_and(|s| s.absolute_position()));
+        let level = if reference == HeadingReference::Magnetic { Level::Warning } else { Level::Info };
+        if level == Level::Warning {
+            eprintln!("{}", reference.describe());
+        }
+        self.notes.push(Note { t: fresh.state.t, level, text: reference.describe(), from_autopilot: false });
+        self.heading_reference = Some(reference);
+        let text = format!(
+            "control starts {:.1} s after arming, on the {}{}",
+            self.waited.elapsed().as_secs_f64(),
+            if now.estimate.is_some() { "state estimate" } else { "raw state" },
+            if now.horizontal { " with a position source" } else { " without a position source (depth and heading)" }
+        );
+        self.notes.push(Note { t: fresh.state.t, level: Level::Info, text, from_autopilot: false });
+        self.control_after = Some(self.waited.elapsed().as_secs_f64());
+        if let Some(s) = &now.state {
+            self.hold_xy = (s[0], s[1]);
+        }
+        Ok(Some(*self.t0.insert(fresh.state.t)))
+    }
+
+    /// Why the wait for a state to control on ended the session.
+    fn gave_up(&self, not_ready: &[String], fresh: &Fresh, o: &SessionOptions) -> Trigger {
+        let waited = self.waited.elapsed().as_secs_f64();
+        if !not_ready.is_empty() {
+            return Trigger::NotReady(format!(
+                "the autopilot's estimate was not usable after {waited:.0} s: {}",
+                not_ready.join("; ")
+            ));
+        }
+        let why = if o.estimator.no_estimator {
+            format!(
+                "no full state: {}; the estimator (on by default) needs only depth and heading",
+                fresh.state.capability
+            )
+        } else if !self.position_free {
+            "the model needs x, y (it is not position-free) and no position source came".to_string()
+        } else {
+            format!("the state estimate did not start: {}", fresh.state.capability)
+        };
+        Trigger::Error(format!("no state to control on after {waited:.0} s: {why}"))
+    }
+
+    /// pinc's MPC: one solve on the state, its input sent, what was asked told to the
+    /// estimator.
+    fn mpc_cycle<M: DiscreteModel + Clone>(
+        &mut self,
+        drive: &mut Drive,
+        estimator: &mut AnyEstimator<M>,
+        mpc: &mut crate::mpc::Mpc<M>,
+        fresh: &Fresh,
+        state: &SimState,
+        refs: &[crate::mpc::Reference],
+    ) -> Result<(CycleReport, Vec<crate::State>, Sent), Trigger> {
+        let cycle = mpc.step(&to_network(state), refs);
+        let sent = drive.send(fresh, &cycle.input)?;
+        let asked = drive.commander().input_of(&sent.command);
+        each!(&mut *estimator, tr => tr.commanded(asked));
+        self.last_command = Some((sent.autopilot_t, asked));
+        Ok((cycle, mpc.prediction().to_vec(), sent))
+    }
+
+    /// The autopilot's own hold: into its mode (asked again every half second until the
+    /// heartbeat says so; a refusal after 3 s), the cycle's targets, neutral pilot axes (they
+    /// keep the pilot-input failsafe quiet), and the outputs it applied as the cycle's input.
+    fn hold_cycle<M: DiscreteModel>(
+        &mut self,
+        drive: &mut Drive,
+        estimator: &mut AnyEstimator<M>,
+        hold: AutopilotHold,
+        fresh: &Fresh,
+        scenario: &Scenario,
+        t: f64,
+    ) -> Result<(CycleReport, Vec<crate::State>, Sent), Trigger> {
+        if drive.mode() == hold.mode() as u32 {
+            self.mode_entered.get_or_insert(t);
+        } else if self.mode_entered.is_some() {
+            return Err(Trigger::Refused(format!(
+                "the autopilot left {} for mode {} (the pilot or a failsafe)",
+                hold.name(),
+                SubMode::name_of(drive.mode())
+            )));
+        } else if t > 3.0 {
+            return Err(Trigger::Refused(format!(
+                "the autopilot did not enter {} within 3 s (still in {}){}",
+                hold.name(),
+                SubMode::name_of(drive.mode()),
+                if hold == AutopilotHold::Guided { "; GUIDED needs a position source" } else { "" }
+            )));
+        } else if self.mode_asked.is_none_or(|m| t - m >= 0.5) {
+            drive.link().set_mode(hold.mode()).map_err(|e| Trigger::Link(e.to_string()))?;
+            self.mode_asked = Some(t);
+        }
+        let (next, now) = (scenario.reference(t + self.dt), scenario.reference(t));
+        let rate = (next.depth - now.depth) / self.dt;
+        let boot_ms = (fresh.state.t * 1e3).round() as u32;
+        send_targets(drive, hold, boot_ms, (next.depth, next.heading), rate, self.hold_xy)?;
+        let sent = drive.send_neutral(fresh)?;
+        let applied = self.last_applied;
+        each!(&mut *estimator, tr => tr.commanded(applied));
+        let cycle = CycleReport {
+            input: applied,
+            saturated: [false; NU],
+            fallback: None,
+            envelope: EnvelopeStatus::default(),
+            status: clarabel::solver::SolverStatus::Unsolved,
+            iterations: 0,
+            objective: 0.0,
+            linearise_us: 0.0,
+            update_us: 0.0,
+            solve_us: 0.0,
+            cycle_us: 0.0,
+            deadline_missed: false,
+        };
+        Ok((cycle, Vec::new(), sent))
+    }
+
+    /// The cycle into the log and the summary's counts: the state's age when its command went
+    /// out and the arrival-to-send latency, the raw depth, the truth, the estimate, the sample.
+    fn record<M: DiscreteModel>(
+        &mut self,
+        fresh: &Fresh,
+        sent: &Sent,
+        now: &Estimated,
+        estimator: &AnyEstimator<M>,
+        truths: &RefCell<Vec<Truth>>,
+        mut sample: Sample,
+    ) {
+        let (t, start) = (sample.t, self.t0.expect("recorded after the start"));
+        let u = sample.cycle.input;
+        sample.bound_violation = (0..NU).any(|j| !(u[j] >= self.lo[j] - 1e-9 && u[j] <= self.hi[j] + 1e-9));
+        let state_age = sent.autopilot_t - fresh.state.t;
+        let latency = sent.at.saturating_duration_since(fresh.arrived).as_secs_f64();
+        self.ages.push(state_age);
+        self.latencies.push(latency);
+        if fresh.state.sim[2].is_finite() {
+            self.raw_depths.push((fresh.state.t, fresh.state.sim[2]));
+        }
+        if self.log_error.is_none() {
+            self.log_error = self.log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
+        }
+        for tr in truths.borrow_mut().drain(..) {
+            if self.log_error.is_none() {
+                let m = json!({"t_autopilot_s": tr.t, "z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r});
+                self.log_error = self.log.live("/truth", "pinc.SimulatorTruth", (tr.t - start).max(0.0), m).err();
+            }
+            self.truths.push(tr);
+        }
+        if let Some(e) = &now.estimate {
+            self.estimates.push(*e);
+            let raw: Vec<Option<f64>> = fresh.state.named().map(|(_, v)| v).collect();
+            let scale = each!(estimator, tr => tr.ekf().process_scale());
+            let m = json!({
+                "t_autopilot_s": e.t, "estimate": e.sim.as_slice(), "std": e.std,
+                "disturbance": e.disturbance.as_slice(), "disturbance_std": e.disturbance_std, "raw": raw,
+                "position_source": now.horizontal, "process_noise_scale": scale, "heave_gain": e.heave_gain.0,
+            });
+            if self.log_error.is_none() {
+                self.log_error = self.log.live("/estimate", "pinc.Estimate", t, m).err();
+            }
+        }
+        if self.log_error.is_none() {
+            self.log_error = self.log.record(&sample).err();
+        }
+        self.samples.push(sample);
+    }
+}

@@ -1,0 +1,269 @@
+//! The live session: references flown on a vehicle over MAVLink, by pinc's MPC or by the
+//! autopilot's own depth and heading hold, with one home for everything around the loop:
+//! connect, check the autopilot's configuration, arm (each refusal printed), wait until the
+//! autopilot's own estimate is usable, estimate the state, command, every safety stop, the
+//! MCAP log (the same schema for both controllers, so one summary, plot and table compare
+//! them) and the summary's live figures. `mpc_track --connect` runs it.
+//!
+//! The stages, each in its own place: the set-up (thrusters and command way, limits, the
+//! estimator's noise and model: [`Setup`]), the link and the session's first log lines
+//! ([`connect`]), arming and the autopilot's readiness (the drive's start, then
+//! [`flight::Flight::wait_to_start`]), every cycle's measurements, estimate and command
+//! ([`flight`]), the stop and the summary's figures ([`summary`]).
+
+use super::cli::{DriveArgs, EstimatorArgs, LinkOptions, non_negative, open};
+use super::command::CommandWay;
+use super::drive::Drive;
+use super::link::{Received, SubMode};
+use crate::closed_loop::{LogError, McapLog, Sample, Scenario};
+use crate::estimation::Estimator;
+use crate::mpc::Mpc;
+use crate::traits::DiscreteModel;
+use crate::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
+use mavlink::dialects::ardupilotmega::MavMessage;
+use serde_json::Value;
+use std::cell::RefCell;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+/// `SERVO_OUTPUT_RAW`, whose outputs are the input the estimator is driven by.
+const SERVO_OUTPUT_RAW_ID: u32 = 36;
+/// `SIM_STATE`: the simulator's truth.
+const SIM_STATE_ID: u32 = 108;
+/// How long to wait for a first `EKF_STATUS_REPORT` before going on without the autopilot's
+/// word on its own estimate (older firmware may not send it).
+const EKF_STATUS_WAIT: Duration = Duration::from_secs(5);
+
+/// The autopilot's own controllers that fly the same references.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutopilotHold {
+    /// ALT_HOLD: depth by `SET_POSITION_TARGET_GLOBAL_INT` (z only), heading by
+    /// `SET_ATTITUDE_TARGET` (attitude only).
+    AltHold,
+    /// GUIDED: position, velocity and heading by `SET_POSITION_TARGET_LOCAL_NED` (needs a
+    /// position source).
+    Guided,
+}
+
+impl AutopilotHold {
+    /// `althold` or `guided`.
+    pub fn name(self) -> &'static str {
+        match self {
+            AutopilotHold::AltHold => "althold",
+            AutopilotHold::Guided => "guided",
+        }
+    }
+
+    fn mode(self) -> SubMode {
+        match self {
+            AutopilotHold::AltHold => SubMode::AltHold,
+            AutopilotHold::Guided => SubMode::Guided,
+        }
+    }
+}
+
+/// Who flies the references.
+pub enum Flyer<M: DiscreteModel> {
+    /// pinc's MPC on its model.
+    Mpc(Box<Mpc<M>>),
+    /// The autopilot's own controller; `model` is the estimator's (the estimate is logged as
+    /// in an MPC run, for the same figures).
+    Autopilot {
+        /// Which controller.
+        hold: AutopilotHold,
+        /// The model the state estimate runs on.
+        model: M,
+    },
+}
+
+impl<M: DiscreteModel> Flyer<M> {
+    fn model(&self) -> &M {
+        match self {
+            Flyer::Mpc(m) => m.model(),
+            Flyer::Autopilot { model, .. } => model,
+        }
+    }
+}
+
+/// What a session needs besides the flyer: the address, the vehicle file and the options.
+pub struct SessionOptions<'a> {
+    /// The MAVLink address.
+    pub connect: &'a str,
+    /// The vehicle file (its `[[thruster]]` tables turn the wrench into commands).
+    pub vehicle: Option<&'a Path>,
+    /// What a model fitted by `pinc fit` carries of its vehicle: its thrusters where no
+    /// vehicle file is given, its sensor model where no noise flag is, its report's warnings.
+    pub fitted: Option<&'a crate::model::FittedVehicle>,
+    /// The link.
+    pub link: &'a LinkOptions,
+    /// Commands and safety limits.
+    pub drive: &'a DriveArgs,
+    /// The state estimator.
+    pub estimator: &'a EstimatorArgs,
+}
+
+/// A session's outcome.
+pub struct LiveRun {
+    /// One per control cycle.
+    pub samples: Vec<Sample>,
+    /// The first log write error, if any (the session went on).
+    pub log_error: Option<LogError>,
+    /// Why it stopped early (with the neutral command and disarm it sent); `None`: it ran to
+    /// the scenario's end.
+    pub stopped: Option<String>,
+    /// The live figures: latencies, the estimator's counts and health, the heading reference,
+    /// the errors against a simulator's truth.
+    pub live: Option<Value>,
+}
+
+/// The process model of the estimator.
+pub(super) enum EstimatorModel<M> {
+    Controller(M),
+    Vehicle(Rk4Vehicle),
+}
+
+/// Either model behind one estimator type.
+pub(super) enum AnyEstimator<M: DiscreteModel> {
+    Controller(Estimator<M>),
+    Vehicle(Estimator<Rk4Vehicle>),
+}
+
+macro_rules! each {
+    ($t:expr, $x:ident => $body:expr) => {
+        match $t {
+            AnyEstimator::Controller($x) => $body,
+            AnyEstimator::Vehicle($x) => $body,
+        }
+    };
+}
+
+// After the macro: the stages use it.
+mod flight;
+mod summary;
+mod targets;
+mod truth;
+
+/// Runs `scenario` on the vehicle: reads the autopilot's configuration (its outputs must take
+/// the commands the way asked), arms (retrying while the autopilot refuses), waits (neutral
+/// commands) until the autopilot's estimate is usable and the state estimate runs (or, with
+/// `--wait-position`, for a position source), then one cycle per fresh state sample until the
+/// scenario ends or a safety trigger stops it. The scenario's time 0 is the first cycle.
+///
+/// # Errors
+/// Set-up: no vehicle file, a bad option, the link, no autopilot; these command nothing.
+pub fn run<M: DiscreteModel + Clone>(
+    mut flyer: Flyer<M>,
+    scenario: &Scenario,
+    o: &SessionOptions,
+    log: &mut McapLog,
+) -> Result<LiveRun, String> {
+    let setup = Setup::new(&flyer, o)?;
+    let (link, autopilot, assembler) = connect(o)?;
+    let mut flight = flight::Flight::new(&setup, log);
+    flight.say_start(o, &setup, &autopilot);
+    let truths: RefCell<Vec<truth::Truth>> = RefCell::new(Vec::new());
+    let seen = |r: &Received, t: f64| {
+        if let MavMessage::SIM_STATE(s) = &r.message {
+            truths.borrow_mut().push(truth::truth_of(t, s));
+        }
+    };
+    let stop = ctrl_c_flag()?;
+    let Setup { commander, settings, estimator_model, noise, .. } = setup;
+    let mut drive = match Drive::start(link, autopilot, assembler, commander, settings, stop, seen) {
+        Ok(d) => d,
+        Err(stopped) => return Ok(flight.refused(stopped)),
+    };
+    let mut estimator = match estimator_model {
+        EstimatorModel::Controller(m) => AnyEstimator::Controller(Estimator::new(m, noise)),
+        EstimatorModel::Vehicle(v) => AnyEstimator::<M>::Vehicle(Estimator::new(v, noise)),
+    };
+    let outcome = flight.fly(&mut drive, &mut estimator, &mut flyer, scenario, o, &truths, seen);
+    Ok(summary::end(flight, drive, outcome, &estimator, o))
+}
+
+/// What a session is set up with before the link opens: every option checked, nothing sent.
+struct Setup<M> {
+    /// The command way, the vehicle's thrusters and the pilot gain.
+    commander: super::command::Commander,
+    settings: super::drive::DriveSettings,
+    /// The autopilot's own controller, if it flies.
+    hold: Option<AutopilotHold>,
+    /// How long to wait (neutral) for a position source; and for a state at all.
+    wait_position: Duration,
+    give_up: Duration,
+    noise: crate::estimation::NoiseSettings,
+    estimator_model: EstimatorModel<M>,
+    dt: f64,
+    position_free: bool,
+}
+
+impl<M: DiscreteModel + Clone> Setup<M> {
+    fn new(flyer: &Flyer<M>, o: &SessionOptions) -> Result<Self, String> {
+        // The thrusters: the vehicle file's, else those the fitted model carries.
+        let thrusters = match (o.vehicle, o.fitted) {
+            (Some(file), _) => (Thrusters::load(file).map_err(|e| e.to_string())?, file.display().to_string()),
+            (None, Some(f)) => {
+                let source = "the model's fitted thrusters";
+                let t = Thrusters::from_toml(&f.thrusters_toml, Path::new(source))
+                    .map_err(|e| e.to_string())?
+                    .ok_or(format!("{source}: no [[thruster]] table"))?;
+                (t, source.to_string())
+            }
+            (None, None) => {
+                return Err("--connect needs --vehicle V.toml with the vehicle's [[thruster]] tables, or a model \
+                            fitted by `pinc fit` (it carries them)"
+                    .into());
+            }
+        };
+        let hold = match flyer {
+            Flyer::Autopilot { hold, .. } => Some(*hold),
+            Flyer::Mpc(_) => None,
+        };
+        // The autopilot's own controller takes neutral pilot axes beside its targets.
+        let mut drive_args = o.drive.clone();
+        if hold.is_some() {
+            drive_args.command_way = CommandWay::Manual.name().into();
+        }
+        let commander = drive_args.commander_of(thrusters.0, &thrusters.1)?;
+        // The session arms and waits in MANUAL; the autopilot's own controller takes over when
+        // control starts (GUIDED needs the position that may come only after arming).
+        let settings = drive_args.settings()?;
+        let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
+        // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
+        let give_up = if wait_position.is_zero() { Duration::from_secs(30) } else { wait_position };
+        let noise = o.estimator.noise(o.fitted.map(|f| &f.sensors))?;
+        let model = flyer.model().clone();
+        let (dt, position_free) = (model.dt(), model.position_free());
+        let estimator_model = match o.estimator.estimator_model.as_str() {
+            "vehicle" => {
+                let file = o.vehicle.ok_or("--estimator-model vehicle needs --vehicle V.toml")?;
+                let params = VehicleParams::load(file).map_err(|e| e.to_string())?;
+                EstimatorModel::Vehicle(Rk4Vehicle { params, ..Rk4Vehicle::with_dt(dt) })
+            }
+            _ => EstimatorModel::Controller(model),
+        };
+        Ok(Self { commander, settings, hold, wait_position, give_up, noise, estimator_model, dt, position_free })
+    }
+}
+
+/// Ctrl-C stops the session (with neutral and the disarm it owes).
+fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
+    Ok(stop)
+}
+
+/// The link to the autopilot, with the outputs (and the simulator's truth, if asked) streamed.
+fn connect(
+    o: &SessionOptions,
+) -> Result<(super::link::VehicleLink, super::link::Autopilot, super::state::StateAssembler), String> {
+    let (link, autopilot, assembler) = open(o.connect, o.link, |_| {})?;
+    link.set_message_rate(SERVO_OUTPUT_RAW_ID, o.drive.outputs_rate).map_err(|e| e.to_string())?;
+    if o.estimator.sim_truth {
+        link.set_message_rate(SIM_STATE_ID, o.link.rate).map_err(|e| e.to_string())?;
+    }
+    Ok((link, autopilot, assembler))
+}

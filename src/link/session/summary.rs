@@ -1,0 +1,163 @@
+//! The end of a session: the stop (neutral, the disarm it owes, why), what the log must still
+//! say (out-of-order messages, positions left out, thrust not delivered, the model's misfits),
+//! and the summary's live figures.
+
+use super::flight::Flight;
+use super::truth::{errors_against_truth, percentiles_ms, rms, truth_at};
+use super::{AnyEstimator, AutopilotHold, LiveRun, SessionOptions};
+use crate::closed_loop::Level;
+use crate::estimation::Health;
+use crate::link::drive::Drive;
+use crate::link::safety::Trigger;
+use crate::traits::DiscreteModel;
+use crate::types::NU;
+use serde_json::{Value, json};
+
+/// Stops the drive (neutral; a disarm if it armed), writes what the log must still say and
+/// gathers the figures.
+pub(super) fn end<M: DiscreteModel>(
+    mut f: Flight,
+    mut drive: Drive,
+    outcome: Result<(), Trigger>,
+    estimator: &AnyEstimator<M>,
+    o: &SessionOptions,
+) -> LiveRun {
+    let stopped = match outcome {
+        Ok(()) => drive.finish(),
+        Err(trigger) => drive.abort(trigger),
+    };
+    f.notes.extend(drive.take_notes());
+    f.write_notes();
+    let on_clock = |at: f64| f.t0.map_or(0.0, |s| (at - s).max(0.0));
+    let reason = stopped.trigger.as_ref().map(|t| {
+        format!(
+            "{t}; neutral command sent{}{}",
+            stopped.neutral_t.map_or(" (failed)".to_string(), |n| format!(" at {:.3} s", on_clock(n))),
+            if stopped.disarm_sent { ", disarm sent" } else { "" }
+        )
+    });
+    if let Some(r) = &reason {
+        f.log_line(stopped.t, Level::Error, r);
+        eprintln!("{r}");
+    }
+    if drive.out_of_order() > 0 {
+        let line = format!("{} messages arrived out of order and were dropped", drive.out_of_order());
+        f.log_line(stopped.t, Level::Warning, &line);
+    }
+    if f.dead_reckoned > 0 {
+        let line = format!(
+            "{} position and velocity measurements were left out while the autopilot did not measure its position",
+            f.dead_reckoned
+        );
+        f.log_line(stopped.t, Level::Warning, &line);
+    }
+    let ratios = delivered_ratios(&mut f, stopped.t);
+    // What the innovations said of the model, in words an owner acts on.
+    let health: Health = each!(estimator, tr => *tr.ekf().health());
+    let misfits = if o.estimator.no_estimator { Vec::new() } else { health.misfits() };
+    for line in &misfits {
+        eprintln!("{line}");
+        f.log_line(stopped.t, Level::Warning, line);
+    }
+    let mut live = figures(&mut f, estimator, o, &health, &drive);
+    let extra = json!({
+        "delivered_to_commanded": ratios,
+        "model_misfits": misfits,
+        "disarm_sent": stopped.disarm_sent,
+        "stop_trigger": stopped.trigger.as_ref().map(|t| t.key()),
+        "stop_autopilot_s": stopped.trigger.as_ref().map(|_| stopped.t),
+        "neutral_autopilot_s": stopped.neutral_t,
+    });
+    if let (Value::Object(live), Value::Object(extra)) = (&mut live, extra) {
+        live.extend(extra);
+    }
+    LiveRun { samples: std::mem::take(&mut f.samples), log_error: f.log_error, stopped: reason, live: Some(live) }
+}
+
+/// What the thrusters delivered of what was asked (from SERVO_OUTPUT_RAW): a wrong pilot gain
+/// or thruster table shows here as a ratio away from 1, and is said.
+fn delivered_ratios(f: &mut Flight, t_end: f64) -> serde_json::Map<String, Value> {
+    let mut ratios = serde_json::Map::new();
+    for (j, name) in crate::types::INPUT_NAMES.iter().enumerate().take(NU) {
+        let (num, den, count) = f.delivered[j];
+        let ratio = (count >= 20 && den > 0.0).then(|| num / den);
+        if let Some(r) = ratio
+            && (r - 1.0).abs() > 0.25
+        {
+            let line = format!(
+                "the thrusters delivered {r:.2} of the commanded {name} over {count} samples (SERVO_OUTPUT_RAW \
+                 through the vehicle file): check the pilot gain ({}) against the autopilot's and the vehicle \
+                 file's thrusters",
+                f.js_gain
+            );
+            eprintln!("{line}");
+            f.log_line(t_end, Level::Warning, &line);
+        }
+        ratios.insert(name.to_string(), json!(ratio));
+    }
+    ratios
+}
+
+/// The live figures: latencies, the estimate's and the tracking's errors against the
+/// simulator's truth (where it was streamed), the estimator's counts and health.
+fn figures<M: DiscreteModel>(
+    f: &mut Flight,
+    estimator: &AnyEstimator<M>,
+    o: &SessionOptions,
+    health: &Health,
+    drive: &Drive,
+) -> Value {
+    let counts = each!(estimator, tr => (tr.counts(), tr.late(), tr.restarts()));
+    let errors = errors_against_truth(&f.estimates, &f.truths);
+    let names = ["u", "v", "w", "r", "z"];
+    let estimate_rms: serde_json::Map<String, Value> =
+        names.iter().zip(&errors).map(|(n, e)| (n.to_string(), json!(rms(e)))).collect();
+    // The tracking against the truth: depth, the truth's heading (true north) and the raw
+    // depth sensor beside the estimate.
+    let (mut depth_err, mut heading_err, mut raw_depth_err) = (Vec::new(), Vec::new(), Vec::new());
+    if let Some(start) = f.t0 {
+        for s in &f.samples {
+            if let Some(tr) = truth_at(&f.truths, s.t + start) {
+                depth_err.push(tr.z - s.reference.depth);
+                heading_err.push(crate::vehicle::wrap_angle(tr.psi - s.reference.heading).to_degrees());
+            }
+        }
+    }
+    for &(t, z) in &f.raw_depths {
+        if let Some(tr) = truth_at(&f.truths, t) {
+            raw_depth_err.push(z - tr.z);
+        }
+    }
+    let sensors: serde_json::Map<String, Value> = crate::estimation::Sensor::ALL
+        .iter()
+        .map(|s| {
+            let h = health.sensor(*s);
+            (
+                s.name().to_string(),
+                json!({"count": h.count, "rejected": h.rejected, "nis_slow_max": h.nis_slow_max, "nis_slow": h.nis_slow}),
+            )
+        })
+        .collect();
+    json!({
+        "flown_by": f.hold.map_or("pinc", AutopilotHold::name),
+        "hold_mode_entered_s": f.mode_entered,
+        "estimator": if o.estimator.no_estimator { Value::Null } else { json!(o.estimator.estimator_model) },
+        "control_started_after_arming_s": f.control_after,
+        "state_age_ms": percentiles_ms(&mut f.ages),
+        "latency_ms": percentiles_ms(&mut f.latencies),
+        "estimate_rms_error": estimate_rms,
+        "truth_samples": errors[0].len(),
+        "truth_rms": {"depth_m": rms(&depth_err), "heading_deg": rms(&heading_err), "samples": depth_err.len()},
+        "raw_depth_rms_error": rms(&raw_depth_err),
+        "js_gain": f.js_gain,
+        "heading_reference": f.heading_reference.map(|h| h.key()),
+        "heading_reference_text": f.heading_reference.map(|h| h.describe()),
+        "autopilot_not_ready": f.not_ready_said,
+        "dead_reckoned_left_out": f.dead_reckoned,
+        "vertical_velocity": {"taken": f.vertical_velocities,
+            "left_out_ekf_not_ready": drive.assembler().reader().vertical_velocity_left_out()},
+        "estimator_health": sensors,
+        "process_noise_scale": each!(estimator, tr => tr.ekf().process_scale()),
+        "fused": counts.0.fused, "rejected": counts.0.rejected, "reacquired": counts.0.reacquired, "late": counts.1, "restarts": counts.2,
+    })
+}

@@ -1,0 +1,73 @@
+//! The simulator's truth (`SIM_STATE`), read only to score a live run: the estimate's errors
+//! and the tracking against what the vehicle really did.
+
+use crate::estimation::Estimate;
+use mavlink::dialects::ardupilotmega::SIM_STATE_DATA;
+use serde_json::{Value, json};
+
+/// The simulator's truth at an autopilot time: depth, heading, body velocities, yaw rate.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Truth {
+    pub(super) t: f64,
+    pub(super) z: f64,
+    pub(super) psi: f64,
+    pub(super) uvw: [f64; 3],
+    pub(super) r: f64,
+}
+
+pub(super) fn truth_of(t: f64, s: &SIM_STATE_DATA) -> Truth {
+    // NED velocity into the body frame by the whole attitude (Z-Y-X Euler angles).
+    let (roll, pitch, yaw) = (f64::from(s.roll), f64::from(s.pitch), f64::from(s.yaw));
+    let r = nalgebra::Rotation3::from_euler_angles(roll, pitch, yaw);
+    let body = r.inverse() * nalgebra::Vector3::new(f64::from(s.vn), f64::from(s.ve), f64::from(s.vd));
+    Truth { t, z: -f64::from(s.alt), psi: yaw, uvw: [body.x, body.y, body.z], r: f64::from(s.zgyro) }
+}
+
+/// The truth at `t`, interpolated between two truths at most 0.2 s apart (`SIM_STATE` has no
+/// stamp of its own: its arrival's autopilot time is used).
+pub(super) fn truth_at(truths: &[Truth], t: f64) -> Option<Truth> {
+    let k = truths.partition_point(|tr| tr.t <= t);
+    if k == 0 || k == truths.len() {
+        return None;
+    }
+    let (a, b) = (&truths[k - 1], &truths[k]);
+    if b.t - a.t > 0.2 || b.t <= a.t {
+        return None;
+    }
+    let f = (t - a.t) / (b.t - a.t);
+    let lerp = |x: f64, y: f64| x + f * (y - x);
+    Some(Truth {
+        t,
+        z: lerp(a.z, b.z),
+        psi: a.psi + f * crate::vehicle::wrap_angle(b.psi - a.psi),
+        uvw: std::array::from_fn(|i| lerp(a.uvw[i], b.uvw[i])),
+        r: lerp(a.r, b.r),
+    })
+}
+
+/// The estimate's errors `u v w r z` against the truth at each estimate's time. Heading is left
+/// out: ATTITUDE's is magnetic where the autopilot knows no declination, the truth's true.
+pub(super) fn errors_against_truth(estimates: &[Estimate], truths: &[Truth]) -> [Vec<f64>; 5] {
+    let mut errors: [Vec<f64>; 5] = Default::default();
+    for e in estimates {
+        let Some(tr) = truth_at(truths, e.t) else { continue };
+        let truth = [tr.uvw[0], tr.uvw[1], tr.uvw[2], tr.r, tr.z];
+        for (i, idx) in [4, 5, 6, 7, 2].into_iter().enumerate() {
+            errors[i].push(e.sim[idx] - truth[i]);
+        }
+    }
+    errors
+}
+
+pub(super) fn rms(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt())
+}
+
+pub(super) fn percentiles_ms(v: &mut [f64]) -> Value {
+    if v.is_empty() {
+        return json!({"median": null, "p99": null, "max": null});
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |p: f64| v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] * 1e3;
+    json!({"median": at(0.5), "p99": at(0.99), "max": v[v.len() - 1] * 1e3})
+}
