@@ -18,6 +18,7 @@ The simulator's truth (SIM_STATE) is read only to check the figures; its vehicle
 import json
 import signal
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from mcap.reader import make_reader
@@ -58,6 +59,14 @@ def assert_held_out_yaw_like_the_simulators_file(report):
     assert fitted[5] <= 1.5 * reference[5] and fitted[1] <= 1.5 * reference[1], held
 
 
+def fly_side_by_side(runs):
+    """Flights at once, each on its own simulator in its own network namespace (CI time: one
+    flight's instead of the sum); `runs` maps a name to `fly`'s arguments and keywords."""
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = {who: pool.submit(fly, *args, **kwargs) for who, (args, kwargs) in runs.items()}
+        return {who: f.result() for who, f in futures.items()}
+
+
 def summary_row(s):
     live = s["live"]
     return (live["truth_rms"]["depth_m"], s["rms_heading_deg"], s["held_heading_error_max_deg"])
@@ -87,8 +96,11 @@ def test_the_fitted_model_holds_the_heading_at_the_stock_gain_as_the_simulators_
     # The same 60 s of references at the stock joystick gain (0.5), the fitted model with no
     # other flag, then the simulator's own vehicle file as the MPC's model.
     out, report = stock_fit
-    r, s = fly(tmp_path / "fitted", "--model", out / "model.pinc", vehicle=None, parms=STOCK_GAIN)
-    rs, sim = fly(tmp_path / "sim", "--oracle", vehicle=SIM_VEHICLE, parms=STOCK_GAIN)
+    runs = fly_side_by_side({
+        "fitted": ((tmp_path / "fitted", "--model", out / "model.pinc"), {"vehicle": None, "parms": STOCK_GAIN}),
+        "sim": ((tmp_path / "sim", "--oracle"), {"vehicle": SIM_VEHICLE, "parms": STOCK_GAIN}),
+    })
+    (r, s), (rs, sim) = runs["fitted"], runs["sim"]
     for run, summary in ((r, s), (rs, sim)):
         assert summary["stopped"] is None and run.returncode == 0, run.stderr
         assert summary["samples"] >= 740
@@ -150,3 +162,46 @@ def test_a_recording_killed_mid_excitation_is_fitted_from_what_it_kept(tmp_path)
                                "--vehicle", str(OWNER_VEHICLE), str(partial)], capture_output=True, text=True)
     assert imported.returncode == 0, imported.stderr
     assert "cut off" in imported.stdout + imported.stderr, imported.stdout + imported.stderr
+
+
+def test_with_gps_all_four_axes_are_fitted_and_fly_like_the_simulators_file_beside_guided(tmp_path):
+    # The simulator's GPS as the position source: the same kind of recording (90 s, the watch
+    # stopped it) determines surge and sway too, and says which source gave them. The fitted
+    # model then flies 40 s of the default references on the full state (GPS fused), beside
+    # the simulator's own file flown the same way and ArduSub's GUIDED on the same references.
+    report = pinc_fit(GPS_RECORDING, tmp_path / "fitted")
+    assert report["passed"], report["warnings"]
+    assert report["position_source"] is True
+    assert all(a["determined"] for a in report["axes"]), report["axes"]
+    c = coefficients(report)
+    for k in ("x_ud", "y_vd", "x_uu", "y_vv"):
+        assert c[k]["status"] == "identified", c[k]
+    # The simulator's surge and sway: mass 10.5 kg and no added mass, quadratic drag 48.3 and
+    # 62.1 N/(m/s)^2 (its README): the effective masses within 20 %, the surge drag within 10 %.
+    for k in ("x_ud", "y_vd"):
+        assert abs((11.4 - c[k]["fitted"]) - 10.5) < 0.2 * 10.5, c[k]
+    assert abs(-c["x_uu"]["fitted"] - 48.3) < 0.1 * 48.3, c["x_uu"]
+    assert_held_out_yaw_like_the_simulators_file(report)
+    model = tmp_path / "fitted" / "model.pinc"
+    common = ("--wait-position", "45", "--duration", "40")
+    gps = []  # the simulator's GPS: sub.parm alone, the stock gain
+    runs = fly_side_by_side({
+        "pinc (fitted)": ((tmp_path / "fitted_run", "--model", model, *common), {"vehicle": None, "parms": gps}),
+        "the simulator's file": ((tmp_path / "sim", "--oracle", *common), {"vehicle": SIM_VEHICLE, "parms": gps}),
+        "ArduSub GUIDED": ((tmp_path / "guided", "--model", model, "--autopilot-hold", "guided", *common),
+                           {"vehicle": None, "parms": gps}),
+    })
+    table = {}
+    for who, (r, s) in runs.items():
+        assert s["stopped"] is None and r.returncode == 0, (who, r.stderr)
+        assert s["samples"] >= 490, (who, s["samples"])
+        table[who] = summary_row(s)
+        d, h, held = table[who]
+        print(f"{who:22s} RMS depth (truth) {d:.3f} m, RMS heading {h:.2f} deg, held heading {held:.2f} deg")
+    fitted, own, guided = table["pinc (fitted)"], table["the simulator's file"], table["ArduSub GUIDED"]
+    # Measured (60 s runs): fitted 0.128 m / 4.08 deg / held 0.55, the file 0.125 / 4.09 / 0.54,
+    # GUIDED 0.258 / 9.77 / 1.52.
+    assert fitted[0] <= 1.2 * own[0] and fitted[1] <= 1.2 * own[1] and fitted[2] <= max(0.5, 1.5 * own[2]), table
+    assert fitted[0] < guided[0] and fitted[1] < guided[1], table
+    e = runs["pinc (fitted)"][1]["live"]["estimate_rms_error"]
+    assert e["u"] <= 0.05 and e["v"] <= 0.05 and e["w"] <= 0.05, e

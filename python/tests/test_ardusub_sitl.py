@@ -42,7 +42,8 @@ NO_POSITION = SITL / "no_position_source.parm"
 
 def run_on_firmware(tmp_path, parms, client, timeout=300):
     """Runs `client` (a list) beside the firmware, pinc being its first client (on 5760)."""
-    cmd = [str(RUN), "-d", str(tmp_path / "sitl"), "-p", ",".join(str(p) for p in parms), "--", *map(str, client)]
+    extra = ["-p", ",".join(str(p) for p in parms)] if parms else []  # none: sub.parm alone (GPS on)
+    cmd = [str(RUN), "-d", str(tmp_path / "sitl"), *extra, "--", *map(str, client)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
 
 

@@ -33,7 +33,7 @@ def mpc_track_binary() -> Path:
 
 def excitation(tmp_path, seconds, seed=0):
     path = tmp_path / f"in_{seconds}.csv"
-    r = run_pinc("excitation", "--vehicle", str(SITL), "--duration", str(seconds), "--seed", str(seed),
+    r = run_pinc("excitation", "--design", "generic", "--vehicle", str(SITL), "--duration", str(seconds), "--seed", str(seed),
                  "--out", str(path))
     assert r.returncode == 0, r.stderr
     return path

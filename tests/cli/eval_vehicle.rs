@@ -26,7 +26,10 @@ fn a_test_only_folder_scores_the_true_vehicle_near_zero_and_a_wrong_one_worse() 
     let mut logs = Vec::new();
     for seed in ["1", "2"] {
         let inputs = d(&format!("in{seed}.csv"));
-        ok(pinc(&["excitation", "--out", &inputs, "--duration", "30", "--seed", seed]), "excitation");
+        ok(
+            pinc(&["excitation", "--design", "generic", "--out", &inputs, "--duration", "30", "--seed", seed]),
+            "excitation",
+        );
         let csv = ok(
             pinc(&["simulate", "--vehicle", BLUEROV2, "--x0", "0,0,1,0,0,0,0,0", "--inputs", &inputs, "--record"]),
             "simulate",
@@ -92,7 +95,7 @@ fn splits_need_one_positive_fraction_and_eval_needs_test_windows() {
     let dir = tempfile::tempdir().unwrap();
     let d = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let inputs = d("in.csv");
-    ok(pinc(&["excitation", "--out", &inputs, "--duration", "12", "--seed", "3"]), "excitation");
+    ok(pinc(&["excitation", "--design", "generic", "--out", &inputs, "--duration", "12", "--seed", "3"]), "excitation");
     let csv = ok(pinc(&["simulate", "--x0", "0,0,1,0,0,0,0,0", "--inputs", &inputs, "--record"]), "simulate");
     let log = d("run.csv");
     std::fs::write(&log, csv).unwrap();

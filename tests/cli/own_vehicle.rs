@@ -46,7 +46,10 @@ fn closed_loop_logs_and_an_excitation_run_identify_train_and_control_another_veh
     // Two open-loop excitation runs, recorded as CSV.
     for seed in ["1", "2"] {
         let inputs = d(&format!("excitation{seed}.in.csv"));
-        ok(pinc(&["excitation", "--out", &inputs, "--duration", "60", "--seed", seed]), "excitation");
+        ok(
+            pinc(&["excitation", "--design", "generic", "--out", &inputs, "--duration", "60", "--seed", seed]),
+            "excitation",
+        );
         let x0 = "0,0,1,0,0,0,0,0";
         let csv =
             ok(pinc(&["simulate", "--vehicle", VEHICLE, "--x0", x0, "--inputs", &inputs, "--record"]), "simulate");
@@ -146,7 +149,7 @@ fn bad_input_on_the_path_is_a_one_line_error_and_leaves_nothing_behind() {
         assert!(err.starts_with("error: ") && err.contains(expect), "{expect:?} in {err}");
     };
     let inputs = d("in.csv");
-    ok(pinc(&["excitation", "--out", &inputs, "--duration", "20"]), "excitation");
+    ok(pinc(&["excitation", "--design", "generic", "--out", &inputs, "--duration", "20"]), "excitation");
     let rec = ok(pinc(&["simulate", "--x0", "0,0,1,0,0,0,0,0", "--inputs", &inputs, "--record"]), "simulate");
     // A row cut short before the last line (a torn last line alone is skipped and noted).
     let cut = d("cut.csv");

@@ -56,6 +56,58 @@ impl Arrivals {
     }
 }
 
+/// What the autopilot sent over the window.
+struct Heard {
+    ekf: Option<EkfStatus>,
+    heartbeat: mavlink::dialects::ardupilotmega::HEARTBEAT_DATA,
+    version: Option<AUTOPILOT_VERSION_DATA>,
+    arrivals: BTreeMap<&'static str, Arrivals>,
+}
+
+/// Listens for `window`, asking for AUTOPILOT_VERSION (twice: requests travel over UDP);
+/// every message of the autopilot's goes through the state's assembler.
+fn listen(
+    link: &mut pinc::link::VehicleLink,
+    autopilot: &Autopilot,
+    assembler: &mut pinc::link::StateAssembler,
+    window: Duration,
+) -> Result<Heard, String> {
+    let mut heard =
+        Heard { ekf: None, heartbeat: autopilot.heartbeat.clone(), version: None, arrivals: BTreeMap::new() };
+    let start = Instant::now();
+    let mut asked_again = false;
+    while start.elapsed() < window {
+        if !asked_again && heard.version.is_none() && start.elapsed() > window / 2 {
+            link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
+            asked_again = true;
+        }
+        let Some(r) = link.recv_timeout(Duration::from_millis(50)).map_err(|e| e.to_string())? else { continue };
+        if !from_autopilot(&r, autopilot) {
+            continue;
+        }
+        heard.arrivals.entry(mavlink::Message::message_name(&r.message)).or_default().add(r.at);
+        assembler.update(&r, |_| {});
+        match &r.message {
+            MavMessage::HEARTBEAT(h) if !is_ground_station(h) => heard.heartbeat = h.clone(),
+            MavMessage::AUTOPILOT_VERSION(v) => heard.version = Some(v.clone()),
+            MavMessage::EKF_STATUS_REPORT(e) => heard.ekf = Some(EkfStatus::new(0.0, e)),
+            _ => {}
+        }
+    }
+    Ok(heard)
+}
+
+/// What `status` reports, worked out from what was heard and the parameters.
+struct Status {
+    functions: OutputFunctions,
+    ways: Vec<(pinc::link::CommandWay, Result<(), pinc::link::WayRefused>)>,
+    heading: HeadingReference,
+    not_ready: Vec<String>,
+    now: pinc::link::RawState,
+    vertical_rate: Option<f64>,
+    vertical_valid: bool,
+}
+
 pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
     let window = positive("--window", a.window)?;
     let thrusters = a.vehicle.as_ref().map(Thrusters::load).transpose().map_err(|e| e.to_string())?;
@@ -66,101 +118,109 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
         assembler.update(r, |_| {});
     })
     .map_err(|e| e.to_string())?;
-    let mut ekf: Option<EkfStatus> = None;
-    let mut heartbeat = autopilot.heartbeat.clone();
-    let mut version: Option<AUTOPILOT_VERSION_DATA> = None;
-    let mut arrivals: BTreeMap<&'static str, Arrivals> = BTreeMap::new();
-    let start = Instant::now();
-    let mut asked_again = false;
-    while start.elapsed() < window {
-        if !asked_again && version.is_none() && start.elapsed() > window / 2 {
-            // Requests travel over UDP: one more try.
-            link.request_message(AUTOPILOT_VERSION_ID).map_err(|e| e.to_string())?;
-            asked_again = true;
-        }
-        let Some(r) = link.recv_timeout(Duration::from_millis(50)).map_err(|e| e.to_string())? else { continue };
-        if !from_autopilot(&r, &autopilot) {
-            continue;
-        }
-        arrivals.entry(mavlink::Message::message_name(&r.message)).or_default().add(r.at);
-        assembler.update(&r, |_| {});
-        match &r.message {
-            MavMessage::HEARTBEAT(h) if !is_ground_station(h) => heartbeat = h.clone(),
-            MavMessage::AUTOPILOT_VERSION(v) => version = Some(v.clone()),
-            MavMessage::EKF_STATUS_REPORT(e) => ekf = Some(EkfStatus::new(0.0, e)),
-            _ => {}
-        }
-    }
+    let heard = listen(&mut link, &autopilot, &mut assembler, window)?;
     // Which ways of commanding reach the thrusters, from the outputs' functions.
     let functions = OutputFunctions::from_params(&params);
     let outputs: Vec<(String, u8)> = match &thrusters {
         Some(t) => t.list.iter().map(|t| (format!("thruster {}", t.name), t.channel)).collect(),
         None => (1..=6).map(|n| (format!("thruster {n}"), n)).collect(),
     };
-    let ways = functions.ways(&outputs);
-    let heading = HeadingReference::of(&params, ekf.is_some_and(|e| e.absolute_position()));
-    let not_ready = ekf.map_or_else(|| vec!["no EKF_STATUS_REPORT answered".to_string()], |e| e.not_ready());
-    let now = assembler.estimate_now(Instant::now());
-    let rate_of = |name: &str| arrivals.get(name).and_then(Arrivals::rate);
-    let pressure_rate = rate_of("SCALED_PRESSURE2").or_else(|| rate_of("SCALED_PRESSURE"));
-    let part_source = |p: Part| -> (&'static str, Option<f64>) {
-        match p {
-            Part::Heading | Part::YawRate => ("ATTITUDE", rate_of("ATTITUDE")),
-            Part::Position | Part::Velocity => ("LOCAL_POSITION_NED", rate_of("LOCAL_POSITION_NED")),
-            Part::Depth if now.part(Part::Position).fresh => ("LOCAL_POSITION_NED", rate_of("LOCAL_POSITION_NED")),
-            Part::Depth => (
-                if arrivals.contains_key("SCALED_PRESSURE2") { "SCALED_PRESSURE2" } else { "SCALED_PRESSURE" },
-                pressure_rate,
-            ),
-        }
+    let status = Status {
+        ways: functions.ways(&outputs),
+        functions,
+        heading: HeadingReference::of(&params, heard.ekf.is_some_and(|e| e.absolute_position())),
+        not_ready: heard.ekf.map_or_else(|| vec!["no EKF_STATUS_REPORT answered".to_string()], |e| e.not_ready()),
+        now: assembler.estimate_now(Instant::now()),
+        // The autopilot's vertical velocity, which the estimator takes while its EKF vouches for it.
+        vertical_rate: heard.arrivals.get("GLOBAL_POSITION_INT").and_then(Arrivals::rate),
+        vertical_valid: assembler.reader().vertical_velocity_valid(),
     };
-    // The autopilot's vertical velocity, which the estimator takes while its EKF vouches for it.
-    let vertical_rate = rate_of("GLOBAL_POSITION_INT");
-    let vertical_valid = assembler.reader().vertical_velocity_valid();
-    let mode = SubMode::name_of(heartbeat.custom_mode);
-    let armed = Autopilot::armed(&heartbeat);
-    let vehicle_type = enum_name(&heartbeat.mavtype, "MAV_TYPE_");
-    let autopilot_name = enum_name(&heartbeat.autopilot, "MAV_AUTOPILOT_");
-    let firmware_text = version.as_ref().map(firmware);
     if a.json {
-        let parts: serde_json::Map<String, Value> = now
-            .parts
-            .iter()
-            .map(|p| {
-                let (source, rate) = part_source(p.part);
-                (p.part.name().to_string(), json!({"seen": p.fresh, "source": source, "rate_hz": rate, "age_s": p.age}))
-            })
-            .collect();
-        let messages: serde_json::Map<String, Value> =
-            arrivals.iter().map(|(k, v)| (k.to_string(), json!({"count": v.count, "rate_hz": v.rate()}))).collect();
-        let out = json!({
-            "connect": a.link.connect, "system_id": autopilot.system_id, "component_id": autopilot.component_id,
-            "vehicle_type": vehicle_type, "autopilot": autopilot_name, "firmware": firmware_text,
-            "flight_sw_version": version.as_ref().map(|v| v.flight_sw_version),
-            "mode": mode, "custom_mode": heartbeat.custom_mode, "armed": armed,
-            "parts": parts, "messages": messages, "capability": capability_key(now.capability),
-            "capability_text": now.capability.to_string(), "window_s": a.window,
-            "malformed_frames": link.malformed(),
-            "outputs": functions.by_output.iter().map(|(n, f)| (n.to_string(), json!({"function": f, "name": function_name(*f)}))).collect::<serde_json::Map<_, _>>(),
-            "command_ways": ways.iter().map(|(w, r)| (w.name().to_string(), json!({"allowed": r.is_ok(), "why_not": r.as_ref().err().map(ToString::to_string)}))).collect::<serde_json::Map<_, _>>(),
-            "js_gain": params.get("JS_GAIN_DEFAULT"),
-            "heading_reference": heading.key(), "heading_reference_text": heading.describe(),
-            "compass_dec_rad": params.get("COMPASS_DEC"), "compass_autodec": params.get("COMPASS_AUTODEC"),
-            "ekf_flags": ekf.map(|e| e.flags), "ekf_not_ready": not_ready,
-            "ekf_position_measured": ekf.map(|e| e.position_measured()),
-            "vertical_velocity": {"source": "GLOBAL_POSITION_INT", "rate_hz": vertical_rate, "ekf_vouches": vertical_valid},
-        });
-        println!("{}", serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?);
-        return Ok(());
+        print_json(&a, &autopilot, &heard, &status, &params, link.malformed())
+    } else {
+        print_text(&a, &autopilot, &heard, &status, &params, link.malformed());
+        Ok(())
     }
+}
+
+/// The message and rate each part of the state comes from.
+fn part_source(heard: &Heard, now: &pinc::link::RawState, p: Part) -> (&'static str, Option<f64>) {
+    let rate_of = |name: &str| heard.arrivals.get(name).and_then(Arrivals::rate);
+    match p {
+        Part::Heading | Part::YawRate => ("ATTITUDE", rate_of("ATTITUDE")),
+        Part::Position | Part::Velocity => ("LOCAL_POSITION_NED", rate_of("LOCAL_POSITION_NED")),
+        Part::Depth if now.part(Part::Position).fresh => ("LOCAL_POSITION_NED", rate_of("LOCAL_POSITION_NED")),
+        Part::Depth => (
+            if heard.arrivals.contains_key("SCALED_PRESSURE2") { "SCALED_PRESSURE2" } else { "SCALED_PRESSURE" },
+            rate_of("SCALED_PRESSURE2").or_else(|| rate_of("SCALED_PRESSURE")),
+        ),
+    }
+}
+
+fn print_json(
+    a: &StatusArgs,
+    autopilot: &Autopilot,
+    heard: &Heard,
+    st: &Status,
+    params: &pinc::link::Params,
+    malformed: u64,
+) -> Result<(), String> {
+    let parts: serde_json::Map<String, Value> = st
+        .now
+        .parts
+        .iter()
+        .map(|p| {
+            let (source, rate) = part_source(heard, &st.now, p.part);
+            (p.part.name().to_string(), json!({"seen": p.fresh, "source": source, "rate_hz": rate, "age_s": p.age}))
+        })
+        .collect();
+    let messages: serde_json::Map<String, Value> =
+        heard.arrivals.iter().map(|(k, v)| (k.to_string(), json!({"count": v.count, "rate_hz": v.rate()}))).collect();
+    let h = &heard.heartbeat;
+    let out = json!({
+        "connect": a.link.connect, "system_id": autopilot.system_id, "component_id": autopilot.component_id,
+        "vehicle_type": enum_name(&h.mavtype, "MAV_TYPE_"), "autopilot": enum_name(&h.autopilot, "MAV_AUTOPILOT_"),
+        "firmware": heard.version.as_ref().map(firmware),
+        "flight_sw_version": heard.version.as_ref().map(|v| v.flight_sw_version),
+        "mode": SubMode::name_of(h.custom_mode), "custom_mode": h.custom_mode, "armed": Autopilot::armed(h),
+        "parts": parts, "messages": messages, "capability": capability_key(st.now.capability),
+        "capability_text": st.now.capability.to_string(), "window_s": a.window,
+        "malformed_frames": malformed,
+        "outputs": st.functions.by_output.iter().map(|(n, f)| (n.to_string(), json!({"function": f, "name": function_name(*f)}))).collect::<serde_json::Map<_, _>>(),
+        "command_ways": st.ways.iter().map(|(w, r)| (w.name().to_string(), json!({"allowed": r.is_ok(), "why_not": r.as_ref().err().map(ToString::to_string)}))).collect::<serde_json::Map<_, _>>(),
+        "js_gain": params.get("JS_GAIN_DEFAULT"),
+        "heading_reference": st.heading.key(), "heading_reference_text": st.heading.describe(),
+        "compass_dec_rad": params.get("COMPASS_DEC"), "compass_autodec": params.get("COMPASS_AUTODEC"),
+        "ekf_flags": heard.ekf.map(|e| e.flags), "ekf_not_ready": st.not_ready,
+        "ekf_position_measured": heard.ekf.map(|e| e.position_measured()),
+        "vertical_velocity": {"source": "GLOBAL_POSITION_INT", "rate_hz": st.vertical_rate, "ekf_vouches": st.vertical_valid},
+    });
+    println!("{}", serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?);
+    Ok(())
+}
+
+fn print_text(
+    a: &StatusArgs,
+    autopilot: &Autopilot,
+    heard: &Heard,
+    st: &Status,
+    params: &pinc::link::Params,
+    malformed: u64,
+) {
+    let h = &heard.heartbeat;
+    let firmware_text = heard.version.as_ref().map(firmware);
     println!("autopilot   system {} component {} on {}", autopilot.system_id, autopilot.component_id, a.link.connect);
-    println!("type        {vehicle_type}, autopilot {autopilot_name}");
+    println!(
+        "type        {}, autopilot {}",
+        enum_name(&h.mavtype, "MAV_TYPE_"),
+        enum_name(&h.autopilot, "MAV_AUTOPILOT_")
+    );
     println!("firmware    {}", firmware_text.as_deref().unwrap_or("unknown (no AUTOPILOT_VERSION answered)"));
-    println!("mode        {mode}");
-    println!("armed       {}", if armed { "yes" } else { "no" });
+    println!("mode        {}", SubMode::name_of(h.custom_mode));
+    println!("armed       {}", if Autopilot::armed(h) { "yes" } else { "no" });
     println!("state parts over {:.1} s:", a.window);
-    for p in &now.parts {
-        let (source, rate) = part_source(p.part);
+    for p in &st.now.parts {
+        let (source, rate) = part_source(heard, &st.now, p.part);
         let what = match (p.fresh, rate, p.age) {
             (true, Some(r), _) => format!("seen     {r:5.1} Hz from {source}"),
             (true, None, _) => format!("seen     once from {source}"),
@@ -169,7 +229,7 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
         };
         println!("  {:<9} {what}", p.part.name());
     }
-    let vertical = match (vertical_rate, vertical_valid) {
+    let vertical = match (st.vertical_rate, st.vertical_valid) {
         (Some(r), true) => {
             format!("{r:.1} Hz from GLOBAL_POSITION_INT, the EKF vouches for it: the estimator takes it")
         }
@@ -181,9 +241,9 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
         (None, _) => "no GLOBAL_POSITION_INT: the estimator's heave rests on the depth and the model".to_string(),
     };
     println!("vertical    {vertical}");
-    println!("controller  {}", now.capability);
+    println!("controller  {}", st.now.capability);
     let outputs_line: Vec<String> =
-        functions.by_output.iter().map(|(n, f)| format!("{n} {}", function_name(*f))).collect();
+        st.functions.by_output.iter().map(|(n, f)| format!("{n} {}", function_name(*f))).collect();
     println!(
         "outputs     {}",
         if outputs_line.is_empty() {
@@ -192,7 +252,7 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
             outputs_line.join(", ")
         }
     );
-    for (way, r) in &ways {
+    for (way, r) in &st.ways {
         match r {
             Ok(()) => println!("command     --command {}: reaches every thruster", way.name()),
             Err(e) => println!("command     --command {}: refused: {e}", way.name()),
@@ -201,16 +261,15 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
     if let Some(g) = params.get("JS_GAIN_DEFAULT") {
         println!("pilot gain  {g} (JS_GAIN_DEFAULT: pinc's --command manual uses it)");
     }
-    println!("{}", heading.describe());
-    if not_ready.is_empty() {
+    println!("{}", st.heading.describe());
+    if st.not_ready.is_empty() {
         println!("estimate    the autopilot's attitude and heading are usable (EKF_STATUS_REPORT)");
     } else {
-        println!("estimate    not ready: {}", not_ready.join("; "));
+        println!("estimate    not ready: {}", st.not_ready.join("; "));
     }
-    if link.malformed() > 0 {
-        println!("malformed   {} frames could not be parsed", link.malformed());
+    if malformed > 0 {
+        println!("malformed   {malformed} frames could not be parsed");
     }
-    Ok(())
 }
 
 fn capability_key(c: Capability) -> &'static str {
