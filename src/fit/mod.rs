@@ -216,30 +216,12 @@ impl LagMethod {
 
 /// What a fit produced (before it is written).
 pub struct Fit {
-    /// The identified vehicle.
-    pub identification: Identification,
-    /// The sensor model.
-    pub sensors: SensorModel,
-    /// Depth lags tried and the residual sum of squares at each.
-    pub lag_scan: Vec<(f64, f64)>,
-    /// What the depth lag was measured against.
-    pub lag_method: LagMethod,
-    /// Readings too few to measure their noise (their default kept).
-    pub sensors_defaulted: Vec<&'static str>,
-    /// Whether a position or velocity source was fused (else surge and sway are the model's).
-    pub horizontal: bool,
-    /// Estimate-and-identify passes on the fitted sensors (until the heave and yaw
-    /// coefficients moved less than 1 %, at most 8).
-    pub passes: usize,
-    /// The filter's mean heave gain after the passes, and after each time the heave
-    /// equation took it in (the last is what the fitted vehicle still misses).
-    pub heave_gains: Vec<f64>,
+    /// What the estimate-and-identify stages found: the vehicle, the sensors, the passes.
+    pub identified: Identified,
     /// The hybrid, carrying the vehicle's thrusters and sensors.
     pub model: PincModel,
     /// How the training ended.
     pub training: TrainOutcome,
-    /// The dataset the final identification and the training used.
-    pub dataset: Dataset,
     /// The recordings: path, SHA-256, seconds estimated.
     pub recordings: Vec<(PathBuf, String, f64)>,
     /// The report's findings (the model's warnings among them).
@@ -355,7 +337,8 @@ pub struct Identified {
     /// The filter's mean heave gain after the passes and after each time it was taken in.
     pub heave_gains: Vec<f64>,
     runs: Vec<Replay>,
-    dataset: Dataset,
+    /// The dataset the final identification and the training used.
+    pub dataset: Dataset,
 }
 
 impl Pipeline<'_> {
@@ -649,22 +632,7 @@ pub fn fit(
         model.provenance.metrics.remove(key);
     }
     model.fitted = Some(FittedVehicle { thrusters_toml, sensors: found.sensors, warnings: findings.warnings.clone() });
-    Ok(Fit {
-        identification: found.identification,
-        sensors: found.sensors,
-        lag_scan: found.lag_scan,
-        lag_method: found.lag_method,
-        sensors_defaulted: found.sensors_defaulted,
-        horizontal: found.horizontal,
-        passes: found.passes,
-        heave_gains: found.heave_gains,
-        model,
-        training,
-        dataset: found.dataset,
-        recordings,
-        report: findings,
-        reference,
-    })
+    Ok(Fit { identified: found, model, training, recordings, report: findings, reference })
 }
 
 /// The train and dev splits, both non-empty.

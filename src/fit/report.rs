@@ -341,7 +341,7 @@ pub struct Written {
 
 /// The report as JSON: everything `report.md` shows.
 pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
-    let s = &fit.sensors;
+    let s = &fit.identified.sensors;
     serde_json::json!({
         "command": command,
         "passed": fit.report.warnings.is_empty(),
@@ -349,23 +349,23 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
         "notes": fit.report.notes,
         "recordings": fit.recordings.iter().map(|(p, sha, span)| serde_json::json!({
             "path": p.display().to_string(), "sha256": sha, "estimated_s": span})).collect::<Vec<_>>(),
-        "position_source": fit.horizontal,
-        "passes": fit.passes,
-        "heave_gains": fit.heave_gains,
+        "position_source": fit.identified.horizontal,
+        "passes": fit.identified.passes,
+        "heave_gains": fit.identified.heave_gains,
         "coefficients": fit.report.coefficients,
         "axes": fit.report.axes,
-        "rms_residual": {"u": fit.identification.rms_residual[0], "v": fit.identification.rms_residual[1],
-            "w": fit.identification.rms_residual[2], "r": fit.identification.rms_residual[3]},
+        "rms_residual": {"u": fit.identified.identification.rms_residual[0], "v": fit.identified.identification.rms_residual[1],
+            "w": fit.identified.identification.rms_residual[2], "r": fit.identified.identification.rms_residual[3]},
         "sensors": {"depth_std_m": s.depth_std, "depth_delay_s": s.depth_delay, "heading_std_rad": s.heading_std,
-            "yaw_rate_std_rad_s": s.yaw_rate_std, "defaulted": fit.sensors_defaulted,
-            "lag_method": fit.lag_method.key(),
-            "lag_scan": fit.lag_scan.iter().map(|(l, v)| serde_json::json!({"lag_s": l, "residual": v})).collect::<Vec<_>>()},
+            "yaw_rate_std_rad_s": s.yaw_rate_std, "defaulted": fit.identified.sensors_defaulted,
+            "lag_method": fit.identified.lag_method.key(),
+            "lag_scan": fit.identified.lag_scan.iter().map(|(l, v)| serde_json::json!({"lag_s": l, "residual": v})).collect::<Vec<_>>()},
         "training": {"epochs_run": fit.training.history.len(), "best_epoch": fit.training.best_epoch,
             "stop": fit.training.stop, "seconds": fit.training.seconds,
             "cut_by_time_cap": super::cut_by_time(&fit.training).is_some()},
         "held_out": held,
-        "dataset": {"train": fit.dataset.set("train").map_or(0, |s| s.count),
-            "dev": fit.dataset.set("dev").map_or(0, |s| s.count), "test": fit.dataset.set("test").map_or(0, |s| s.count)},
+        "dataset": {"train": fit.identified.dataset.set("train").map_or(0, |s| s.count),
+            "dev": fit.identified.dataset.set("dev").map_or(0, |s| s.count), "test": fit.identified.dataset.set("test").map_or(0, |s| s.count)},
     })
 }
 
@@ -380,7 +380,7 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     }
     md += &format!(
         "- position source: {}\n\n",
-        if fit.horizontal { "yes" } else { "none (depth, heading, yaw rate and the thrust only)" }
+        if fit.identified.horizontal { "yes" } else { "none (depth, heading, yaw rate and the thrust only)" }
     );
     for w in &fit.report.warnings {
         md += &format!("**Warning** {w}\n\n");
@@ -400,18 +400,18 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     md += &format!(
         "\nEstimate-and-identify passes: {}. The filter's heave gain (the share of the applied heave force the \
          vehicle misses) {}; the heave equation took it in until under {}.\n",
-        fit.passes,
-        fit.heave_gains.iter().map(|g| format!("{g:.3}")).collect::<Vec<_>>().join(" -> "),
+        fit.identified.passes,
+        fit.identified.heave_gains.iter().map(|g| format!("{g:.3}")).collect::<Vec<_>>().join(" -> "),
         super::HEAVE_GAIN_TOLERANCE
     );
-    let s = &fit.sensors;
+    let s = &fit.identified.sensors;
     md += &format!(
         "\n## Sensors\n\ndepth noise {:.3} m, depth lag {:.2} s (the best of {} tried against {}), heading noise {:.4} rad, \
          yaw-rate noise {:.4} rad/s\n",
         s.depth_std,
         s.depth_delay,
-        fit.lag_scan.len(),
-        fit.lag_method.describe(),
+        fit.identified.lag_scan.len(),
+        fit.identified.lag_method.describe(),
         s.heading_std,
         s.yaw_rate_std
     );
@@ -471,6 +471,7 @@ pub fn write(fit: &Fit, folder: &Path, command: &str) -> Result<Written, FitErro
     let _ = std::fs::remove_dir_all(&partial);
     std::fs::create_dir_all(&partial).map_err(|e| out(&partial, e.to_string()))?;
     let test = fit
+        .identified
         .dataset
         .set("test")
         .filter(|s| s.count > 0)
@@ -485,7 +486,7 @@ pub fn write(fit: &Fit, folder: &Path, command: &str) -> Result<Written, FitErro
          (report.md says which and why).\n"
     );
     let thrusters = fit.model.fitted.as_ref().map_or(String::new(), |f| f.thrusters_toml.clone());
-    put("vehicle.toml", (header + &fit.identification.vehicle.to_toml() + "\n" + &thrusters).as_bytes())?;
+    put("vehicle.toml", (header + &fit.identified.identification.vehicle.to_toml() + "\n" + &thrusters).as_bytes())?;
     put("model.pinc", &fit.model.to_bytes().map_err(|e| out(&partial.join("model.pinc"), e.to_string()))?)?;
     let json = serde_json::to_string_pretty(&json(fit, &held, command)).expect("JSON of plain values");
     put("report.json", json.as_bytes())?;

@@ -105,6 +105,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
         "span_s": [steps[0].t, steps[steps.len() - 1].t], "smoothed": !a.no_smooth,
         "position_source": horizontal, "restarts": run.restarts, "late": run.late,
         "damaged_frames": log.damaged, "torn_last_frame": log.torn,
+        "cut": log.cut.map(|c| json!({"byte": c.byte, "length": c.length, "last_log_time_s": c.last_log_time.map(|t| t as f64 * 1e-9), "text": c.to_string()})),
         "mean_std": {"z": mean_std(2), "u": mean_std(4), "v": mean_std(5), "w": mean_std(6), "r": mean_std(7)},
         "identifiable": can, "not_identifiable": cannot,
     });
@@ -120,6 +121,9 @@ pub fn run_estimate(a: EstimateArgs) -> Result<(), String> {
             if a.no_smooth { "filtered" } else { "smoothed" },
             a.out.display()
         );
+        if let Some(c) = &log.cut {
+            println!("{}: {c}", a.log.display());
+        }
         println!(
             "mean std: z {:.3} m, u {:.3} v {:.3} w {:.3} m/s, r {:.4} rad/s",
             mean_std(2),

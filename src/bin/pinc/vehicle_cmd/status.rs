@@ -99,6 +99,10 @@ fn listen(
 
 /// What `status` reports, worked out from what was heard and the parameters.
 struct Status {
+    autopilot: Autopilot,
+    heard: Heard,
+    params: pinc::link::Params,
+    malformed: u64,
     functions: OutputFunctions,
     ways: Vec<(pinc::link::CommandWay, Result<(), pinc::link::WayRefused>)>,
     heading: HeadingReference,
@@ -126,6 +130,7 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
         None => (1..=6).map(|n| (format!("thruster {n}"), n)).collect(),
     };
     let status = Status {
+        malformed: link.malformed(),
         ways: functions.ways(&outputs),
         functions,
         heading: HeadingReference::of(&params, heard.ekf.is_some_and(|e| e.absolute_position())),
@@ -134,11 +139,14 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
         // The autopilot's vertical velocity, which the estimator takes while its EKF vouches for it.
         vertical_rate: heard.arrivals.get("GLOBAL_POSITION_INT").and_then(Arrivals::rate),
         vertical_valid: assembler.reader().vertical_velocity_valid(),
+        autopilot,
+        heard,
+        params,
     };
     if a.json {
-        print_json(&a, &autopilot, &heard, &status, &params, link.malformed())
+        print_json(&a, &status)
     } else {
-        print_text(&a, &autopilot, &heard, &status, &params, link.malformed());
+        print_text(&a, &status);
         Ok(())
     }
 }
@@ -157,59 +165,52 @@ fn part_source(heard: &Heard, now: &pinc::link::RawState, p: Part) -> (&'static 
     }
 }
 
-fn print_json(
-    a: &StatusArgs,
-    autopilot: &Autopilot,
-    heard: &Heard,
-    st: &Status,
-    params: &pinc::link::Params,
-    malformed: u64,
-) -> Result<(), String> {
+fn print_json(a: &StatusArgs, st: &Status) -> Result<(), String> {
     let parts: serde_json::Map<String, Value> = st
         .now
         .parts
         .iter()
         .map(|p| {
-            let (source, rate) = part_source(heard, &st.now, p.part);
+            let (source, rate) = part_source(&st.heard, &st.now, p.part);
             (p.part.name().to_string(), json!({"seen": p.fresh, "source": source, "rate_hz": rate, "age_s": p.age}))
         })
         .collect();
-    let messages: serde_json::Map<String, Value> =
-        heard.arrivals.iter().map(|(k, v)| (k.to_string(), json!({"count": v.count, "rate_hz": v.rate()}))).collect();
-    let h = &heard.heartbeat;
+    let messages: serde_json::Map<String, Value> = st
+        .heard
+        .arrivals
+        .iter()
+        .map(|(k, v)| (k.to_string(), json!({"count": v.count, "rate_hz": v.rate()})))
+        .collect();
+    let h = &st.heard.heartbeat;
     let out = json!({
-        "connect": a.link.connect, "system_id": autopilot.system_id, "component_id": autopilot.component_id,
+        "connect": a.link.connect, "system_id": st.autopilot.system_id, "component_id": st.autopilot.component_id,
         "vehicle_type": enum_name(&h.mavtype, "MAV_TYPE_"), "autopilot": enum_name(&h.autopilot, "MAV_AUTOPILOT_"),
-        "firmware": heard.version.as_ref().map(firmware),
-        "flight_sw_version": heard.version.as_ref().map(|v| v.flight_sw_version),
+        "firmware": st.heard.version.as_ref().map(firmware),
+        "flight_sw_version": st.heard.version.as_ref().map(|v| v.flight_sw_version),
         "mode": SubMode::name_of(h.custom_mode), "custom_mode": h.custom_mode, "armed": Autopilot::armed(h),
         "parts": parts, "messages": messages, "capability": capability_key(st.now.capability),
         "capability_text": st.now.capability.to_string(), "window_s": a.window,
-        "malformed_frames": malformed,
+        "malformed_frames": st.malformed,
         "outputs": st.functions.by_output.iter().map(|(n, f)| (n.to_string(), json!({"function": f, "name": function_name(*f)}))).collect::<serde_json::Map<_, _>>(),
         "command_ways": st.ways.iter().map(|(w, r)| (w.name().to_string(), json!({"allowed": r.is_ok(), "why_not": r.as_ref().err().map(ToString::to_string)}))).collect::<serde_json::Map<_, _>>(),
-        "js_gain": params.get("JS_GAIN_DEFAULT"),
+        "js_gain": st.params.get("JS_GAIN_DEFAULT"),
         "heading_reference": st.heading.key(), "heading_reference_text": st.heading.describe(),
-        "compass_dec_rad": params.get("COMPASS_DEC"), "compass_autodec": params.get("COMPASS_AUTODEC"),
-        "ekf_flags": heard.ekf.map(|e| e.flags), "ekf_not_ready": st.not_ready,
-        "ekf_position_measured": heard.ekf.map(|e| e.position_measured()),
+        "compass_dec_rad": st.params.get("COMPASS_DEC"), "compass_autodec": st.params.get("COMPASS_AUTODEC"),
+        "ekf_flags": st.heard.ekf.map(|e| e.flags), "ekf_not_ready": st.not_ready,
+        "ekf_position_measured": st.heard.ekf.map(|e| e.position_measured()),
         "vertical_velocity": {"source": "GLOBAL_POSITION_INT", "rate_hz": st.vertical_rate, "ekf_vouches": st.vertical_valid},
     });
     println!("{}", serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?);
     Ok(())
 }
 
-fn print_text(
-    a: &StatusArgs,
-    autopilot: &Autopilot,
-    heard: &Heard,
-    st: &Status,
-    params: &pinc::link::Params,
-    malformed: u64,
-) {
-    let h = &heard.heartbeat;
-    let firmware_text = heard.version.as_ref().map(firmware);
-    println!("autopilot   system {} component {} on {}", autopilot.system_id, autopilot.component_id, a.link.connect);
+fn print_text(a: &StatusArgs, st: &Status) {
+    let h = &st.heard.heartbeat;
+    let firmware_text = st.heard.version.as_ref().map(firmware);
+    println!(
+        "autopilot   system {} component {} on {}",
+        st.autopilot.system_id, st.autopilot.component_id, a.link.connect
+    );
     println!(
         "type        {}, autopilot {}",
         enum_name(&h.mavtype, "MAV_TYPE_"),
@@ -220,7 +221,7 @@ fn print_text(
     println!("armed       {}", if Autopilot::armed(h) { "yes" } else { "no" });
     println!("state parts over {:.1} s:", a.window);
     for p in &st.now.parts {
-        let (source, rate) = part_source(heard, &st.now, p.part);
+        let (source, rate) = part_source(&st.heard, &st.now, p.part);
         let what = match (p.fresh, rate, p.age) {
             (true, Some(r), _) => format!("seen     {r:5.1} Hz from {source}"),
             (true, None, _) => format!("seen     once from {source}"),
@@ -258,7 +259,7 @@ fn print_text(
             Err(e) => println!("command     --command {}: refused: {e}", way.name()),
         }
     }
-    if let Some(g) = params.get("JS_GAIN_DEFAULT") {
+    if let Some(g) = st.params.get("JS_GAIN_DEFAULT") {
         println!("pilot gain  {g} (JS_GAIN_DEFAULT: pinc's --command manual uses it)");
     }
     println!("{}", st.heading.describe());
@@ -267,8 +268,8 @@ fn print_text(
     } else {
         println!("estimate    not ready: {}", st.not_ready.join("; "));
     }
-    if malformed > 0 {
-        println!("malformed   {malformed} frames could not be parsed");
+    if st.malformed > 0 {
+        println!("malformed   {} frames could not be parsed", st.malformed);
     }
 }
 
