@@ -6,10 +6,10 @@
 //! them) and the summary's live figures. `mpc_track --connect` runs it.
 //!
 //! The stages, each in its own place: the set-up (thrusters and command way, limits, the
-//! estimator's noise and model: [`Setup`]), the link and the session's first log lines
-//! ([`connect`]), arming and the autopilot's readiness (the drive's start, then
-//! [`flight::Flight::wait_to_start`]), every cycle's measurements, estimate and command
-//! ([`flight`]), the stop and the summary's figures ([`summary`]).
+//! estimator's noise and model: `Setup`), the link and the session's first log lines
+//! (`connect`), arming and the autopilot's readiness (the drive's start, then
+//! `Flight::wait_to_start`), every cycle's measurements, estimate and command (module
+//! `flight`), the stop and the summary's figures (module `summary`).
 
 use super::cli::{DriveArgs, EstimatorArgs, LinkOptions, non_negative, open};
 use super::command::CommandWay;

@@ -27,7 +27,7 @@ pub enum VehicleAction {
     Record(RecordArgs),
     /// Play an excitation file (`pinc excitation`) open loop on the vehicle and record it as
     /// `record` does, with every safety stop (docs/VEHICLE.md).
-    Excite(ExciteArgs),
+    Excite(Box<ExciteArgs>),
     /// Give the autopilot a MAVLink 2 signing key (SETUP_SIGNING), then check that it answers
     /// signed; from then on connect with --signing-key FILE.
     SetupSigning(SetupSigningArgs),
@@ -131,7 +131,7 @@ pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
     match action {
         VehicleAction::Status(a) => status::run_status(a),
         VehicleAction::Record(a) => record::run_record(a),
-        VehicleAction::Excite(a) => excite::run_excite(a),
+        VehicleAction::Excite(a) => excite::run_excite(*a),
         VehicleAction::SetupSigning(a) => signing::run_setup_signing(a),
     }
 }
