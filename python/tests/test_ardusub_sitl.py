@@ -105,7 +105,10 @@ def assert_estimate(summary):
     assert e["u"] <= 0.15 and e["v"] <= 0.15, e
 
 
-@pytest.mark.parametrize("way", ["manual", "thrusters"])
+# `--command manual` with GPS flies in test_ardusub_fit.py (the simulator's own file beside the
+# fitted four-axis model and GUIDED, its estimate's u, v, w within 0.05 m/s); here the
+# per-thruster way.
+@pytest.mark.parametrize("way", ["thrusters"])
 def test_closed_loop_with_a_position_source(tmp_path, way):
     # GPS on (the simulator's GPS works under water): the EKF has a position ~20 s after
     # arming; control starts at the first full state and runs 60 s. pinc is the firmware's
