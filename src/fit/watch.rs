@@ -163,8 +163,14 @@ impl Watch {
         }
     }
 
-    /// A message from the autopilot (system `sys`) at autopilot time `t` (s).
+    /// A message from the autopilot (system `sys`) at autopilot time `t` (s). Before the
+    /// autopilot's clock is known the link gives time 0: those messages (parameters,
+    /// heartbeats) are none of what the fit reads, and a vehicle that booted long before the
+    /// session would otherwise start the watch's clock at its boot.
     pub fn message(&mut self, t: f64, sys: u8, message: &MavMessage) {
+        if self.start.is_none() && t <= 0.0 {
+            return;
+        }
         let start = *self.start.get_or_insert(t);
         self.messages.push((((t - start).max(0.0) * 1e6) as u64, sys, message.clone()));
     }

@@ -45,13 +45,13 @@ fn plan(a: &ExciteArgs) -> Result<Plan, String> {
 
 /// The recording as the session writes it: the writer, the first error writing it (which
 /// ends the session at the next cycle), and the watch.
-struct Session {
+struct Recording {
     w: RefCell<Writer>,
     write_error: RefCell<Option<String>>,
     watch: RefCell<Option<watch::Watch>>,
 }
 
-impl Session {
+impl Recording {
     fn keep(&self, result: Result<(), String>) {
         if let Err(e) = result {
             self.write_error.borrow_mut().get_or_insert(e);
@@ -81,7 +81,7 @@ enum Ended {
 
 /// The play loop: one input per fresh state (neutral while waiting for a position source),
 /// the band's heave over the excitation's, the watch's looks said and acted on.
-fn play(drive: &mut Drive, s: &Session, plan: &mut Plan, a: &ExciteArgs, played: &mut usize) -> Result<Ended, Trigger> {
+fn play(drive: &mut Drive, s: &Recording, plan: &mut Plan, a: &ExciteArgs, played: &mut usize) -> Result<Ended, Trigger> {
     let wait_position = non_negative("--wait-position", a.drive.wait_position).map_err(Trigger::Error)?;
     let mut t0: Option<f64> = None;
     let waited = Instant::now();
@@ -155,7 +155,7 @@ pub(super) fn run_excite(a: ExciteArgs) -> Result<(), String> {
     let rec = Recorder::create(&a.out, metadata).map_err(|e| e.to_string())?;
     let mut writer = Writer::new(rec, autopilot.clone(), recorded, pending.clone());
     writer.estimation = Some(recording_estimator(&a.vehicle, plan.dt)?);
-    let s = Session {
+    let s = Recording {
         w: RefCell::new(writer),
         write_error: RefCell::new(None),
         watch: RefCell::new(watch::start(&a, plan.dt, &autopilot, &pending)),
@@ -199,7 +199,7 @@ pub(super) fn run_excite(a: ExciteArgs) -> Result<(), String> {
 
 /// Writes the stop and what the watch found into the recording and on the terminal, and
 /// finishes the file; an error (exit 1) for any safety stop.
-fn end_excite(s: Session, stopped: &Stopped, ended: Option<Ended>, played: usize, total: usize) -> Result<(), String> {
+fn end_excite(s: Recording, stopped: &Stopped, ended: Option<Ended>, played: usize, total: usize) -> Result<(), String> {
     let (level, line) = match (&stopped.trigger, ended) {
         (None, Some(Ended::Determined(at))) => (
             Level::Info,
@@ -222,7 +222,7 @@ fn end_excite(s: Session, stopped: &Stopped, ended: Option<Ended>, played: usize
         s.log(stopped.t, Level::Info, &summary);
         eprintln!("{summary}");
     }
-    let Session { w, write_error, .. } = s;
+    let Recording { w, write_error, .. } = s;
     let stats = w.into_inner().finish(stopped.t, level, &line);
     if stopped.trigger.is_some() {
         eprintln!("{line}");
@@ -244,7 +244,7 @@ fn end_excite(s: Session, stopped: &Stopped, ended: Option<Ended>, played: usize
 /// thread (it needs the fit, so the `train` feature).
 #[cfg(feature = "train")]
 mod watch {
-    use super::{ExciteArgs, Session, from_autopilot};
+    use super::{ExciteArgs, Recording, from_autopilot};
     use pinc::closed_loop::Level;
     use pinc::fit::FitSettings;
     use pinc::link::{Autopilot, Received};
@@ -263,8 +263,8 @@ mod watch {
         }
     }
 
-    /// A watch over the recording, unless `--watch-every 0`; the messages that came before
-    /// the autopilot's clock was known are given it at time 0.
+    /// A watch over the recording, unless `--watch-every 0`. The messages that came before
+    /// the autopilot's clock was known are offered at time 0, which the watch leaves out.
     pub(super) fn start(a: &ExciteArgs, dt: f64, autopilot: &Autopilot, pending: &[Received]) -> Option<Watch> {
         if a.watch_every == 0.0 {
             return None;
@@ -281,7 +281,7 @@ mod watch {
 
     /// A look, if one finished: said on the terminal and in the recording; the recording
     /// time at which the fit's report passes, unless `keep_going`.
-    pub(super) fn look(s: &Session, t: f64, keep_going: bool) -> Option<f64> {
+    pub(super) fn look(s: &Recording, t: f64, keep_going: bool) -> Option<f64> {
         let found = s.watch.borrow_mut().as_mut()?.inner.poll(t)?;
         match found {
             Ok(v) => {
@@ -308,7 +308,7 @@ mod watch {
 /// Without the `train` feature there is no fit to watch with: the whole file plays.
 #[cfg(not(feature = "train"))]
 mod watch {
-    use super::{ExciteArgs, Session};
+    use super::{ExciteArgs, Recording};
     use pinc::link::{Autopilot, Received};
 
     pub(super) struct Watch;
@@ -324,7 +324,7 @@ mod watch {
         None
     }
 
-    pub(super) fn look(_: &Session, _: f64, _: bool) -> Option<f64> {
+    pub(super) fn look(_: &Recording, _: f64, _: bool) -> Option<f64> {
         None
     }
 
