@@ -81,7 +81,13 @@ enum Ended {
 
 /// The play loop: one input per fresh state (neutral while waiting for a position source),
 /// the band's heave over the excitation's, the watch's looks said and acted on.
-fn play(drive: &mut Drive, s: &Recording, plan: &mut Plan, a: &ExciteArgs, played: &mut usize) -> Result<Ended, Trigger> {
+fn play(
+    drive: &mut Drive,
+    s: &Recording,
+    plan: &mut Plan,
+    a: &ExciteArgs,
+    played: &mut usize,
+) -> Result<Ended, Trigger> {
     let wait_position = non_negative("--wait-position", a.drive.wait_position).map_err(Trigger::Error)?;
     let mut t0: Option<f64> = None;
     let waited = Instant::now();
@@ -199,7 +205,13 @@ pub(super) fn run_excite(a: ExciteArgs) -> Result<(), String> {
 
 /// Writes the stop and what the watch found into the recording and on the terminal, and
 /// finishes the file; an error (exit 1) for any safety stop.
-fn end_excite(s: Recording, stopped: &Stopped, ended: Option<Ended>, played: usize, total: usize) -> Result<(), String> {
+fn end_excite(
+    s: Recording,
+    stopped: &Stopped,
+    ended: Option<Ended>,
+    played: usize,
+    total: usize,
+) -> Result<(), String> {
     let (level, line) = match (&stopped.trigger, ended) {
         (None, Some(Ended::Determined(at))) => (
             Level::Info,
