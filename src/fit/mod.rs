@@ -546,7 +546,7 @@ pub fn determinacy(
     messages: Vec<(u64, u8, mavlink::dialects::ardupilotmega::MavMessage)>,
 ) -> Result<(report::Findings, Identified), FitError> {
     // The messages are the recording: the settings' list of files may be empty.
-    check(&FitSettings { recordings: vec![PathBuf::from("(live)")], ..settings.clone() })?;
+    check(settings)?;
     let (base, thrusters, _) = starting_vehicle(settings)?;
     let log =
         Log { path: PathBuf::from("(live)"), sha256: String::new(), content: Content::Mavlink(messages), cut: None };
@@ -578,6 +578,9 @@ pub fn fit(
     on_epoch: impl FnMut(&crate::train::EpochRecord),
 ) -> Result<Fit, FitError> {
     check(settings)?;
+    if settings.recordings.is_empty() {
+        return Err(FitError::Settings("no recording given".into()));
+    }
     on_stage(Stage::Read);
     let (base, thrusters, thrusters_toml) = starting_vehicle(settings)?;
     let reference = match &settings.reference {
@@ -670,11 +673,9 @@ pub fn train_config(settings: &FitSettings, vehicle: VehicleParams, horizontal: 
     cfg
 }
 
+/// The settings' numbers (the recordings are checked where they are read).
 fn check(s: &FitSettings) -> Result<(), FitError> {
     let bad = |m: String| Err(FitError::Settings(m));
-    if s.recordings.is_empty() {
-        return bad("no recording given".into());
-    }
     if !(s.dt.is_finite() && s.dt > 0.0) {
         return bad(format!("--dt must be a positive number of seconds, got {}", s.dt));
     }

@@ -100,8 +100,8 @@ pub fn findings(
             } else if let Some(se) = std_err {
                 let against = judged_against(&id.vehicle, name, id.speeds);
                 let what = match name {
-                    _ if against == fitted.abs() => "the value",
                     "x_ud" | "y_vd" | "z_wd" | "n_rd" => "the effective mass or inertia",
+                    "volume" => "the value",
                     _ => "the axis's damping at the data's RMS speed",
                 };
                 ("identified", format!("standard error {:.1} % of {what}", 100.0 * se / against.max(1e-12)))

@@ -25,6 +25,13 @@ pub struct Cut {
     pub last_log_time: Option<u64>,
 }
 
+impl Cut {
+    /// Notes a message read before the cut (its log time, ns): the last one is where it ended.
+    pub fn saw(&mut self, log_time: u64) {
+        self.last_log_time = Some(self.last_log_time.map_or(log_time, |t| t.max(log_time)));
+    }
+}
+
 impl fmt::Display for Cut {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "the file was cut off: read up to byte {} of {}", self.byte, self.length)?;

@@ -42,7 +42,7 @@ pub fn read_mcap(path: &Path, topics: &McapTopics) -> Result<Recording, ImportEr
     for message in stream {
         let message = message.map_err(|e| malformed(format!("damaged MCAP: {e}")))?;
         if let Some(c) = &mut cut {
-            c.last_log_time = Some(message.log_time.max(c.last_log_time.unwrap_or(0)));
+            c.saw(message.log_time);
         }
         let topic = message.channel.topic.as_str();
         seen.insert(topic.to_string());

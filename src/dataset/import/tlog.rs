@@ -354,7 +354,7 @@ pub fn mcap_messages(path: &Path) -> Result<TlogMessages, ImportError> {
     for m in stream {
         let m = m.map_err(|e| malformed(e.to_string()))?;
         if let Some(c) = &mut out.cut {
-            c.last_log_time = Some(m.log_time.max(c.last_log_time.unwrap_or(0)));
+            c.saw(m.log_time);
         }
         if !m.channel.topic.starts_with("/mavlink/") {
             continue;
