@@ -5,9 +5,12 @@
 //! the envelope record and the errors); the arithmetic is in `kernels`.
 
 /// `$name`: a safe method of `Predictor` taking the [`Avx2Fma`](kernels::Avx2Fma) token,
-/// which runs `$generic::<Fused>` inside a function compiled for AVX2 + FMA.
+/// which runs `$generic::<Fused>` inside a function compiled for AVX2 + FMA. Elsewhere than
+/// on x86 the token has no value, and the method only says so to the compiler: the feature
+/// names would not compile there, and the dispatch's AVX2 branch is dead.
 macro_rules! avx2_entry {
     ($name:ident => $generic:ident ($($arg:ident: $ty:ty),*)) => {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
         #[inline(always)]
         #[allow(clippy::too_many_arguments)] // the generic body's arguments and the token
         fn $name(&self, cpu: super::kernels::Avx2Fma, $($arg: $ty),*) -> Result<(), RuntimeError> {
@@ -18,6 +21,13 @@ macro_rules! avx2_entry {
             let _ = cpu;
             // SAFETY: `cpu` proves that the CPU has AVX2 and FMA.
             unsafe { compiled(self, $($arg),*) }
+        }
+
+        #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+        #[inline(always)]
+        #[allow(clippy::too_many_arguments, unused_variables)] // the x86 entry's signature
+        fn $name(&self, cpu: super::kernels::Avx2Fma, $($arg: $ty),*) -> Result<(), RuntimeError> {
+            match cpu {}
         }
     };
 }
