@@ -64,7 +64,7 @@ fn bench_model<M: DiscreteModel + Clone>(c: &mut Criterion, id: &str, model: M, 
         let mut group = c.benchmark_group(id.replace("h20", &format!("h{horizon}")));
         for formulation in FORMULATIONS {
             let mut mpc = Mpc::new(model.clone(), config(formulation, horizon, bounds_from)).unwrap();
-            let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+            let refs = vec![Reference::depth_heading(1.5, 0.8); horizon];
             group.bench_function(formulation, |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
         }
         group.finish();
@@ -93,7 +93,7 @@ fn riccati_scaling(c: &mut Criterion) {
     let mut group = c.benchmark_group("riccati_scaling");
     for horizon in SCALING {
         let mut mpc = Mpc::new(Rk4Vehicle::with_dt(shipped.dt), config("riccati", horizon, &p)).unwrap();
-        let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+        let refs = vec![Reference::depth_heading(1.5, 0.8); horizon];
         group.bench_function(horizon.to_string(), |b| b.iter(|| black_box(mpc.step(black_box(&x), &refs))));
     }
     group.finish();
@@ -111,7 +111,7 @@ Riccati solver on the oracle: time per interior-point iteration (median of 200 c
     );
     for horizon in SCALING {
         let mut mpc = Mpc::new(Rk4Vehicle::with_dt(shipped.dt), config("riccati", horizon, &p)).unwrap();
-        let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+        let refs = vec![Reference::depth_heading(1.5, 0.8); horizon];
         let mut per: Vec<(f64, f64, f64, u32)> = (0..200)
             .map(|_| mpc.step(&bench_state(), &refs))
             .map(|r| (r.solve_us / r.iterations.max(1) as f64, r.linearise_us, r.solve_us, r.iterations))
@@ -162,7 +162,7 @@ criterion_group!(benches, mpc_iteration, riccati_scaling, estimator_update);
 fn print_solver_timers<M: DiscreteModel>(id: &str, model: M, bounds_from: &Predictor<f64>, horizon: usize) {
     let mut mpc = Mpc::new(model, config("default", horizon, bounds_from)).unwrap();
     let x = bench_state();
-    let refs = vec![Reference { depth: 1.5, heading: 0.8 }; horizon];
+    let refs = vec![Reference::depth_heading(1.5, 0.8); horizon];
     let report = (0..50).map(|_| mpc.step(&x, &refs)).last().unwrap();
     println!(
         "\n{id}: cycle {:.1} us (rollout + Jacobians {:.1}, condensing + update {:.1}, solve {:.1}), {} iterations; Clarabel's timers:",

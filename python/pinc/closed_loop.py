@@ -24,6 +24,12 @@ _DEFAULTS = {
     "vehicle": None,
     "scenario": "default",
     "reference": None,
+    "path": None,
+    "path_frame": None,
+    "survey": None,
+    "path_heading": None,
+    "current": None,
+    "max_distance": None,
     "duration": None,
     "horizon": 20,
     "disturbance_gain": None,
@@ -39,19 +45,22 @@ _DEFAULTS = {
 
 
 def settings(**kw):
-    """Closed-loop settings: `mpc_track`'s flags as keys (model, vehicle, scenario,
-    reference, duration, horizon, disturbance_gain, envelope_constraints, envelope_penalty,
+    """Closed-loop settings: `mpc_track`'s flags as keys (model, vehicle, scenario: "default",
+    "disturbed", "station" or "survey"; reference; path: a waypoint CSV, path_frame: "start"
+    or "origin"; survey: [width, length, spacing, speed, depth]; path_heading (deg, else along
+    the track); current: [north, east] m/s; max_distance (m); duration, horizon, disturbance_gain, envelope_constraints, envelope_penalty,
     envelope_margin, input_rate, solver_time_limit, condensing_block, sparse_qp, qp: "clarabel" or
     "riccati"). Unset keys keep `mpc_track`'s defaults."""
     unknown = sorted(set(kw) - set(_DEFAULTS))
     if unknown:
         raise ValueError(f"settings: unknown key(s) {unknown} (known: {sorted(_DEFAULTS)})")
     s = {k: v for k, v in {**_DEFAULTS, **kw}.items() if v is not None}
-    for k in ("model", "vehicle", "reference"):
+    for k in ("model", "vehicle", "reference", "path"):
         if k in s:
             s[k] = os.fspath(s[k])
-    if "input_rate" in s:
-        s["input_rate"] = [float(x) for x in s["input_rate"]]
+    for k in ("input_rate", "survey", "current"):
+        if k in s:
+            s[k] = [float(x) for x in s[k]]
     return s
 
 

@@ -325,6 +325,8 @@ struct OutcomeJson {
     rms_depth_m: Option<f64>,
     rms_heading_deg: Option<f64>,
     #[serde(default)]
+    rms_horizontal_m: Option<f64>,
+    #[serde(default)]
     solve_ms: Vec<f64>,
 }
 
@@ -337,6 +339,7 @@ impl From<Outcome> for OutcomeJson {
             failure: o.failure,
             rms_depth_m: finite(o.rms_depth_m),
             rms_heading_deg: finite(o.rms_heading_deg),
+            rms_horizontal_m: o.rms_horizontal_m.and_then(finite),
             solve_ms: o.solve_ms,
         }
     }
@@ -350,6 +353,7 @@ impl From<OutcomeJson> for Outcome {
             failure: o.failure,
             rms_depth_m: o.rms_depth_m.unwrap_or(f64::INFINITY),
             rms_heading_deg: o.rms_heading_deg.unwrap_or(f64::INFINITY),
+            rms_horizontal_m: o.rms_horizontal_m,
             solve_ms: o.solve_ms,
         }
     }

@@ -21,6 +21,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pinc::Input;
 use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::Outcome;
+use pinc::closed_loop::path_plan::PathFrame;
 use pinc::closed_loop::{LogError, McapLog, RunInfo};
 use pinc::closed_loop::{Sample, Scenario, Summary, run, summarise};
 use pinc::mpc::{Mpc, MpcConfig, QpSolver};
@@ -42,9 +43,35 @@ struct Args {
     /// Run the identical controller on the analytic vehicle model instead (bounds still from --model).
     #[arg(long)]
     oracle: bool,
-    /// Which built-in scenario.
-    #[arg(long, value_enum, default_value = "default", conflicts_with = "reference")]
+    /// Which built-in scenario: depth and heading (`default`, `disturbed`), or on four axes
+    /// in a 0.3 m/s current (`station`: hold where control starts through a depth step and a
+    /// 45 deg turn; `survey`: 4 legs of 10 m, 2 m apart, 0.3 m/s, 2 m deep).
+    #[arg(long, value_enum, default_value = "default", conflicts_with_all = ["reference", "path", "survey"])]
     scenario: ScenarioName,
+    /// Follow a path: a CSV of waypoints with header north_m,east_m,depth_m and t (s) or
+    /// speed_m_s (the leg's speed), optionally heading_deg (empty: along the leg).
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["reference", "survey"])]
+    path: Option<PathBuf>,
+    /// What the path's metres are measured from: `start` (where control starts) or `origin`
+    /// (the autopilot's EKF origin, LOCAL_POSITION_NED's frame; the simulator starts there).
+    #[arg(long, value_enum, default_value = "start")]
+    path_frame: PathFrameArg,
+    /// A lawnmower survey from the start: WIDTH,LENGTH,SPACING,SPEED,DEPTH (m, m, m, m/s, m):
+    /// legs of LENGTH northwards and back, SPACING apart, across WIDTH eastwards.
+    #[arg(long, value_name = "W,L,S,V,D", value_delimiter = ',', conflicts_with = "reference")]
+    survey: Option<Vec<f64>>,
+    /// The survey's heading (deg) [default: along each leg].
+    #[arg(long, value_name = "DEG")]
+    path_heading: Option<f64>,
+    /// Water velocity NORTH,EAST (m/s) of the simulated plant [default: the scenario's; a path
+    /// or survey: 0.3 m/s towards 30 deg].
+    #[arg(long, value_name = "N,E", value_delimiter = ',', allow_hyphen_values = true)]
+    current: Option<Vec<f64>>,
+    /// The farthest the vehicle may go from where control starts (m): a path reaching past it
+    /// is refused before anything moves; on a vehicle, crossing it stops the run (neutral,
+    /// disarm, exit 1).
+    #[arg(long, value_name = "M")]
+    max_distance: Option<f64>,
     /// References from a CSV file with header t,depth_m,heading_deg (linear between rows, a
     /// step where two rows share a time, held after the last; examples/references/).
     #[arg(long)]
@@ -123,10 +150,11 @@ struct Args {
     #[command(flatten)]
     estimator: pinc::link::cli::EstimatorArgs,
     /// With --connect: fly the same references with the autopilot's own controller instead of
-    /// pinc's MPC (ALT_HOLD: depth and heading targets; GUIDED: position, depth and heading,
-    /// needs a position source), logged in the same schema for the same summary and plot.
+    /// pinc's MPC (ALT_HOLD: depth and heading targets; GUIDED: position, velocity, depth and
+    /// heading streamed; POSHOLD: holds where it entered, depth and heading targets; both need
+    /// a position source), logged in the same schema for the same summary and plot.
     #[cfg(feature = "vehicle")]
-    #[arg(long, value_parser = ["althold", "guided"], requires = "connect")]
+    #[arg(long, value_parser = ["althold", "guided", "poshold"], requires = "connect")]
     autopilot_hold: Option<String>,
     /// Serve the run live over Foxglove's WebSocket protocol at [HOST:]PORT (loopback unless a
     /// host is given; port 0 picks a free one): the MCAP log's topics as they are written, to
@@ -143,6 +171,14 @@ type RunOutcome = (Vec<Sample>, Option<LogError>, Option<String>, Option<serde_j
 enum ScenarioName {
     Default,
     Disturbed,
+    Station,
+    Survey,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum PathFrameArg {
+    Start,
+    Origin,
 }
 
 fn main() -> ExitCode {
@@ -187,9 +223,30 @@ fn settings(a: &Args) -> Result<Settings, String> {
         scenario: match a.scenario {
             ScenarioName::Default => "default",
             ScenarioName::Disturbed => "disturbed",
+            ScenarioName::Station => "station",
+            ScenarioName::Survey => "survey",
         }
         .into(),
         reference: a.reference.clone(),
+        path: a.path.clone(),
+        path_frame: match a.path_frame {
+            PathFrameArg::Start => PathFrame::Start,
+            PathFrameArg::Origin => PathFrame::Origin,
+        },
+        survey: match &a.survey {
+            Some(v) => Some(
+                v.clone()
+                    .try_into()
+                    .map_err(|_| "--survey: five numbers WIDTH,LENGTH,SPACING,SPEED,DEPTH".to_string())?,
+            ),
+            None => None,
+        },
+        path_heading: a.path_heading,
+        current: match &a.current {
+            Some(v) => Some(v.clone().try_into().map_err(|_| "--current: two speeds NORTH,EAST (m/s)".to_string())?),
+            None => None,
+        },
+        max_distance: a.max_distance,
         duration: a.duration,
         horizon: a.horizon,
         disturbance_gain: a.disturbance_gain,
@@ -302,6 +359,7 @@ fn try_main(a: Args) -> Result<(), String> {
         &samples,
         bounds,
         &format!("{} MPC, scenario {}", if a.oracle { "oracle" } else { "PINC" }, scenario.name()),
+        scenario,
     )?;
     if a.json {
         let mut v = serde_json::to_value(&summary).map_err(|e| e.to_string())?;
@@ -364,6 +422,14 @@ fn print_live(l: &serde_json::Value) {
     let truth = &l["truth_rms"];
     if let (Some(d), Some(h)) = (truth["depth_m"].as_f64(), truth["heading_deg"].as_f64()) {
         println!("against the truth RMS   depth {d:.4} m, heading {h:.3} deg (true north)");
+    }
+    let h = &l["truth_horizontal"];
+    if let (Some(rms), Some(max)) = (h["rms_m"].as_f64(), h["max_m"].as_f64()) {
+        println!("horizontal vs truth     RMS {rms:.4} m, max {max:.4} m ({})", h["judged"].as_str().unwrap_or(""));
+        if let Some(end) = h["schedule_end_s"].as_f64() {
+            let done = h["finished_s"].as_f64().map_or("never".to_string(), |f| format!("{f:.2} s"));
+            println!("path finished           {done} (schedule {end:.2} s)");
+        }
     }
     if let Some(text) = l["heading_reference_text"].as_str() {
         println!("{text}");
@@ -470,6 +536,16 @@ fn monte_carlo(a: &Args, n: usize, campaign: &Campaign) -> Result<(), String> {
 fn print_summary(s: &Summary) {
     let secs = |v: &[f64]| v.iter().map(|t| format!("{t:.2}")).collect::<Vec<_>>().join(" / ");
     println!("samples                 {}", s.samples);
+    if let Some(h) = &s.horizontal {
+        let what = if h.judged == "station" { "from the point held" } else { "cross-track" };
+        println!("horizontal error        RMS {:.4} m, max {:.4} m {what} ({} samples)", h.rms_m, h.max_m, h.samples);
+        if let Some(end) = h.schedule_end_s {
+            match h.finished_s {
+                Some(f) => println!("path finished           {f:.2} s (schedule {end:.2} s)"),
+                None => println!("path finished           never (schedule {end:.2} s)"),
+            }
+        }
+    }
     println!("RMS depth error         {:.4} m", s.rms_depth_m);
     println!("RMS heading error       {:.3} deg", s.rms_heading_deg);
     println!(
@@ -505,7 +581,13 @@ fn print_summary(s: &Summary) {
     println!("heading off unit circle {} cycles", s.heading_off_circle);
 }
 
-fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) -> Result<(), String> {
+fn plot(
+    path: &Path,
+    samples: &[Sample],
+    (lo, hi): (Input, Input),
+    title: &str,
+    scenario: &Scenario,
+) -> Result<(), String> {
     let series = |label, color, dashed, f: &dyn Fn(&Sample) -> f64| Series {
         label,
         points: samples.iter().map(|s| (s.t, f(s))).collect(),
@@ -566,7 +648,36 @@ fn plot(path: &Path, samples: &[Sample], (lo, hi): (Input, Input), title: &str) 
             series: vec![series("cycle", 5, false, &|s| s.cycle.cycle_us / 1e3)],
         },
     ];
-    figure(path, 1400, 1200, 2, &panels)
+    let mut panels = panels;
+    if let Some(plan) = &scenario.horizontal {
+        // The track seen from above: east to the right, north up.
+        let goal: Vec<(f64, f64)> =
+            samples.iter().filter_map(|s| s.reference.horizontal.map(|h| (h.east, h.north))).collect();
+        panels.push(Panel {
+            title: "track from above",
+            x_label: "east (m)",
+            y_label: "north (m)",
+            log_y: false,
+            series: vec![
+                Series { label: "reference", points: goal, color: 6, dashed: true },
+                Series {
+                    label: "vehicle",
+                    points: samples.iter().map(|s| (s.state[1], s.state[0])).collect(),
+                    color: 0,
+                    dashed: false,
+                },
+            ],
+        });
+        panels.push(Panel {
+            title: if plan.station { "distance from the point held" } else { "cross-track error" },
+            x_label: "t (s)",
+            y_label: "m",
+            log_y: false,
+            series: vec![series("error", 2, false, &|s| plan.cross_track(s.state[0], s.state[1]))],
+        });
+    }
+    let height = if panels.len() > 6 { 1600 } else { 1200 };
+    figure(path, 1400, height, 2, &panels)
 }
 
 /// `--connect`: the live session flies the scenario, with pinc's MPC (on the model, or the
@@ -590,10 +701,12 @@ fn live(
         link: &a.link,
         drive: &a.drive,
         estimator: &a.estimator,
+        max_distance: a.max_distance,
     };
     let mpc = mpc.map_err(|e| e.to_string())?;
     let hold = match a.autopilot_hold.as_deref() {
         Some("guided") => Some(AutopilotHold::Guided),
+        Some("poshold") => Some(AutopilotHold::PosHold),
         Some(_) => Some(AutopilotHold::AltHold),
         None => None,
     };

@@ -3,6 +3,7 @@
 //! plant, so a run of a seed anywhere equals the same seed's run in `mpc_track`, bit for bit.
 
 use super::monte_carlo::{Draw, Outcome, Robustness, Spread, draw, run_perturbed};
+use super::path_plan::{PathFrame, PathHeading, PathLimits, read_path_file, survey};
 use super::run::run;
 use super::scenario::Scenario;
 use super::summary::{Summary, summarise};
@@ -24,10 +25,24 @@ pub struct Settings {
     pub model: PathBuf,
     /// Vehicle file of the plant and of the oracle's model [`None`: the BlueROV2].
     pub vehicle: Option<PathBuf>,
-    /// Built-in scenario: `default` or `disturbed` (ignored when `reference` is given).
+    /// Built-in scenario: `default`, `disturbed`, `station` or `survey` (ignored when
+    /// `reference`, `path` or `survey` is given).
     pub scenario: String,
     /// References from a CSV file `t,depth_m,heading_deg`.
     pub reference: Option<PathBuf>,
+    /// A path of waypoints to follow (CSV, [`read_path_file`]).
+    pub path: Option<PathBuf>,
+    /// What the path's coordinates are measured from.
+    pub path_frame: PathFrame,
+    /// A lawnmower survey from the start: width (across the legs), length, leg spacing (m),
+    /// speed (m/s), depth (m).
+    pub survey: Option<[f64; 5]>,
+    /// Heading along a path or survey (deg) [`None`: along the track].
+    pub path_heading: Option<f64>,
+    /// Water velocity north, east (m/s) [`None`: the scenario's].
+    pub current: Option<[f64; 2]>,
+    /// The farthest a path may go from the start (m).
+    pub max_distance: Option<f64>,
     /// Length of the run (s) [`None`: the scenario's, or the reference file's last time].
     pub duration: Option<f64>,
     /// Prediction horizon (samples).
@@ -62,6 +77,12 @@ impl Default for Settings {
             vehicle: None,
             scenario: "default".into(),
             reference: None,
+            path: None,
+            path_frame: PathFrame::Start,
+            survey: None,
+            path_heading: None,
+            current: None,
+            max_distance: None,
             duration: None,
             horizon: 20,
             disturbance_gain: c.disturbance_gain,
@@ -127,16 +148,19 @@ pub struct Campaign {
 impl Campaign {
     /// Loads and checks everything `s` names.
     pub fn new(s: &Settings) -> Result<Self, SetupError> {
-        let mut scenario = match (&s.reference, s.scenario.as_str()) {
-            (Some(path), _) => Scenario::from_file(path, s.duration).map_err(|e| SetupError::File(e.to_string()))?,
-            (None, "default") => Scenario::default(),
-            (None, "disturbed") => Scenario::disturbed(),
-            (None, other) => {
-                return Err(SetupError::Setting(format!("scenario: `{other}` is none of default, disturbed")));
-            }
+        let vehicle = match &s.vehicle {
+            Some(path) => VehicleParams::load(path).map_err(|e| SetupError::File(e.to_string()))?,
+            None => VehicleParams::default(),
         };
-        // A reference file took the duration above (checked there); the built-ins take it here.
+        let model =
+            PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
+        let bounds =
+            Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
+        let mut scenario = scenario_of(s, &path_limits(&vehicle, bounds, s.max_distance))?;
+        // A reference file or path took the duration above (checked there); the built-ins take it here.
         if s.reference.is_none()
+            && s.path.is_none()
+            && s.survey.is_none()
             && let Some(d) = s.duration
         {
             if !(d.is_finite() && d > 0.0) {
@@ -151,14 +175,12 @@ impl Campaign {
                 "--solver-time-limit must be a positive number of seconds, got {t}"
             )));
         }
-        let model =
-            PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
-        let vehicle = match &s.vehicle {
-            Some(path) => VehicleParams::load(path).map_err(|e| SetupError::File(e.to_string()))?,
-            None => VehicleParams::default(),
-        };
-        let bounds =
-            Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
+        if let Some(c) = s.current {
+            if !c.iter().all(|v| v.is_finite()) {
+                return Err(SetupError::Setting(format!("--current {c:?}: two finite speeds north,east (m/s)")));
+            }
+            scenario.current = c;
+        }
         if s.sparse_qp && s.qp != QpSolver::Clarabel {
             return Err(SetupError::Setting(format!(
                 "sparse_qp is a formulation of Clarabel's QP; the {} solver takes the stages as they are",
@@ -180,6 +202,8 @@ impl Campaign {
             ..defaults
         };
         let config = if s.sparse_qp { config.with_sparse_qp() } else { config };
+        // A horizontal goal puts the position into the problem, on all four axes.
+        let config = if scenario.horizontal.is_some() { config.four_axis() } else { config };
         Ok(Self { model, vehicle, scenario, config, bounds })
     }
 
@@ -224,6 +248,67 @@ impl Campaign {
     }
 }
 
+/// The limits a path is checked against: the vehicle's steady horizontal speed at the
+/// model's largest surge or sway force (whichever is smaller), and the distance limit.
+pub fn path_limits(vehicle: &VehicleParams, (lo, hi): (Input, Input), max_distance: Option<f64>) -> PathLimits {
+    let surge = crate::vehicle::terminal_speed(hi[0].min(-lo[0]).max(0.0), vehicle.x_u, vehicle.x_uu);
+    let sway = crate::vehicle::terminal_speed(hi[1].min(-lo[1]).max(0.0), vehicle.y_v, vehicle.y_vv);
+    PathLimits { max_speed: surge.min(sway), max_distance }
+}
+
+/// The scenario `s` names: a reference file, a path file, a survey, or a built-in one.
+fn scenario_of(s: &Settings, limits: &PathLimits) -> Result<Scenario, SetupError> {
+    let heading = s.path_heading.map_or(PathHeading::Track, PathHeading::Fixed);
+    let given = [s.reference.is_some(), s.path.is_some(), s.survey.is_some()];
+    if given.iter().filter(|&&g| g).count() > 1 {
+        return Err(SetupError::Setting("give one of --reference, --path and --survey".into()));
+    }
+    if let Some(d) = s.max_distance
+        && !(d.is_finite() && d > 0.0)
+    {
+        return Err(SetupError::Setting(format!("--max-distance must be a positive number of metres, got {d}")));
+    }
+    let current = s.current.unwrap_or(super::FOUR_AXIS_CURRENT);
+    let scenario = match (&s.reference, &s.path, &s.survey, s.scenario.as_str()) {
+        (Some(path), ..) => Scenario::from_file(path, s.duration).map_err(|e| SetupError::File(e.to_string()))?,
+        (_, Some(path), ..) => {
+            let plan = read_path_file(path, s.path_frame, limits).map_err(|e| SetupError::File(e.to_string()))?;
+            let name = path.file_stem().map_or_else(|| "path".into(), |n| n.to_string_lossy().into_owned());
+            Scenario::along(&name, plan, current, s.duration)
+        }
+        (_, _, Some([width, length, spacing, speed, depth]), _) => {
+            if !(width.is_finite() && *width >= 0.0 && spacing.is_finite() && *spacing > 0.0) {
+                return Err(SetupError::Setting(format!(
+                    "--survey: width {width} and spacing {spacing} (non-negative, positive)"
+                )));
+            }
+            let legs = (width / spacing + 1e-9).floor() as usize + 1;
+            let plan = survey((legs, *length, *spacing), *speed, *depth, heading, limits)
+                .map_err(|e| SetupError::Setting(e.to_string()))?;
+            Scenario::along("survey", plan, current, s.duration)
+        }
+        (.., "default") => Scenario::default(),
+        (.., "disturbed") => Scenario::disturbed(),
+        (.., "station") => Scenario::station(),
+        (.., "survey") => Scenario::survey(),
+        (.., other) => {
+            return Err(SetupError::Setting(format!(
+                "scenario: `{other}` is none of default, disturbed, station, survey"
+            )));
+        }
+    };
+    if let (Some(limit), Some(h)) = (s.max_distance, &scenario.horizontal)
+        && h.reach() > limit
+    {
+        return Err(SetupError::Setting(format!(
+            "scenario {}: its path reaches {:.2} m from the start, past --max-distance {limit} m",
+            scenario.name(),
+            h.reach()
+        )));
+    }
+    Ok(scenario)
+}
+
 /// A controller that cannot be built from a configuration that built before is a bug, but a
 /// Monte-Carlo batch reports it as that run's failure rather than stopping.
 fn setup_failure(seed: u64, e: MpcError) -> Outcome {
@@ -232,6 +317,7 @@ fn setup_failure(seed: u64, e: MpcError) -> Outcome {
         success: false,
         failure: Some(format!("controller set-up: {e}")),
         rms_depth_m: f64::INFINITY,
+        rms_horizontal_m: None,
         rms_heading_deg: f64::INFINITY,
         solve_ms: Vec::new(),
     }
@@ -255,6 +341,9 @@ pub fn table(n: usize, seed: u64, scenario: &Scenario, rp: &Robustness, ro: &Rob
     ];
     for (label, p, o, f) in rows {
         let _ = writeln!(out, "{label:<28} {:>26} {:>26}", spread(p, f), spread(o, f));
+    }
+    if let (Some(p), Some(o)) = (&rp.rms_horizontal_m, &ro.rms_horizontal_m) {
+        let _ = writeln!(out, "{:<28} {:>26} {:>26}", "RMS horizontal, cm", spread(p, 100.0), spread(o, 100.0));
     }
     let _ = writeln!(out, "{:<28} {:>26.3} {:>26.3}", "solve time p99, ms", rp.solve_ms_p99, ro.solve_ms_p99);
     for (name, r) in [("PINC", rp), ("oracle", ro)] {

@@ -9,11 +9,15 @@ pub mod campaign;
 pub mod live_view;
 mod log;
 pub mod monte_carlo;
+pub mod path_plan;
 mod run;
 mod scenario;
 mod summary;
 
 pub use log::{CHUNK_INTERVAL_NS, Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
 pub use run::{Sample, run, run_on};
-pub use scenario::{Plant, ReferenceFileError, Scenario, Track};
-pub use summary::{HOLD_LEAD_S, HOLD_SETTLE_S, Summary, summarise};
+pub use scenario::{FOUR_AXIS_CURRENT, Plant, ReferenceFileError, Scenario, Track};
+pub use summary::{
+    HOLD_LEAD_S, HOLD_SETTLE_S, HorizontalFigures, PATH_FINISHED_WITHIN_M, STATION_SETTLE_S, Summary,
+    horizontal_figures, summarise,
+};

@@ -82,6 +82,9 @@ pub struct Outcome {
     pub failure: Option<String>,
     /// RMS depth error (m); infinite when the run failed before finishing.
     pub rms_depth_m: f64,
+    /// RMS horizontal error (m: from the point held, or across the track) of a scenario with
+    /// a horizontal goal; `None` without one, infinite when the run failed before finishing.
+    pub rms_horizontal_m: Option<f64>,
     /// RMS heading error (deg).
     pub rms_heading_deg: f64,
     /// Solve time of every cycle (ms).
@@ -97,6 +100,7 @@ pub fn run_perturbed<M: DiscreteModel>(mpc: &mut Mpc<M>, scenario: &Scenario, d:
         success: false,
         failure: Some(why),
         rms_depth_m: f64::INFINITY,
+        rms_horizontal_m: scenario.horizontal.as_ref().map(|_| f64::INFINITY),
         rms_heading_deg: f64::INFINITY,
         solve_ms: Vec::new(),
     };
@@ -127,12 +131,12 @@ pub fn run_perturbed<M: DiscreteModel>(mpc: &mut Mpc<M>, scenario: &Scenario, d:
                 .unwrap_or_else(|| "unknown panic".into());
             failed(format!("panicked: {what}"))
         }
-        Ok(samples) => judge(d.seed, &samples),
+        Ok(samples) => judge(d.seed, &samples, scenario),
     }
 }
 
 /// The outcome of a finished run's samples.
-fn judge(seed: u64, samples: &[Sample]) -> Outcome {
+fn judge(seed: u64, samples: &[Sample], scenario: &Scenario) -> Outcome {
     let n = samples.len().max(1) as f64;
     let heading_err = |s: &Sample| wrap_angle(s.state[3] - s.reference.heading).to_degrees();
     let rms_depth = (samples.iter().map(|s| (s.state[2] - s.reference.depth).powi(2)).sum::<f64>() / n).sqrt();
@@ -169,6 +173,10 @@ fn judge(seed: u64, samples: &[Sample]) -> Outcome {
         success: failure.is_none(),
         failure,
         rms_depth_m: rms_depth,
+        rms_horizontal_m: scenario.horizontal.as_ref().map(|plan| {
+            let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
+            super::summary::horizontal_figures(plan, &positions).rms_m
+        }),
         rms_heading_deg: rms_heading,
         solve_ms: samples.iter().map(|s| s.cycle.solve_us / 1e3).collect(),
     }
@@ -203,6 +211,8 @@ pub struct Robustness {
     pub rms_depth_m: Spread,
     /// RMS heading error over runs (deg).
     pub rms_heading_deg: Spread,
+    /// RMS horizontal error over runs (m), for a scenario with a horizontal goal.
+    pub rms_horizontal_m: Option<Spread>,
     /// 99th percentile of every cycle's solve time over all runs (ms).
     pub solve_ms_p99: f64,
     /// The runs that failed: seed and reason.
@@ -220,6 +230,10 @@ pub fn robustness(outcomes: &[Outcome]) -> Robustness {
         success_rate: ok as f64 / outcomes.len().max(1) as f64,
         rms_depth_m: Spread::of(&mut depth),
         rms_heading_deg: Spread::of(&mut heading),
+        rms_horizontal_m: {
+            let mut h: Vec<f64> = outcomes.iter().filter_map(|o| o.rms_horizontal_m).collect();
+            (!h.is_empty()).then(|| Spread::of(&mut h))
+        },
         solve_ms_p99: percentile(&mut solve, 99.0),
         failures: outcomes.iter().filter_map(|o| o.failure.clone().map(|f| (o.seed, f))).collect(),
     }

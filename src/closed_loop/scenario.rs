@@ -1,7 +1,8 @@
 //! The tracking scenarios: references over time (built in, or from a CSV file) and the plant
 //! each runs against.
 
-use crate::mpc::Reference;
+use super::path_plan::{HorizontalPlan, PATH_LEAD_S, PlannedPath};
+use crate::mpc::{Horizontal, Reference};
 use crate::types::{Input, SimState};
 use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use serde::Serialize;
@@ -24,6 +25,26 @@ impl Track {
             points.push(w[1]);
         }
         Self { points }
+    }
+
+    /// A value held for ever.
+    pub fn constant(v: f64) -> Self {
+        Self { points: vec![(0.0, v)] }
+    }
+
+    /// Points `(time s, value)`, times non-decreasing (the caller checked them).
+    pub(super) fn from_points(points: Vec<(f64, f64)>) -> Self {
+        Self { points }
+    }
+
+    /// The rate of change at `t` (0 where held or at a step).
+    pub fn slope(&self, t: f64) -> f64 {
+        let i = self.points.partition_point(|p| p.0 <= t + 1e-9);
+        if i == 0 || i == self.points.len() {
+            return 0.0;
+        }
+        let ((t0, v0), (t1, v1)) = (self.points[i - 1], self.points[i]);
+        if t1 > t0 { (v1 - v0) / (t1 - t0) } else { 0.0 }
     }
 
     /// The value at `t`.
@@ -90,7 +111,13 @@ pub struct Scenario {
     pub damping_scale: f64,
     /// Water velocity in the world frame `(x, y)` (m/s).
     pub current: [f64; 2],
+    /// The horizontal goal: a point held or a path (`None`: depth and heading only).
+    pub horizontal: Option<HorizontalPlan>,
 }
+
+/// The current of the built-in four-axis scenarios: 0.3 m/s towards 30 deg east of north
+/// (along no axis of the vehicle or the world).
+pub const FOUR_AXIS_CURRENT: [f64; 2] = [0.259_807_621_135_331_6, 0.15];
 
 impl Default for Scenario {
     /// `default`: 60 s from rest at the surface; depth 0 -> 1 m (2 s) -> 2 m (20 s) -> 0.5 m
@@ -103,6 +130,7 @@ impl Default for Scenario {
             duration: 60.0,
             damping_scale: 1.0,
             current: [0.0, 0.0],
+            horizontal: None,
         }
     }
 }
@@ -161,7 +189,55 @@ impl Scenario {
             return Err(bad(1, format!("the run would last {duration} s; give --duration or rows up to a later time")));
         }
         let name = path.file_stem().map_or_else(|| "reference".into(), |s| s.to_string_lossy().into_owned());
-        Ok(Self { name, depth, heading: Track { points: heading }, duration, damping_scale: 1.0, current: [0.0, 0.0] })
+        Ok(Self {
+            name,
+            depth,
+            heading: Track { points: heading },
+            duration,
+            damping_scale: 1.0,
+            current: [0.0, 0.0],
+            horizontal: None,
+        })
+    }
+
+    /// `station`: 60 s holding the point where control starts in [`FOUR_AXIS_CURRENT`],
+    /// diving to 1 m, stepping to 2 m at 30 s, turning from 0 to 45 deg at 20 s.
+    pub fn station() -> Self {
+        Self {
+            name: "station".into(),
+            depth: Track::steps(&[(0.0, 1.0), (30.0, 2.0)]),
+            heading: Track::steps(&[(0.0, 0.0), (20.0, 45.0)]),
+            duration: 60.0,
+            damping_scale: 1.0,
+            current: FOUR_AXIS_CURRENT,
+            horizontal: Some(HorizontalPlan::station()),
+        }
+    }
+
+    /// A scenario flying `path` (named `name`) in `current`, lasting until 5 s after its last
+    /// waypoint unless `duration` says otherwise.
+    pub fn along(name: &str, path: PlannedPath, current: [f64; 2], duration: Option<f64>) -> Self {
+        let duration = duration.unwrap_or(path.horizontal.end() + 5.0);
+        Self {
+            name: name.into(),
+            depth: path.depth,
+            heading: path.heading,
+            duration,
+            damping_scale: 1.0,
+            current,
+            horizontal: Some(path.horizontal),
+        }
+    }
+
+    /// `survey`: 4 legs of 10 m northwards and back, 2 m apart, at 0.3 m/s and 2 m deep, facing
+    /// north, in [`FOUR_AXIS_CURRENT`], after [`PATH_LEAD_S`] holding the start.
+    pub fn survey() -> Self {
+        let limits = super::path_plan::PathLimits { max_speed: f64::INFINITY, max_distance: None };
+        let path =
+            super::path_plan::survey((4, 10.0, 2.0), 0.3, 2.0, super::path_plan::PathHeading::Fixed(0.0), &limits)
+                .expect("the built-in survey is valid");
+        debug_assert!(path.horizontal.waypoints[0].0 == PATH_LEAD_S);
+        Self::along("survey", path, FOUR_AXIS_CURRENT, None)
     }
 
     /// The name used on the command line and in logs.
@@ -174,9 +250,19 @@ impl Scenario {
         self.duration
     }
 
-    /// The reference at time `t`.
+    /// The reference at time `t`, its horizontal goal (if any) in the plan's own frame.
     pub fn reference(&self, t: f64) -> Reference {
-        Reference { depth: self.depth.at(t), heading: self.heading.at(t).to_radians() }
+        self.reference_from(t, [0.0, 0.0])
+    }
+
+    /// The reference at time `t` with the horizontal goal moved by `offset` (north, east):
+    /// where the vehicle started, for a plan measured from the start.
+    pub fn reference_from(&self, t: f64, offset: [f64; 2]) -> Reference {
+        let horizontal = self.horizontal.as_ref().map(|h| {
+            let ([n, e], velocity) = h.at(t);
+            Horizontal { north: n + offset[0], east: e + offset[1], velocity }
+        });
+        Reference { depth: self.depth.at(t), heading: self.heading.at(t).to_radians(), horizontal }
     }
 
     /// The plant of this scenario for `vehicle`, sampled at `dt`.

@@ -1,6 +1,7 @@
 //! The numbers of a run: tracking errors, overshoot, settling, solver timing, fallbacks and
 //! bound violations.
 
+use super::path_plan::HorizontalPlan;
 use super::run::Sample;
 use super::scenario::Scenario;
 use crate::types::{INPUT_NAMES, NU};
@@ -14,11 +15,66 @@ pub const HOLD_SETTLE_S: f64 = 8.0;
 /// reference starts moving on purpose.
 pub const HOLD_LEAD_S: f64 = 2.0;
 
+/// A station is judged from this long after control starts (s): the dive and the current's
+/// first push are transients.
+pub const STATION_SETTLE_S: f64 = 10.0;
+
+/// Within this distance of the last waypoint (m) a path counts as finished.
+pub const PATH_FINISHED_WITHIN_M: f64 = 0.25;
+
+/// How well a run kept its horizontal goal.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct HorizontalFigures {
+    /// `station` (distance from the point held, after [`STATION_SETTLE_S`]) or `cross-track`
+    /// (distance to the nearest leg, from the first waypoint to the last's time).
+    pub judged: &'static str,
+    /// RMS of that distance (m).
+    pub rms_m: f64,
+    /// Its largest value (m).
+    pub max_m: f64,
+    /// Samples judged.
+    pub samples: usize,
+    /// A path's schedule: the time it reaches its last waypoint (s).
+    pub schedule_end_s: Option<f64>,
+    /// When the vehicle was first within [`PATH_FINISHED_WITHIN_M`] of the last waypoint after
+    /// the schedule reached its second-to-last (s; `None`: never).
+    pub finished_s: Option<f64>,
+}
+
+/// The horizontal figures of positions `(t, north, east)` in the plan's frame.
+pub fn horizontal_figures(plan: &HorizontalPlan, positions: &[(f64, f64, f64)]) -> HorizontalFigures {
+    let first = plan.waypoints.first().map_or(0.0, |w| w.0);
+    let window = |t: f64| {
+        if plan.station { t >= STATION_SETTLE_S } else { t >= first - 1e-9 && t <= plan.end() + 1e-9 }
+    };
+    let d: Vec<f64> = positions.iter().filter(|p| window(p.0)).map(|p| plan.cross_track(p.1, p.2)).collect();
+    let n = if d.is_empty() { f64::NAN } else { d.len() as f64 };
+    let (schedule_end_s, finished_s) = if plan.station {
+        (None, None)
+    } else {
+        let w = &plan.waypoints;
+        let (last, before) = (w[w.len() - 1], w[w.len().saturating_sub(2)]);
+        let done =
+            positions.iter().find(|p| p.0 >= before.0 && (p.1 - last.1).hypot(p.2 - last.2) <= PATH_FINISHED_WITHIN_M);
+        (Some(plan.end()), done.map(|p| p.0))
+    };
+    HorizontalFigures {
+        judged: if plan.station { "station" } else { "cross-track" },
+        rms_m: (d.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+        max_m: d.iter().copied().fold(f64::NAN, f64::max),
+        samples: d.len(),
+        schedule_end_s,
+        finished_s,
+    }
+}
+
 /// The numbers of a run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
     /// Samples run.
     pub samples: usize,
+    /// The horizontal goal's figures, for a scenario with one.
+    pub horizontal: Option<HorizontalFigures>,
     /// RMS of `z - z_ref` (m).
     pub rms_depth_m: f64,
     /// RMS of the wrapped heading error (deg).
@@ -164,8 +220,10 @@ pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summa
     }
     let mut solve: Vec<f64> = samples.iter().map(|s| s.cycle.solve_us / 1e3).collect();
     let mut cycle: Vec<f64> = samples.iter().map(|s| s.cycle.cycle_us / 1e3).collect();
+    let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
     Summary {
         samples: samples.len(),
+        horizontal: scenario.horizontal.as_ref().map(|plan| horizontal_figures(plan, &positions)),
         rms_depth_m: rms_depth,
         rms_heading_deg: rms_heading,
         max_overshoot_depth_m: os_d,

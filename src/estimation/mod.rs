@@ -21,6 +21,6 @@ pub mod replay;
 pub mod smoother;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
-pub use estimator::Estimator;
+pub use estimator::{Estimator, HORIZONTAL_FRESH_S};
 pub use health::{Health, Lost, Sensor};
 pub use measurement::{Measurement, NoiseSettings};

@@ -79,6 +79,13 @@ pub enum Trigger {
         /// The limit (m).
         limit: f64,
     },
+    /// The vehicle went farther from where control started than the limit.
+    Distance {
+        /// Its horizontal distance from the start (m).
+        distance: f64,
+        /// The limit (m).
+        limit: f64,
+    },
     /// The vehicle turned faster than the limit.
     YawRate {
         /// Its yaw rate (rad/s).
@@ -122,7 +129,7 @@ pub enum Trigger {
 
 impl Trigger {
     /// A short key for logs and tests: `interrupted`, `stale_state`, `heartbeat_lost`, `depth`,
-    /// `yaw_rate`, `sensor_lost`, `disarmed`, `estimate_lost`, `refused`, `not_ready`, `malformed`,
+    /// `distance`, `yaw_rate`, `sensor_lost`, `disarmed`, `estimate_lost`, `refused`, `not_ready`, `malformed`,
     /// `link`, `error`.
     pub fn key(&self) -> &'static str {
         match self {
@@ -130,6 +137,7 @@ impl Trigger {
             Trigger::StaleState { .. } => "stale_state",
             Trigger::HeartbeatLost { .. } => "heartbeat_lost",
             Trigger::Depth { .. } => "depth",
+            Trigger::Distance { .. } => "distance",
             Trigger::YawRate { .. } => "yaw_rate",
             Trigger::SensorLost { .. } => "sensor_lost",
             Trigger::Disarmed => "disarmed",
@@ -153,6 +161,9 @@ impl fmt::Display for Trigger {
                 write!(f, "no autopilot heartbeat for {silence:.2} s (limit {limit:.2} s)")
             }
             Trigger::Depth { depth, limit } => write!(f, "depth {depth:.2} m beyond the limit {limit:.2} m"),
+            Trigger::Distance { distance, limit } => {
+                write!(f, "{distance:.2} m from the start, beyond --max-distance {limit:.2} m")
+            }
             Trigger::YawRate { rate, limit } => {
                 write!(f, "yaw rate {:.1} deg/s beyond the limit {:.1} deg/s", rate.to_degrees(), limit.to_degrees())
             }

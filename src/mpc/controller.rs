@@ -37,7 +37,7 @@ use std::time::Instant;
 /// let mut mpc = Mpc::new(Rk4Vehicle::default(), cfg)?;
 /// let mut x = State::zeros();
 /// x[3] = 1.0; // heading 0: (cos, sin) = (1, 0)
-/// let dive = [Reference { depth: 1.0, heading: 0.0 }; 20];
+/// let dive = [Reference::depth_heading(1.0, 0.0); 20];
 /// let report = mpc.step(&x, &dive);
 /// assert!(report.fallback.is_none());
 /// assert!(report.input[2] > 0.0, "pushes down (z is down) towards 1 m");
@@ -244,13 +244,16 @@ impl<M: DiscreteModel> Mpc<M> {
             return Err(MpcError::Config(format!("input bounds {lo:?} .. {hi:?}")));
         }
         let mut state_weights = [0.0; NX];
+        (state_weights[0], state_weights[1]) = (cfg.position, cfg.position);
         state_weights[2] = cfg.depth;
         state_weights[3] = cfg.heading;
         state_weights[4] = cfg.heading;
         state_weights[5..].copy_from_slice(&cfg.velocity);
         let w = Weights { state: state_weights, terminal: cfg.terminal, input: cfg.input, input_rate: cfg.input_rate };
         let n = cfg.horizon;
-        let states: &[usize] = if model.position_free() { &WITHOUT_POSITION } else { &ALL_STATES };
+        // A position-free model's x, y matter only where the horizontal position is tracked.
+        let states: &[usize] =
+            if model.position_free() && !cfg.tracks_position() { &WITHOUT_POSITION } else { &ALL_STATES };
         // The body velocities the network sees, inside its envelope less the margin.
         let soft_bounds: Vec<(usize, f64, f64)> = match model.state_bounds() {
             Some((lo, hi)) if cfg.envelope_constraints => (5..NX)
@@ -523,6 +526,15 @@ impl<M: DiscreteModel> Mpc<M> {
                 let r = refs[(k - 1).min(refs.len() - 1)];
                 let mut target = [0.0; NX];
                 (target[2], target[3], target[4]) = (r.depth, r.heading.cos(), r.heading.sin());
+                match r.horizontal {
+                    // The path's velocity, turned into the body frame of the predicted heading.
+                    Some(h) => {
+                        (target[0], target[1]) = (h.north, h.east);
+                        (target[5], target[6]) = h.body_velocity(traj[k][3], traj[k][4]);
+                    }
+                    // No horizontal goal: the position's cost stays at its nominal value.
+                    None => (target[0], target[1]) = (traj[k][0], traj[k][1]),
+                }
                 let f = if k == n { cfg.terminal } else { 1.0 };
                 for (s, &i) in states.iter().enumerate() {
                     data.state_cost(k, s, 2.0 * f * self.state_weights[i] * (traj[k][i] - target[i]));

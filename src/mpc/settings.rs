@@ -19,6 +19,11 @@ pub struct MpcConfig {
     pub depth: f64,
     /// Weight on the heading chord `|(cos psi, sin psi) - (cos ref, sin ref)|^2`.
     pub heading: f64,
+    /// Weight on the horizontal position error `(x - x_ref)^2 + (y - y_ref)^2` (1/m^2). Zero
+    /// (the default): depth and heading only, `x, y` left out of a position-free model's QP.
+    /// Positive: the QP keeps `x, y` (the Riccati solver's 9-state stages) and tracks the
+    /// references' [`Horizontal`](super::Horizontal) goals ([`MpcConfig::four_axis`]).
+    pub position: f64,
     /// Weights on `u, v, w, r`.
     pub velocity: [f64; 4],
     /// Weights on the inputs `X, Y, Z, Mz`.
@@ -78,6 +83,9 @@ pub struct MpcConfig {
     pub qp: QpSolver,
 }
 
+/// [`MpcConfig::four_axis`]'s weight on the horizontal position error (1/m^2).
+pub const FOUR_AXIS_POSITION_WEIGHT: f64 = 20.0;
+
 /// Which solver a controller's QP goes to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -127,6 +135,7 @@ impl Default for MpcConfig {
             condensing_block: 4,
             depth: 20.0,
             heading: 10.0,
+            position: 0.0,
             velocity: [0.05, 0.05, 0.5, 0.2],
             // Surge and sway forces do nothing for depth and heading: weighted 50x more, so a
             // learned model's small spurious couplings cannot make them worth using.
@@ -161,6 +170,29 @@ impl MpcConfig {
         Self { condensing_block: 1, solver_tolerance: 1e-5, solver_equilibrate: true, solver_refinement: true, ..self }
     }
 
+    /// The controller on four axes: the horizontal position weighed as the depth is, surge and
+    /// sway forces priced as heave is and, like heave, against their own recent average, so
+    /// that holding against a current costs nothing at steady state and leaves no offset
+    /// (docs/MODEL.md section 11.4).
+    pub fn four_axis(self) -> Self {
+        let [_, _, z, mz] = self.input;
+        let [_, _, tz, tmz] = self.input_target_tau;
+        let [_, _, rz, rmz] = self.input_rate;
+        Self {
+            position: FOUR_AXIS_POSITION_WEIGHT,
+            velocity: [0.5, 0.5, self.velocity[2], self.velocity[3]],
+            input: [z, z, z, mz],
+            input_rate: [rz, rz, rz, rmz],
+            input_target_tau: [tz, tz, tz, tmz],
+            ..self
+        }
+    }
+
+    /// Whether the horizontal position is in the problem.
+    pub fn tracks_position(&self) -> bool {
+        self.position > 0.0
+    }
+
     /// Refuses a horizon under 2, weights, penalties, time constants or rate limits that are
     /// negative or not finite, a disturbance gain outside `[0, 1]` and a margin outside `[0, 0.5)`.
     ///
@@ -182,7 +214,7 @@ impl MpcConfig {
         if !(self.riccati_tolerance.is_finite() && self.riccati_tolerance > 0.0) {
             return Err(MpcError::Config(format!("Riccati tolerance {} (positive)", self.riccati_tolerance)));
         }
-        let all = [self.depth, self.heading, self.terminal, self.envelope_penalty]
+        let all = [self.depth, self.heading, self.position, self.terminal, self.envelope_penalty]
             .into_iter()
             .chain(self.input_target_tau)
             .chain(self.velocity)

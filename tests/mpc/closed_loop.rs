@@ -134,7 +134,7 @@ fn leaving_position_out_of_the_qp_changes_nothing_but_its_size() {
     let cfg = MpcConfig { bounds: Some(bounds()), ..common::untimed() };
     let mut reduced = Mpc::new(Rk4Vehicle::default(), cfg.clone()).unwrap();
     let mut full = Mpc::new(WithPosition(Rk4Vehicle::default()), cfg).unwrap();
-    let refs = vec![Reference { depth: 1.5, heading: 0.8 }; 20];
+    let refs = vec![Reference::depth_heading(1.5, 0.8); 20];
     let mut x = to_network(&SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]));
     for _ in 0..10 {
         let (r, f) = (reduced.step(&x, &refs), full.step(&x, &refs));
@@ -153,7 +153,7 @@ fn envelope_exits_are_reported_and_fall_back_only_when_asked() {
     let w_min = model.envelope.as_ref().unwrap().state_min[7];
     // Rising faster than anything in the training data.
     let x = to_network(&SimState::from([0.0, 0.0, 1.0, 0.2, 0.0, 0.0, w_min - 0.2, 0.0]));
-    let refs = [Reference { depth: 1.0, heading: 0.2 }];
+    let refs = [Reference::depth_heading(1.0, 0.2)];
     for ask in [false, true] {
         let cfg = MpcConfig { envelope_fallback: ask, ..MpcConfig::default() };
         let mut mpc = Mpc::new(Predictor::reference(&model), cfg).unwrap();

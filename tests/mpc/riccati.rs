@@ -130,7 +130,7 @@ fn a_riccati_cycle_out_of_iterations_falls_back_without_a_nan() {
     cfg.solver_max_iter = 3;
     let mut mpc = Mpc::new(Rk4Vehicle::default(), cfg).unwrap();
     let x = to_network(&SimState::from([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]));
-    let report = mpc.step(&x, &[Reference { depth: 3.0, heading: 1.0 }; 20]);
+    let report = mpc.step(&x, &[Reference::depth_heading(3.0, 1.0); 20]);
     assert_eq!(report.fallback, Some(pinc::mpc::Fallback::Solver(clarabel::solver::SolverStatus::MaxIterations)));
     assert!(report.input.iter().all(|v| v.is_finite()));
 }

@@ -113,7 +113,7 @@ fn riccati_mpc_cycles_do_not_allocate() {
             let cfg = MpcConfig { qp: QpSolver::Riccati, bounds: Some(bounds), rate_limit, ..MpcConfig::default() };
             let mut mpc = Mpc::new(model.clone(), cfg).unwrap();
             let x = State::from([0.1, 0.2, 0.3, 1.0, 0.0, 0.1, 0.0, 0.05, 0.1]);
-            let refs = [Reference { depth: 1.0, heading: 0.5 }; 20];
+            let refs = [Reference::depth_heading(1.0, 0.5); 20];
             mpc.step(&x, &refs);
             let mut solved = 0;
             let count = allocations_during(|| {

@@ -47,6 +47,7 @@ pub(super) struct Flight<'l> {
     pub(super) latencies: Vec<f64>,
     pub(super) estimates: Vec<Estimate>,
     pub(super) truths: Vec<Truth>,
+    pub(super) truth_positions: Vec<super::truth::Position>,
     pub(super) control_after: Option<f64>,
     /// Per channel: sum of applied x asked, of asked^2, and the count (a least-squares gain of
     /// the outputs on the commands), and the last command with its autopilot time.
@@ -69,6 +70,14 @@ pub(super) struct Flight<'l> {
     /// The raw depth sensor's reading at each cycle (autopilot time), against the truth.
     pub(super) raw_depths: Vec<(f64, f64)>,
     pub(super) js_gain: f64,
+    /// The scenario's horizontal plan, and where its zero lies in the autopilot's local frame
+    /// (the start, or the EKF origin), once control starts.
+    pub(super) plan: Option<crate::closed_loop::path_plan::HorizontalPlan>,
+    /// Whether the horizontal goal is dropped (the position source lost), said when it changes.
+    goal_dropped: bool,
+    /// When the horizontal goal was dropped and taken up again (scenario time, s).
+    pub(super) goal_changes: Vec<(f64, bool)>,
+    max_distance: Option<f64>,
 }
 
 /// The state to control on, or why not yet.
@@ -99,6 +108,7 @@ impl<'l> Flight<'l> {
             latencies: Vec::new(),
             estimates: Vec::new(),
             truths: Vec::new(),
+            truth_positions: Vec::new(),
             control_after: None,
             delivered: [(0.0, 0.0, 0); NU],
             last_command: None,
@@ -113,7 +123,60 @@ impl<'l> Flight<'l> {
             mode_entered: None,
             raw_depths: Vec::new(),
             js_gain: 1.0,
+            plan: None,
+            goal_dropped: false,
+            goal_changes: Vec::new(),
+            max_distance: setup.max_distance,
         }
+    }
+
+    /// Where control started in the autopilot's local frame (north, east).
+    pub(super) fn hold_xy(&self) -> (f64, f64) {
+        self.hold_xy
+    }
+
+    /// Where the plan's zero lies in the autopilot's local frame: the start's position for a
+    /// plan measured from the start, the EKF origin's (zero) otherwise.
+    pub(super) fn plan_offset(&self) -> [f64; 2] {
+        use crate::closed_loop::path_plan::PathFrame;
+        match self.plan.as_ref().map(|p| p.frame) {
+            Some(PathFrame::Origin) => [0.0, 0.0],
+            _ => [self.hold_xy.0, self.hold_xy.1],
+        }
+    }
+
+    /// With a horizontal goal: past `--max-distance` from the start is a stop; a lost position
+    /// source drops the goal (said, logged) until it comes back. Returns whether the goal is
+    /// kept this cycle.
+    fn horizontal_goal(&mut self, now: &Estimated, state: &SimState, t: f64, at: f64) -> Result<bool, Trigger> {
+        if self.plan.is_none() {
+            return Ok(false);
+        }
+        if let Some(limit) = self.max_distance
+            && now.horizontal
+        {
+            let distance = (state[0] - self.hold_xy.0).hypot(state[1] - self.hold_xy.1);
+            if distance > limit {
+                return Err(Trigger::Distance { distance, limit });
+            }
+        }
+        let dropped = !now.horizontal;
+        if dropped != self.goal_dropped {
+            let text = if dropped {
+                format!(
+                    "horizontal goal dropped at {t:.2} s: no position fused for {} s; holding depth and heading",
+                    crate::estimation::HORIZONTAL_FRESH_S
+                )
+            } else {
+                format!("horizontal goal taken up again at {t:.2} s: a position is fused")
+            };
+            eprintln!("{text}");
+            let level = if dropped { Level::Warning } else { Level::Info };
+            self.notes.push(Note { t: at, level, text, from_autopilot: false });
+            self.goal_dropped = dropped;
+            self.goal_changes.push((t, dropped));
+        }
+        Ok(!dropped)
     }
 
     /// A log line at autopilot time `at` (on the scenario's clock once it started); the first
@@ -179,7 +242,7 @@ impl<'l> Flight<'l> {
         flyer: &mut Flyer<M>,
         scenario: &Scenario,
         o: &SessionOptions,
-        truths: &RefCell<Vec<Truth>>,
+        truths: &RefCell<super::truth::Feed>,
         mut seen: impl FnMut(&Received, f64),
     ) -> Result<(), Trigger> {
         self.js_gain = drive.commander().js_gain();
@@ -191,6 +254,16 @@ impl<'l> Flight<'l> {
             Flyer::Autopilot { .. } => 1,
         };
         let mut refs = vec![scenario.reference(0.0); n];
+        self.plan = scenario.horizontal.clone();
+        // A four-axis controller's stand-in while the position source is lost: the same model
+        // and settings on depth and heading alone (no steering on a dead-reckoned position).
+        let mut depth_heading = match &*flyer {
+            Flyer::Mpc(mpc) if mpc.config().tracks_position() => {
+                let cfg = crate::mpc::MpcConfig { position: 0.0, ..mpc.config().clone() };
+                Some(crate::mpc::Mpc::new(mpc.model().clone(), cfg).map_err(|e| Trigger::Error(e.to_string()))?)
+            }
+            _ => None,
+        };
         loop {
             let fresh = drive.next_state(&mut seen)?;
             self.notes.extend(drive.take_notes());
@@ -221,14 +294,25 @@ impl<'l> Flight<'l> {
             if t >= scenario.duration() - 1e-9 {
                 return Ok(());
             }
+            let goal = self.horizontal_goal(&now, &state, t, fresh.state.t)?;
+            let offset = self.plan_offset();
             let (cycle, prediction, sent) = match flyer {
                 Flyer::Mpc(mpc) => {
                     for (j, r) in refs.iter_mut().enumerate() {
-                        *r = scenario.reference(t + (j + 1) as f64 * self.dt);
+                        *r = scenario.reference_from(t + (j + 1) as f64 * self.dt, offset);
+                        if !goal {
+                            r.horizontal = None;
+                        }
                     }
+                    let mpc = match (&mut depth_heading, goal) {
+                        (Some(dh), false) => dh,
+                        _ => &mut **mpc,
+                    };
                     self.mpc_cycle(drive, estimator, mpc, &fresh, &state, &refs)?
                 }
-                Flyer::Autopilot { hold, .. } => self.hold_cycle(drive, estimator, *hold, &fresh, scenario, t)?,
+                Flyer::Autopilot { hold, .. } => {
+                    self.hold_cycle(drive, estimator, *hold, &fresh, scenario, (t, offset))?
+                }
             };
             self.record(
                 &fresh,
@@ -236,7 +320,14 @@ impl<'l> Flight<'l> {
                 &now,
                 estimator,
                 truths,
-                Sample { t, state, reference: scenario.reference(t), cycle, prediction, bound_violation: false },
+                Sample {
+                    t,
+                    state,
+                    reference: scenario.reference_from(t, offset),
+                    cycle,
+                    prediction,
+                    bound_violation: false,
+                },
             );
         }
     }
@@ -460,7 +551,7 @@ impl<'l> Flight<'l> {
         hold: AutopilotHold,
         fresh: &Fresh,
         scenario: &Scenario,
-        t: f64,
+        (t, offset): (f64, [f64; 2]),
     ) -> Result<(CycleReport, Vec<crate::State>, Sent), Trigger> {
         if drive.mode() == hold.mode() as u32 {
             self.mode_entered.get_or_insert(t);
@@ -475,16 +566,19 @@ impl<'l> Flight<'l> {
                 "the autopilot did not enter {} within 3 s (still in {}){}",
                 hold.name(),
                 SubMode::name_of(drive.mode()),
-                if hold == AutopilotHold::Guided { "; GUIDED needs a position source" } else { "" }
+                if hold == AutopilotHold::AltHold { "" } else { "; it needs a position source" }
             )));
         } else if self.mode_asked.is_none_or(|m| t - m >= 0.5) {
             drive.link().set_mode(hold.mode()).map_err(|e| Trigger::Link(e.to_string()))?;
             self.mode_asked = Some(t);
         }
-        let (next, now) = (scenario.reference(t + self.dt), scenario.reference(t));
+        let (next, now) = (scenario.reference_from(t + self.dt, offset), scenario.reference(t));
         let rate = (next.depth - now.depth) / self.dt;
         let boot_ms = (fresh.state.t * 1e3).round() as u32;
-        send_targets(drive, hold, boot_ms, (next.depth, next.heading), rate, self.hold_xy)?;
+        // The plan's point and velocity, or the start held.
+        let horizontal =
+            next.horizontal.unwrap_or_else(|| crate::mpc::Horizontal::hold(self.hold_xy.0, self.hold_xy.1));
+        send_targets(drive, hold, boot_ms, (next.depth, next.heading), rate, horizontal)?;
         let sent = drive.send_neutral(fresh)?;
         let applied = self.last_applied;
         each!(&mut *estimator, tr => tr.commanded(applied));
@@ -513,7 +607,7 @@ impl<'l> Flight<'l> {
         sent: &Sent,
         now: &Estimated,
         estimator: &AnyEstimator<M>,
-        truths: &RefCell<Vec<Truth>>,
+        truths: &RefCell<super::truth::Feed>,
         mut sample: Sample,
     ) {
         let (t, start) = (sample.t, self.t0.expect("recorded after the start"));
@@ -529,7 +623,8 @@ impl<'l> Flight<'l> {
         if self.log_error.is_none() {
             self.log_error = self.log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
         }
-        for tr in truths.borrow_mut().drain(..) {
+        self.truth_positions.append(&mut truths.borrow_mut().positions);
+        for tr in truths.borrow_mut().states.drain(..) {
             if self.log_error.is_none() {
                 let m = json!({"t_autopilot_s": tr.t, "z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r});
                 self.log_error = self.log.live("/truth", "pinc.SimulatorTruth", (tr.t - start).max(0.0), m).err();

@@ -32,6 +32,8 @@ use std::time::Duration;
 const SERVO_OUTPUT_RAW_ID: u32 = 36;
 /// `SIM_STATE`: the simulator's truth.
 const SIM_STATE_ID: u32 = 108;
+/// `SIMSTATE`: the simulator's truth, its position in integers of 1e-7 deg.
+const SIMSTATE_ID: u32 = 164;
 /// How long to wait for a first `EKF_STATUS_REPORT` before going on without the autopilot's
 /// word on its own estimate (older firmware may not send it).
 const EKF_STATUS_WAIT: Duration = Duration::from_secs(5);
@@ -45,6 +47,9 @@ pub enum AutopilotHold {
     /// GUIDED: position, velocity and heading by `SET_POSITION_TARGET_LOCAL_NED` (needs a
     /// position source).
     Guided,
+    /// POSHOLD: the position it entered at held by the autopilot, depth and heading targets
+    /// sent as for ALT_HOLD (needs a position source).
+    PosHold,
 }
 
 impl AutopilotHold {
@@ -53,6 +58,7 @@ impl AutopilotHold {
         match self {
             AutopilotHold::AltHold => "althold",
             AutopilotHold::Guided => "guided",
+            AutopilotHold::PosHold => "poshold",
         }
     }
 
@@ -60,6 +66,7 @@ impl AutopilotHold {
         match self {
             AutopilotHold::AltHold => SubMode::AltHold,
             AutopilotHold::Guided => SubMode::Guided,
+            AutopilotHold::PosHold => SubMode::PosHold,
         }
     }
 }
@@ -102,6 +109,8 @@ pub struct SessionOptions<'a> {
     pub drive: &'a DriveArgs,
     /// The state estimator.
     pub estimator: &'a EstimatorArgs,
+    /// The farthest the vehicle may go from where control starts (m), with a position source.
+    pub max_distance: Option<f64>,
 }
 
 /// A session's outcome.
@@ -163,11 +172,11 @@ pub fn run<M: DiscreteModel + Clone>(
     let (link, autopilot, assembler) = connect(o)?;
     let mut flight = flight::Flight::new(&setup, log);
     flight.say_start(o, &setup, &autopilot);
-    let truths: RefCell<Vec<truth::Truth>> = RefCell::new(Vec::new());
-    let seen = |r: &Received, t: f64| {
-        if let MavMessage::SIM_STATE(s) = &r.message {
-            truths.borrow_mut().push(truth::truth_of(t, s));
-        }
+    let truths: RefCell<truth::Feed> = RefCell::new(truth::Feed::default());
+    let seen = |r: &Received, t: f64| match &r.message {
+        MavMessage::SIM_STATE(s) => truths.borrow_mut().states.push(truth::truth_of(t, s)),
+        MavMessage::SIMSTATE(s) => truths.borrow_mut().positions.push(truth::position_of(t, s)),
+        _ => {}
     };
     let stop = ctrl_c_flag()?;
     let Setup { commander, settings, estimator_model, noise, .. } = setup;
@@ -197,6 +206,7 @@ struct Setup<M> {
     estimator_model: EstimatorModel<M>,
     dt: f64,
     position_free: bool,
+    max_distance: Option<f64>,
 }
 
 impl<M: DiscreteModel + Clone> Setup<M> {
@@ -244,7 +254,23 @@ impl<M: DiscreteModel + Clone> Setup<M> {
             }
             _ => EstimatorModel::Controller(model),
         };
-        Ok(Self { commander, settings, hold, wait_position, give_up, noise, estimator_model, dt, position_free })
+        if let Some(d) = o.max_distance
+            && !(d.is_finite() && d > 0.0)
+        {
+            return Err(format!("--max-distance must be a positive number of metres, got {d}"));
+        }
+        Ok(Self {
+            commander,
+            settings,
+            hold,
+            wait_position,
+            give_up,
+            noise,
+            estimator_model,
+            dt,
+            position_free,
+            max_distance: o.max_distance,
+        })
     }
 }
 
@@ -264,6 +290,7 @@ fn connect(
     link.set_message_rate(SERVO_OUTPUT_RAW_ID, o.drive.outputs_rate).map_err(|e| e.to_string())?;
     if o.estimator.sim_truth {
         link.set_message_rate(SIM_STATE_ID, o.link.rate).map_err(|e| e.to_string())?;
+        link.set_message_rate(SIMSTATE_ID, o.link.rate).map_err(|e| e.to_string())?;
     }
     Ok((link, autopilot, assembler))
 }

@@ -3,7 +3,7 @@
 //! and the summary's live figures.
 
 use super::flight::Flight;
-use super::truth::{errors_against_truth, percentiles_ms, rms, truth_at};
+use super::truth::{errors_against_truth, percentiles_ms, position_at, rms, truth_at};
 use super::{AnyEstimator, AutopilotHold, LiveRun, SessionOptions};
 use crate::closed_loop::Level;
 use crate::estimation::Health;
@@ -123,6 +123,22 @@ fn figures<M: DiscreteModel>(
             }
         }
     }
+    // The horizontal goal against the truth: its positions from where it truly was when control
+    // started, moved to where the plan's zero lies from there (a plan from the start: nothing).
+    let horizontal = match (&f.plan, f.t0) {
+        (Some(plan), Some(start)) => position_at(&f.truth_positions, start).map(|t0| {
+            let offset = f.plan_offset();
+            let shift = (f.hold_xy().0 - offset[0], f.hold_xy().1 - offset[1]);
+            let positions: Vec<(f64, f64, f64)> = f
+                .samples
+                .iter()
+                .filter_map(|s| position_at(&f.truth_positions, s.t + start).map(|p| (s.t, p.north_east_from(&t0))))
+                .map(|(t, (n, e))| (t, n + shift.0, e + shift.1))
+                .collect();
+            crate::closed_loop::horizontal_figures(plan, &positions)
+        }),
+        _ => None,
+    };
     for &(t, z) in &f.raw_depths {
         if let Some(tr) = truth_at(&f.truths, t) {
             raw_depth_err.push(z - tr.z);
@@ -148,6 +164,8 @@ fn figures<M: DiscreteModel>(
         "estimate_rms_error": estimate_rms,
         "truth_samples": errors[0].len(),
         "truth_rms": {"depth_m": rms(&depth_err), "heading_deg": rms(&heading_err), "samples": depth_err.len()},
+        "truth_horizontal": horizontal,
+        "horizontal_goal_changes": f.goal_changes,
         "raw_depth_rms_error": rms(&raw_depth_err),
         "js_gain": f.js_gain,
         "heading_reference": f.heading_reference.map(|h| h.key()),

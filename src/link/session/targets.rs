@@ -8,15 +8,16 @@ use mavlink::dialects::ardupilotmega::{
     SET_POSITION_TARGET_GLOBAL_INT_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
 
-/// The autopilot's targets for one cycle: depth and heading at `reference`, the start's
-/// horizontal position held (GUIDED), the depth's rate from the next reference.
+/// The autopilot's targets for one cycle: depth and heading at `reference` (ALT_HOLD and
+/// POSHOLD, which holds the position it entered at), or with the horizontal goal's position and
+/// velocity (GUIDED), the depth's rate from the next reference.
 pub(super) fn send_targets(
     drive: &Drive,
     hold: AutopilotHold,
     time_boot_ms: u32,
     reference: (f64, f64),
     depth_rate: f64,
-    hold_xy: (f64, f64),
+    horizontal: crate::mpc::Horizontal,
 ) -> Result<(), Trigger> {
     let (system, component) = {
         let a = drive.autopilot();
@@ -25,7 +26,7 @@ pub(super) fn send_targets(
     let (depth, heading) = reference;
     let link = drive.link();
     let sent = match hold {
-        AutopilotHold::AltHold => {
+        AutopilotHold::AltHold | AutopilotHold::PosHold => {
             // ArduSub 4.x in ALT_HOLD: z only (type_mask 3579), `alt` metres up from the origin.
             let depth_target = MavMessage::SET_POSITION_TARGET_GLOBAL_INT(SET_POSITION_TARGET_GLOBAL_INT_DATA {
                 time_boot_ms,
@@ -69,11 +70,11 @@ pub(super) fn send_targets(
                 target_component: component,
                 coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
                 type_mask: PositionTargetTypemask::from_bits_truncate(2496),
-                x: hold_xy.0 as f32,
-                y: hold_xy.1 as f32,
+                x: horizontal.north as f32,
+                y: horizontal.east as f32,
                 z: depth as f32,
-                vx: 0.0,
-                vy: 0.0,
+                vx: horizontal.velocity[0] as f32,
+                vy: horizontal.velocity[1] as f32,
                 vz: depth_rate as f32,
                 afx: 0.0,
                 afy: 0.0,

@@ -2,7 +2,7 @@
 //! and the tracking against what the vehicle really did.
 
 use crate::estimation::Estimate;
-use mavlink::dialects::ardupilotmega::SIM_STATE_DATA;
+use mavlink::dialects::ardupilotmega::{SIM_STATE_DATA, SIMSTATE_DATA};
 use serde_json::{Value, json};
 
 /// The simulator's truth at an autopilot time: depth, heading, body velocities, yaw rate.
@@ -13,6 +13,54 @@ pub(super) struct Truth {
     pub(super) psi: f64,
     pub(super) uvw: [f64; 3],
     pub(super) r: f64,
+}
+
+/// What the simulator's truth sent since the last cycle: its states (`SIM_STATE`) and its
+/// positions (`SIMSTATE`, whose latitude and longitude are integers of 1e-7 deg, about 1 cm;
+/// `SIM_STATE`'s are `f32` degrees, 0.4 m here, and its integer ones are a MAVLink 2 extension).
+#[derive(Debug, Default)]
+pub(super) struct Feed {
+    pub(super) states: Vec<Truth>,
+    pub(super) positions: Vec<Position>,
+}
+
+/// The simulator's true position at an autopilot time (1e-7 deg).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Position {
+    pub(super) t: f64,
+    pub(super) lat_lon: (f64, f64),
+}
+
+pub(super) fn position_of(t: f64, s: &SIMSTATE_DATA) -> Position {
+    Position { t, lat_lon: (f64::from(s.lat), f64::from(s.lng)) }
+}
+
+/// The position at `t`, interpolated between two at most 0.2 s apart.
+pub(super) fn position_at(positions: &[Position], t: f64) -> Option<Position> {
+    let k = positions.partition_point(|p| p.t <= t);
+    if k == 0 || k == positions.len() {
+        return None;
+    }
+    let (a, b) = (&positions[k - 1], &positions[k]);
+    if b.t - a.t > 0.2 || b.t <= a.t {
+        return None;
+    }
+    let f = (t - a.t) / (b.t - a.t);
+    let lerp = |x: f64, y: f64| x + f * (y - x);
+    Some(Position { t, lat_lon: (lerp(a.lat_lon.0, b.lat_lon.0), lerp(a.lat_lon.1, b.lat_lon.1)) })
+}
+
+/// Metres per 1e-7 degree of latitude (ArduPilot's spherical earth of radius 6378137 m).
+const METRES_PER_E7_DEG: f64 = 0.011_131_884_502_145_034;
+
+impl Position {
+    /// Metres north and east of `other` (a flat earth: fine over a few hundred metres).
+    pub(super) fn north_east_from(&self, other: &Position) -> (f64, f64) {
+        let lat = other.lat_lon.0 * 1e-7;
+        let dn = (self.lat_lon.0 - other.lat_lon.0) * METRES_PER_E7_DEG;
+        let de = (self.lat_lon.1 - other.lat_lon.1) * METRES_PER_E7_DEG * lat.to_radians().cos();
+        (dn, de)
+    }
 }
 
 pub(super) fn truth_of(t: f64, s: &SIM_STATE_DATA) -> Truth {
