@@ -386,7 +386,11 @@ impl<W: Write + Seek> McapLog<W> {
             REFERENCE,
             t,
             &json!({"timestamp": stamp(t), "depth_m": r.depth, "heading_rad": r.heading,
-                    "heading_deg": r.heading.to_degrees()}),
+                    "heading_deg": r.heading.to_degrees(),
+                    // The horizontal goal, where there is one (null: depth and heading only).
+                    "north_m": r.horizontal.map(|h| h.north), "east_m": r.horizontal.map(|h| h.east),
+                    "velocity_north_m_s": r.horizontal.map(|h| h.velocity[0]),
+                    "velocity_east_m_s": r.horizontal.map(|h| h.velocity[1])}),
         )?;
         let c = &s.cycle;
         let named =
@@ -592,7 +596,9 @@ fn schema_of(name: &str) -> Value {
             "translation": vec3, "rotation": quat,
         })),
         "pinc.Reference" => {
-            object(json!({"timestamp": time, "depth_m": num(), "heading_rad": num(), "heading_deg": num()}))
+            let maybe = json!({"type": ["number", "null"]});
+            object(json!({"timestamp": time, "depth_m": num(), "heading_rad": num(), "heading_deg": num(),
+                "north_m": maybe, "east_m": maybe, "velocity_north_m_s": maybe, "velocity_east_m_s": maybe}))
         }
         "pinc.Command" => object(json!({
             "timestamp": time, "input": numbers(&INPUT_NAMES), "saturated": flags(),

@@ -270,6 +270,14 @@ pub struct EstimatorArgs {
     /// from its accelerometers and depth sensor) the estimator assumes [default: 0.05].
     #[arg(long)]
     pub vertical_velocity_std: Option<f64>,
+    /// Standard deviation of the autopilot's position (m, `LOCAL_POSITION_NED`: its EKF's
+    /// estimate from GPS, a DVL or acoustic positioning) the estimator assumes [default: 0.3].
+    #[arg(long)]
+    pub position_std: Option<f64>,
+    /// Standard deviation of the autopilot's NED velocity (m/s) the estimator assumes
+    /// [default: 0.1].
+    #[arg(long)]
+    pub velocity_ned_std: Option<f64>,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]
@@ -291,6 +299,8 @@ impl EstimatorArgs {
             heading_std: pick(self.heading_std, fitted.map(|f| f.heading_std), d.heading_std),
             yaw_rate_std: pick(self.yaw_rate_std, fitted.map(|f| f.yaw_rate_std), d.yaw_rate_std),
             vertical_velocity_std: self.vertical_velocity_std.unwrap_or(d.vertical_velocity_std),
+            position_std: self.position_std.unwrap_or(d.position_std),
+            velocity_ned_std: self.velocity_ned_std.unwrap_or(d.velocity_ned_std),
             ..d
         };
         noise.validate()?;

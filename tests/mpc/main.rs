@@ -4,5 +4,6 @@
 mod common;
 
 mod closed_loop;
+mod four_axis;
 mod mcap_log;
 mod riccati;

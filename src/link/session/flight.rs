@@ -69,6 +69,9 @@ pub(super) struct Flight<'l> {
     pub(super) mode_entered: Option<f64>,
     /// The raw depth sensor's reading at each cycle (autopilot time), against the truth.
     pub(super) raw_depths: Vec<(f64, f64)>,
+    /// The autopilot's own position (`LOCAL_POSITION_NED`) at each cycle, while it measures
+    /// one: `(scenario time, north, east)`, what both pinc and the autopilot's hold steer by.
+    pub(super) raw_positions: Vec<(f64, f64, f64)>,
     pub(super) js_gain: f64,
     /// The scenario's horizontal plan, and where its zero lies in the autopilot's local frame
     /// (the start, or the EKF origin), once control starts.
@@ -122,6 +125,7 @@ impl<'l> Flight<'l> {
             mode_asked: None,
             mode_entered: None,
             raw_depths: Vec::new(),
+            raw_positions: Vec::new(),
             js_gain: 1.0,
             plan: None,
             goal_dropped: false,
@@ -200,8 +204,8 @@ impl<'l> Flight<'l> {
             "no state estimator (the raw state; body velocities from the autopilot's EKF)".to_string()
         } else {
             format!(
-                "state estimator on the {} model (depth std {} m, heading std {} rad)",
-                o.estimator.estimator_model, setup.noise.depth_std, setup.noise.heading_std
+                "state estimator on the {} model (depth std {} m, heading std {} rad, position std {} m)",
+                o.estimator.estimator_model, setup.noise.depth_std, setup.noise.heading_std, setup.noise.position_std
             )
         };
         let flown_by = match setup.hold {
@@ -620,10 +624,24 @@ impl<'l> Flight<'l> {
         if fresh.state.sim[2].is_finite() {
             self.raw_depths.push((fresh.state.t, fresh.state.sim[2]));
         }
+        let (n, e) = (fresh.state.sim[0], fresh.state.sim[1]);
+        if now.horizontal && n.is_finite() && e.is_finite() {
+            self.raw_positions.push((t, n, e));
+        }
         if self.log_error.is_none() {
             self.log_error = self.log.link_cycle(t, state_age, latency, sent.autopilot_t).err();
         }
-        self.truth_positions.append(&mut truths.borrow_mut().positions);
+        for p in truths.borrow_mut().positions.drain(..) {
+            // Metres from the first true position, for plots; the figures take their own origin.
+            let first = *self.truth_positions.first().unwrap_or(&p);
+            let (n, e) = p.north_east_from(&first);
+            if self.log_error.is_none() {
+                let m = json!({"t_autopilot_s": p.t, "north_m": n, "east_m": e, "lat_e7": p.lat_lon.0, "lon_e7": p.lat_lon.1});
+                self.log_error =
+                    self.log.live("/truth/position", "pinc.SimulatorPosition", (p.t - start).max(0.0), m).err();
+            }
+            self.truth_positions.push(p);
+        }
         for tr in truths.borrow_mut().states.drain(..) {
             if self.log_error.is_none() {
                 let m = json!({"t_autopilot_s": tr.t, "z": tr.z, "psi": tr.psi, "u": tr.uvw[0], "v": tr.uvw[1], "w": tr.uvw[2], "r": tr.r});

@@ -139,6 +139,14 @@ fn figures<M: DiscreteModel>(
         }),
         _ => None,
     };
+    // The same against the autopilot's own position, which both controllers steer by: what the
+    // controller does with the position it is given, the position source's own error left out.
+    let against_source = f.plan.as_ref().map(|plan| {
+        let offset = f.plan_offset();
+        let positions: Vec<(f64, f64, f64)> =
+            f.raw_positions.iter().map(|&(t, n, e)| (t, n - offset[0], e - offset[1])).collect();
+        crate::closed_loop::horizontal_figures(plan, &positions)
+    });
     for &(t, z) in &f.raw_depths {
         if let Some(tr) = truth_at(&f.truths, t) {
             raw_depth_err.push(z - tr.z);
@@ -165,6 +173,7 @@ fn figures<M: DiscreteModel>(
         "truth_samples": errors[0].len(),
         "truth_rms": {"depth_m": rms(&depth_err), "heading_deg": rms(&heading_err), "samples": depth_err.len()},
         "truth_horizontal": horizontal,
+        "horizontal_against_position_source": against_source,
         "horizontal_goal_changes": f.goal_changes,
         "raw_depth_rms_error": rms(&raw_depth_err),
         "js_gain": f.js_gain,
