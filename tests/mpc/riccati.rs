@@ -15,7 +15,7 @@ use pinc::{Input, SimState};
 
 /// Both solvers to 1e-10: Clarabel in the sparse form (every state a variable) drives the
 /// plant; on every cycle the Riccati controller gets the same measured state and references.
-fn tight(bounds: (Input, Input)) -> (MpcConfig, MpcConfig) {
+pub(crate) fn tight(bounds: (Input, Input)) -> (MpcConfig, MpcConfig) {
     let base =
         MpcConfig { bounds: Some(bounds), solver_tolerance: 1e-10, riccati_tolerance: 1e-10, ..common::untimed() };
     (MpcConfig { condensing_block: 1, ..base.clone() }, MpcConfig { qp: QpSolver::Riccati, ..base })
@@ -24,13 +24,13 @@ fn tight(bounds: (Input, Input)) -> (MpcConfig, MpcConfig) {
 /// What one comparison saw: the worst absolute input difference per channel, the cycles
 /// compared, and the cycles where either solver did not converge (left out).
 #[derive(Debug)]
-struct Agreement {
-    worst: [f64; 4],
-    cycles: usize,
-    unconverged: usize,
+pub(crate) struct Agreement {
+    pub(crate) worst: [f64; 4],
+    pub(crate) cycles: usize,
+    pub(crate) unconverged: usize,
 }
 
-fn compare<M: DiscreteModel + Clone>(
+pub(crate) fn compare<M: DiscreteModel + Clone>(
     model: M,
     cfgs: (MpcConfig, MpcConfig),
     scenario: &Scenario,
@@ -58,7 +58,7 @@ fn compare<M: DiscreteModel + Clone>(
     seen
 }
 
-fn shipped() -> Predictor<f64> {
+pub(crate) fn shipped() -> Predictor<f64> {
     Predictor::reference(
         &PincModel::load(format!("{}/models/mpc_pinc_thrust.pinc", env!("CARGO_MANIFEST_DIR"))).unwrap(),
     )
