@@ -11,8 +11,8 @@ depth, yaw), from where the vehicle truly was when control started.
   same targets at the same rate, and POSHOLD (which holds where it entered and ignores depth and
   heading targets: the firmware's README);
 - survey: 4 legs of 10 m, 2 m apart, 0.3 m/s, 2 m deep, pinc and GUIDED on the same schedule;
-- the position source lost mid-station (SIM_GPS1_ENABLE 0): the goal dropped within a second,
-  depth and heading held, no stop.
+- the position source lost mid-station (SIM_GPS1_ENABLE 0, flown beside the others): the goal
+  dropped within a second, depth and heading held, no stop.
 
 $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
 """
@@ -20,6 +20,8 @@ $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it 
 import json
 import sys
 from concurrent.futures import ThreadPoolExecutor
+
+import pytest
 
 from test_ardusub_sitl import FIXTURES, INJECT, JS_GAIN, VEHICLE as SIM_VEHICLE, run_on_firmware
 from test_ardusub_live import log_lines
@@ -66,13 +68,22 @@ def row(who, r, s):
     return out
 
 
-def test_station_keeping_in_a_current_beside_guided_and_poshold(tmp_path):
-    runs = side_by_side({
-        "pinc (simulator's file)": ((tmp_path / "pinc", "--oracle", "--qp", "riccati", "--scenario", "station"), {}),
-        "ArduSub GUIDED": ((tmp_path / "guided", "--autopilot-hold", "guided", "--scenario", "station"), {}),
-        "ArduSub POSHOLD": ((tmp_path / "poshold", "--autopilot-hold", "poshold", "--scenario", "station"), {}),
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    """The station flown four times at once: pinc, GUIDED, POSHOLD, and pinc losing its GPS
+    60 s after arming (control starts when GPS is fused, 20-45 s after arming)."""
+    tmp = tmp_path_factory.mktemp("station")
+    pinc = ("--oracle", "--qp", "riccati", "--scenario", "station")
+    return side_by_side({
+        "pinc (simulator's file)": ((tmp / "pinc", *pinc), {}),
+        "ArduSub GUIDED": ((tmp / "guided", "--autopilot-hold", "guided", "--scenario", "station"), {}),
+        "ArduSub POSHOLD": ((tmp / "poshold", "--autopilot-hold", "poshold", "--scenario", "station"), {}),
+        "pinc, GPS lost": ((tmp / "lost", *pinc), {"faults": [(60, "SIM_GPS1_ENABLE", 0)]}),
     })
-    t = {who: row(who, *run) for who, run in runs.items()}
+
+
+def test_station_keeping_in_a_current_beside_guided_and_poshold(station):
+    t = {who: row(who, *run) for who, run in station.items() if who != "pinc, GPS lost"}
     pinc, guided, poshold = t["pinc (simulator's file)"], t["ArduSub GUIDED"], t["ArduSub POSHOLD"]
     assert pinc["samples"] >= 740
     # Against the autopilot's own position, which both steer by, pinc holds the point closer
@@ -106,20 +117,17 @@ def test_a_survey_in_a_current_beside_guided(tmp_path):
     assert pinc["depth_rms_m"] < guided["depth_rms_m"], t
 
 
-def test_the_position_source_lost_drops_the_goal_and_holds_depth_and_heading(tmp_path):
-    # The GPS switched off 60 s after arming (control starts when GPS is fused, 20-45 s after
-    # arming): the autopilot says it no longer measures its position, pinc drops the goal within
-    # a second of the last fused position (measured: 0.96 s), flies depth and heading to the
-    # end, and says so in the terminal and the log.
-    r, s = fly(tmp_path, "--oracle", "--qp", "riccati", "--scenario", "station",
-               faults=[(60, "SIM_GPS1_ENABLE", 0)])
+def test_the_position_source_lost_drops_the_goal_and_holds_depth_and_heading(station):
+    # The autopilot says it no longer measures its position; pinc drops the goal within a
+    # second of the last fused position (measured: 0.96 s), flies depth and heading to the end,
+    # and says so in the terminal and the log.
+    r, s = station["pinc, GPS lost"]
     live = s["live"]
     assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
     changes = live["horizontal_goal_changes"]
     assert changes and changes[0][1] is True and changes[0][0] > 5.0, changes
     assert "horizontal goal dropped" in r.stderr, r.stderr[-3000:]
-    lines = log_lines(s)
-    assert any("horizontal goal dropped" in line for line in lines)
+    assert any("horizontal goal dropped" in line for line in log_lines(s))
     assert live["truth_rms"]["depth_m"] <= 0.2 and s["held_heading_error_max_deg"] <= 2.0, live["truth_rms"]
     # Until the loss the point was held (the figures against the autopilot's position stop with it).
     src = live["horizontal_against_position_source"]
