@@ -115,6 +115,30 @@ def test_the_riccati_solver_runs_the_same_closed_loop(tmp_path):
         closed_loop.run({**SETTINGS, "qp": "riccatti"})
 
 
+def test_four_axis_runs_from_python_equal_mpc_tracks_and_bad_paths_are_refused(tmp_path):
+    """A station, a survey and a path file through the same Rust path as `mpc_track`: the
+    horizontal figure in the summary (and in a perturbed run's outcome), the same number as
+    `mpc_track --json`, and a path past `max_distance` refused naming its line."""
+    thrust = ROOT / "models" / "mpc_pinc_thrust.pinc"  # the whole thrust range: a current to fight
+    station = closed_loop.settings(model=thrust, scenario="station", duration=20, qp="riccati")
+    s = closed_loop.run(station)
+    assert s["horizontal"]["judged"] == "station" and s["horizontal"]["rms_m"] < 0.02, s["horizontal"]
+    assert s["fallbacks"] == 0
+    o = closed_loop.run(station, seed=2, controller="oracle")
+    assert o["success"] and o["rms_horizontal_m"] < 0.05, o
+    path = tmp_path / "path.csv"
+    path.write_text("north_m,east_m,depth_m,speed_m_s\n0,0,1,0.3\n3,0,1,0.3\n3,3,1,0.3\n")
+    p = closed_loop.run(closed_loop.settings(model=thrust, path=path, current=[0.1, -0.2], qp="riccati"))
+    assert p["horizontal"]["judged"] == "cross-track" and p["horizontal"]["finished_s"] is not None, p["horizontal"]
+    if MPC_TRACK.exists():
+        args = ["--model", thrust, "--path", path, "--current=0.1,-0.2", "--qp", "riccati", "--json", "--out-dir", tmp_path]
+        r = subprocess.run([str(MPC_TRACK), *map(str, args)], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["horizontal"]["rms_m"] == pytest.approx(p["horizontal"]["rms_m"], rel=1e-9)
+    with pytest.raises(Exception, match="line 4.*past --max-distance 4"):
+        closed_loop.run(closed_loop.settings(model=thrust, path=path, max_distance=4))
+
+
 def test_campaign_on_two_nodes_equals_mpc_track_despite_a_killed_worker(cluster, tmp_path):
     address, marks = cluster
     expected = mpc_track_monte_carlo(tmp_path, RUNS)
