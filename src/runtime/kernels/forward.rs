@@ -7,13 +7,17 @@ use super::cpu::Avx2Fma;
 use super::fold::Dense;
 use super::network::{NetOut, NetScratch, Network};
 use super::packs::{MulAdd, PACK, Pack, dot, lane_sum, matvec, matvec_rows, packs, sum};
-use super::real::{Family, Real};
+#[cfg(target_arch = "x86_64")]
+use super::real::Family;
+use super::real::Real;
 #[cfg(target_arch = "x86_64")]
 use super::registers;
 use crate::types::{Input, NU, NX, State};
 
 /// The `f32` member of "a network and its scratch": what the register kernel takes.
+#[cfg(target_arch = "x86_64")]
 struct Parts;
+#[cfg(target_arch = "x86_64")]
 impl Family for Parts {
     type Of<'a, T: Real> = (&'a Network<T>, &'a mut NetScratch<T>);
 }

@@ -20,5 +20,7 @@ pub(crate) use activation::activate;
 pub(crate) use cpu::Avx2Fma;
 pub(crate) use fold::Dense;
 pub(crate) use network::{NetOut, NetScratch, Network, Shape};
-pub(crate) use packs::{Fused, MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows, packs};
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+pub(crate) use packs::Fused;
+pub(crate) use packs::{MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows, packs};
 pub use real::Real;

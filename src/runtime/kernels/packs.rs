@@ -37,8 +37,10 @@ impl MulAdd for Portable {
 
 /// Fused multiply-add, in code compiled with the `avx2` and `fma` target features (reached
 /// only through an [`Avx2Fma`](super::Avx2Fma) token). Elsewhere it would still be exact, but
-/// a library call per operation.
+/// a library call per operation (the kernel tests run it on every architecture).
+#[cfg(any(target_arch = "x86", target_arch = "x86_64", test))]
 pub(crate) struct Fused;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64", test))]
 impl MulAdd for Fused {
     const WIDE_REGISTERS: bool = true;
     #[inline(always)]
