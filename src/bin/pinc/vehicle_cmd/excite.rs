@@ -6,8 +6,10 @@
 //! fresh state, the band's heave, the watch's looks), the end (neutral, the last outputs into
 //! the file, the summary).
 
+#[cfg(feature = "train")]
+use super::from_autopilot;
 use super::writer::{Writer, recording_estimator};
-use super::{ExciteArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, from_autopilot, session_metadata};
+use super::{ExciteArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
 use pinc::closed_loop::Level;
 use pinc::link::cli::{non_negative, open, positive};
 use pinc::link::{Capability, DepthBand, Drive, Fresh, InputsFromOutputs, Received, Recorder, Stopped, Trigger};
