@@ -51,14 +51,18 @@ def instructions(path: Path) -> list[tuple[str, str]]:
 
 
 def labels() -> dict[str, str]:
-    found = {}
+    """The LABELs as an image built with the ARGs' defaults carries them."""
+    found, args = {}, {}
     for word, rest in instructions(DOCKERFILE):
+        if word == "ARG":
+            key, _, value = shlex.split(rest)[0].partition("=")
+            args[key] = value
         if word == "LABEL":
             for item in shlex.split(rest):
                 key, sep, value = item.partition("=")
                 assert sep, f"LABEL {item!r} is not key=value"
                 assert key not in found, f"LABEL {key} given twice"
-                found[key] = value
+                found[key] = re.sub(r"\$\{(\w+)\}", lambda m: args[m.group(1)], value)
     return found
 
 
