@@ -20,7 +20,7 @@ pub(crate) use activation::activate;
 pub(crate) use cpu::Avx2Fma;
 pub(crate) use fold::Dense;
 pub(crate) use network::{NetOut, NetScratch, Network, Shape};
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(any(target_arch = "x86", target_arch = "x86_64", test))]
 pub(crate) use packs::Fused;
 pub(crate) use packs::{MulAdd, PACK, Pack, Portable, block_packs, matvec, matvec_rows, packs};
 pub use real::Real;
