@@ -10,6 +10,8 @@
 //!   the Riccati solver;
 //! - `riccati_scaling/N`: the oracle's cycle on the Riccati solver at N = 20, 40, 80, 160 (the
 //!   end of the run prints each cycle's time per interior-point iteration, linear in N).
+//! - `four_axis_h20[_oracle]/riccati_9`: the cycle on four axes (9 kept states, a horizontal
+//!   goal) beside `riccati_7`, the same controller on depth and heading.
 //!
 //! - `estimator_update`: one sample of the state estimator beside it (`pinc::estimation`: one
 //!   prediction through the model's exact Jacobians, then depth, heading and yaw rate fused),
@@ -85,6 +87,34 @@ fn mpc_iteration(c: &mut Criterion) {
     bench_model(c, "mpc_iteration_h20_paper", Predictor::reference(&paper), &pp);
 }
 
+/// The Riccati cycle on four axes (9 kept states, a horizontal goal with its velocity) beside
+/// the same controller on depth and heading (7 kept states), on the shipped model and the
+/// analytic vehicle at N 20.
+fn four_axis(c: &mut Criterion) {
+    let shipped = load("mpc_pinc_thrust.pinc");
+    let p = Predictor::reference(&shipped);
+    let x = bench_state();
+    let goal = pinc::mpc::Horizontal { north: 0.5, east: -0.3, velocity: [0.2, 0.1] };
+    let four = vec![Reference { horizontal: Some(goal), ..Reference::depth_heading(1.5, 0.8) }; 20];
+    let two = vec![Reference::depth_heading(1.5, 0.8); 20];
+    for (id, oracle) in [("four_axis_h20", false), ("four_axis_h20_oracle", true)] {
+        let mut group = c.benchmark_group(id);
+        for (name, cfg, refs) in [
+            ("riccati_7", config("riccati", 20, &p), &two),
+            ("riccati_9", config("riccati", 20, &p).four_axis(), &four),
+        ] {
+            if oracle {
+                let mut mpc = Mpc::new(Rk4Vehicle::with_dt(shipped.dt), cfg).unwrap();
+                group.bench_function(name, |b| b.iter(|| black_box(mpc.step(black_box(&x), refs))));
+            } else {
+                let mut mpc = Mpc::new(p.clone(), cfg).unwrap();
+                group.bench_function(name, |b| b.iter(|| black_box(mpc.step(black_box(&x), refs))));
+            }
+        }
+        group.finish();
+    }
+}
+
 /// The Riccati solver's cycle on the analytic vehicle as the horizon doubles.
 fn riccati_scaling(c: &mut Criterion) {
     let shipped = load("mpc_pinc_thrust.pinc");
@@ -155,7 +185,7 @@ fn estimator_update(c: &mut Criterion) {
     bench_estimator(c, "estimator_update_paper", Predictor::reference(&load("paper_pinc.pinc")));
 }
 
-criterion_group!(benches, mpc_iteration, riccati_scaling, estimator_update);
+criterion_group!(benches, mpc_iteration, riccati_scaling, four_axis, estimator_update);
 
 /// Clarabel's own timers for one solve of the default formulation (after 50 cycles from the
 /// bench's state), where the time of a cycle goes.
