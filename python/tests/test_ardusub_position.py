@@ -18,12 +18,11 @@ $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it 
 """
 
 import json
-import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from test_ardusub_sitl import FIXTURES, INJECT, JS_GAIN, VEHICLE as SIM_VEHICLE, run_on_firmware
+from test_ardusub_sitl import FIXTURES, JS_GAIN, VEHICLE as SIM_VEHICLE, run_on_firmware, with_faults
 from test_ardusub_live import log_lines
 from test_vehicle_drive import mpc_track_binary
 
@@ -37,12 +36,7 @@ def fly(out_dir, *extra, faults=(), timeout=420):
     """One flight on its own simulator; its summary (JSON) and the run."""
     client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--arm", "--sim-truth", "--json",
               "--out-dir", out_dir, "--timeout", "30", *COMMON, *extra]
-    if faults:
-        inject = [sys.executable, INJECT, "--log", out_dir / "faults.jsonl"]
-        for at, name, value in faults:
-            inject += ["--at", str(at), name, str(value)]
-        client = [*inject, "--", *client]
-    r = run_on_firmware(out_dir, GPS_CURRENT, client, timeout=timeout)
+    r = run_on_firmware(out_dir, GPS_CURRENT, with_faults(client, faults, out_dir / "faults.jsonl"), timeout=timeout)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
     s = json.loads(r.stdout)
     return r, s

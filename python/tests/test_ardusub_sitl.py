@@ -56,13 +56,19 @@ def mpc_track_args(tmp_path, way, *extra):
             "--out-dir", tmp_path / "out", "--timeout", "30", *extra]
 
 
+def with_faults(client, faults, log):
+    """`client` run by sitl_inject.py, which sets each `(seconds after arming, name, value)`
+    simulator parameter and logs it to `log` (nothing added without faults)."""
+    if not faults:
+        return client
+    inject = [sys.executable, INJECT, "--log", log]
+    for at, name, value in faults:
+        inject += ["--at", str(at), name, str(value)]
+    return [*inject, "--", *client]
+
+
 def closed_loop(tmp_path, parms, way, *extra, faults=(), timeout=300):
-    client = mpc_track_args(tmp_path, way, *extra)
-    if faults:
-        inject = [sys.executable, INJECT, "--log", tmp_path / "faults.jsonl"]
-        for at, name, value in faults:
-            inject += ["--at", str(at), name, str(value)]
-        client = [*inject, "--", *client]
+    client = with_faults(mpc_track_args(tmp_path, way, *extra), faults, tmp_path / "faults.jsonl")
     r = run_on_firmware(tmp_path, parms, client, timeout=timeout)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
     summary = json.loads(r.stdout)

@@ -35,17 +35,22 @@ pub(super) fn position_of(t: f64, s: &SIMSTATE_DATA) -> Position {
     Position { t, lat_lon: (f64::from(s.lat), f64::from(s.lng)) }
 }
 
+/// The two samples around `t` (by `time_of`), at most 0.2 s apart, and where `t` lies between
+/// them (0 to 1): the simulator's messages have no stamp of their own, so each has its
+/// arrival's autopilot time.
+fn around<T>(samples: &[T], t: f64, time_of: impl Fn(&T) -> f64) -> Option<(&T, &T, f64)> {
+    let k = samples.partition_point(|s| time_of(s) <= t);
+    if k == 0 || k == samples.len() {
+        return None;
+    }
+    let (a, b) = (&samples[k - 1], &samples[k]);
+    let (ta, tb) = (time_of(a), time_of(b));
+    (tb - ta <= 0.2 && tb > ta).then(|| (a, b, (t - ta) / (tb - ta)))
+}
+
 /// The position at `t`, interpolated between two at most 0.2 s apart.
 pub(super) fn position_at(positions: &[Position], t: f64) -> Option<Position> {
-    let k = positions.partition_point(|p| p.t <= t);
-    if k == 0 || k == positions.len() {
-        return None;
-    }
-    let (a, b) = (&positions[k - 1], &positions[k]);
-    if b.t - a.t > 0.2 || b.t <= a.t {
-        return None;
-    }
-    let f = (t - a.t) / (b.t - a.t);
+    let (a, b, f) = around(positions, t, |p| p.t)?;
     let lerp = |x: f64, y: f64| x + f * (y - x);
     Some(Position { t, lat_lon: (lerp(a.lat_lon.0, b.lat_lon.0), lerp(a.lat_lon.1, b.lat_lon.1)) })
 }
@@ -71,18 +76,9 @@ pub(super) fn truth_of(t: f64, s: &SIM_STATE_DATA) -> Truth {
     Truth { t, z: -f64::from(s.alt), psi: yaw, uvw: [body.x, body.y, body.z], r: f64::from(s.zgyro) }
 }
 
-/// The truth at `t`, interpolated between two truths at most 0.2 s apart (`SIM_STATE` has no
-/// stamp of its own: its arrival's autopilot time is used).
+/// The truth at `t`, interpolated between two truths at most 0.2 s apart.
 pub(super) fn truth_at(truths: &[Truth], t: f64) -> Option<Truth> {
-    let k = truths.partition_point(|tr| tr.t <= t);
-    if k == 0 || k == truths.len() {
-        return None;
-    }
-    let (a, b) = (&truths[k - 1], &truths[k]);
-    if b.t - a.t > 0.2 || b.t <= a.t {
-        return None;
-    }
-    let f = (t - a.t) / (b.t - a.t);
+    let (a, b, f) = around(truths, t, |tr| tr.t)?;
     let lerp = |x: f64, y: f64| x + f * (y - x);
     Some(Truth {
         t,
