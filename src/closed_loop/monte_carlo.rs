@@ -173,10 +173,7 @@ fn judge(seed: u64, samples: &[Sample], scenario: &Scenario) -> Outcome {
         success: failure.is_none(),
         failure,
         rms_depth_m: rms_depth,
-        rms_horizontal_m: scenario.horizontal.as_ref().map(|plan| {
-            let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
-            super::summary::horizontal_figures(plan, &positions).rms_m
-        }),
+        rms_horizontal_m: super::summary::horizontal_of(scenario, samples).map(|h| h.rms_m),
         rms_heading_deg: rms_heading,
         solve_ms: samples.iter().map(|s| s.cycle.solve_us / 1e3).collect(),
     }

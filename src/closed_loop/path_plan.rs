@@ -257,6 +257,18 @@ fn plan(
     place: &dyn Fn(u64) -> String,
 ) -> Result<PlannedPath, PathError> {
     let bad = |line: u64, message: String| PathError::Bad { place: place(line), message };
+    let times = arrival_times(points, limits.max_speed, &bad)?;
+    check_reach(points, limits.max_distance, &bad)?;
+    Ok(tracks(points, &times, frame))
+}
+
+/// When the path reaches each waypoint (s after it starts): given, or from the leg's speed;
+/// a time going back or a leg faster than `max_speed` is refused.
+fn arrival_times(
+    points: &[Waypoint],
+    max_speed: f64,
+    bad: &dyn Fn(u64, String) -> PathError,
+) -> Result<Vec<f64>, PathError> {
     let mut times = vec![0.0];
     for w in points.windows(2) {
         let (a, b) = (&w[0], &w[1]);
@@ -284,21 +296,29 @@ fn plan(
         } else {
             0.0
         };
-        if speed > limits.max_speed {
+        if speed > max_speed {
             return Err(bad(
                 b.line,
                 format!(
-                    "the leg to ({}, {}) asks {speed:.2} m/s, faster than the vehicle's {:.2} m/s",
-                    b.north, b.east, limits.max_speed
+                    "the leg to ({}, {}) asks {speed:.2} m/s, faster than the vehicle's {max_speed:.2} m/s",
+                    b.north, b.east
                 ),
             ));
         }
         times.push(t);
     }
-    if let Some(limit) = limits.max_distance
-        && let Some(w) = points.iter().find(|w| w.north.hypot(w.east) > limit)
-    {
-        return Err(bad(
+    Ok(times)
+}
+
+/// Refuses the first waypoint farther than `max_distance` from the start.
+fn check_reach(
+    points: &[Waypoint],
+    max_distance: Option<f64>,
+    bad: &dyn Fn(u64, String) -> PathError,
+) -> Result<(), PathError> {
+    let Some(limit) = max_distance else { return Ok(()) };
+    match points.iter().find(|w| w.north.hypot(w.east) > limit) {
+        Some(w) => Err(bad(
             w.line,
             format!(
                 "({}, {}) lies {:.2} m from the start, past --max-distance {limit} m",
@@ -306,40 +326,39 @@ fn plan(
                 w.east,
                 w.north.hypot(w.east)
             ),
-        ));
+        )),
+        None => Ok(()),
     }
-    let lead = PATH_LEAD_S;
+}
+
+/// North, east, depth and heading tracks through the waypoints at their `times`, after the
+/// lead; the heading of each leg (along it, or as given) unwrapped against the last, turning at
+/// the waypoint.
+fn tracks(points: &[Waypoint], times: &[f64], frame: PathFrame) -> PlannedPath {
     let mut north = vec![(0.0, points[0].north)];
     let mut east = vec![(0.0, points[0].east)];
     let mut depth = vec![(0.0, points[0].depth)];
     let mut heading: Vec<(f64, f64)> = Vec::new();
     let mut waypoints = Vec::new();
     let mut last_heading = points[0].heading.unwrap_or(0.0);
-    for (i, (w, &t)) in points.iter().zip(&times).enumerate() {
-        let at = lead + t;
+    for (i, (w, &t)) in points.iter().zip(times).enumerate() {
+        let at = PATH_LEAD_S + t;
         north.push((at, w.north));
         east.push((at, w.east));
         depth.push((at, w.depth));
         waypoints.push((at, w.north, w.east));
-        // The heading of the leg that starts here (along the track, or as given), unwrapped
-        // against the last one; it turns at the waypoint.
-        let next = points.get(i + 1);
-        let along = next.map(|n| (n.east - w.east).atan2(n.north - w.north).to_degrees());
-        let wanted = match (w.heading, along) {
+        let next = points.get(i + 1).filter(|n| (n.north - w.north).hypot(n.east - w.east) > 1e-9);
+        let wanted = match (w.heading, next) {
             (Some(h), _) => h,
-            (None, Some(a)) if next.is_some_and(|n| (n.north - w.north).hypot(n.east - w.east) > 1e-9) => a,
-            _ => last_heading,
+            (None, Some(n)) => (n.east - w.east).atan2(n.north - w.north).to_degrees(),
+            (None, None) => last_heading,
         };
         let unwrapped = last_heading + crate::vehicle::wrap_angle((wanted - last_heading).to_radians()).to_degrees();
-        if i == 0 {
-            heading.push((0.0, unwrapped));
-        } else {
-            heading.push((at, last_heading));
-        }
+        heading.push((if i == 0 { 0.0 } else { at }, if i == 0 { unwrapped } else { last_heading }));
         heading.push((at, unwrapped));
         last_heading = unwrapped;
     }
-    Ok(PlannedPath {
+    PlannedPath {
         horizontal: HorizontalPlan {
             north: Track::from_points(north),
             east: Track::from_points(east),
@@ -349,7 +368,7 @@ fn plan(
         },
         depth: Track::from_points(depth),
         heading: Track::from_points(heading),
-    })
+    }
 }
 
 #[cfg(test)]

@@ -1,12 +1,15 @@
 //! The tracking scenarios: references over time (built in, or from a CSV file) and the plant
 //! each runs against.
 
-use super::path_plan::{HorizontalPlan, PATH_LEAD_S, PlannedPath};
+use super::path_plan::{HorizontalPlan, PathHeading, PathLimits, PlannedPath, survey};
 use crate::mpc::{Horizontal, Reference};
 use crate::types::{Input, SimState};
 use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
+
+/// A point of a track: `(time s, value)`.
+type Point = (f64, f64);
 
 /// A reference signal: linear between points, a step where two points share a time, held
 /// before the first point and after the last.
@@ -39,25 +42,29 @@ impl Track {
 
     /// The rate of change at `t` (0 where held or at a step).
     pub fn slope(&self, t: f64) -> f64 {
-        let i = self.points.partition_point(|p| p.0 <= t + 1e-9);
-        if i == 0 || i == self.points.len() {
-            return 0.0;
+        match self.segment(t) {
+            Ok(((t0, v0), (t1, v1))) if t1 > t0 => (v1 - v0) / (t1 - t0),
+            _ => 0.0,
         }
-        let ((t0, v0), (t1, v1)) = (self.points[i - 1], self.points[i]);
-        if t1 > t0 { (v1 - v0) / (t1 - t0) } else { 0.0 }
+    }
+
+    /// The points either side of `t`, or the value held there (before the first point or
+    /// after the last). The last point at or before `t` counts: the later of two at the same
+    /// time, a step.
+    fn segment(&self, t: f64) -> Result<(Point, Point), f64> {
+        let i = self.points.partition_point(|p| p.0 <= t + 1e-9);
+        match i {
+            0 => Err(self.points[0].1),
+            i if i == self.points.len() => Err(self.points[i - 1].1),
+            i => Ok((self.points[i - 1], self.points[i])),
+        }
     }
 
     /// The value at `t`.
     pub fn at(&self, t: f64) -> f64 {
-        // The last point at or before t (the later of two at the same time: a step).
-        let i = self.points.partition_point(|p| p.0 <= t + 1e-9);
-        match i {
-            0 => self.points[0].1,
-            i if i == self.points.len() => self.points[i - 1].1,
-            i => {
-                let ((t0, v0), (t1, v1)) = (self.points[i - 1], self.points[i]);
-                v0 + (v1 - v0) * (t - t0) / (t1 - t0)
-            }
+        match self.segment(t) {
+            Ok(((t0, v0), (t1, v1))) => v0 + (v1 - v0) * (t - t0) / (t1 - t0),
+            Err(held) => held,
         }
     }
 
@@ -230,13 +237,12 @@ impl Scenario {
     }
 
     /// `survey`: 4 legs of 10 m northwards and back, 2 m apart, at 0.3 m/s and 2 m deep, facing
-    /// north, in [`FOUR_AXIS_CURRENT`], after [`PATH_LEAD_S`] holding the start.
+    /// north, in [`FOUR_AXIS_CURRENT`], after
+    /// [`PATH_LEAD_S`](super::path_plan::PATH_LEAD_S) holding the start.
     pub fn survey() -> Self {
-        let limits = super::path_plan::PathLimits { max_speed: f64::INFINITY, max_distance: None };
+        let limits = PathLimits { max_speed: f64::INFINITY, max_distance: None };
         let path =
-            super::path_plan::survey((4, 10.0, 2.0), 0.3, 2.0, super::path_plan::PathHeading::Fixed(0.0), &limits)
-                .expect("the built-in survey is valid");
-        debug_assert!(path.horizontal.waypoints[0].0 == PATH_LEAD_S);
+            survey((4, 10.0, 2.0), 0.3, 2.0, PathHeading::Fixed(0.0), &limits).expect("the built-in survey is valid");
         Self::along("survey", path, FOUR_AXIS_CURRENT, None)
     }
 

@@ -41,6 +41,14 @@ pub struct HorizontalFigures {
     pub finished_s: Option<f64>,
 }
 
+/// The horizontal figures of a simulated run's samples, for a scenario with a horizontal goal
+/// (the plant starts at the plan's zero).
+pub(super) fn horizontal_of(scenario: &Scenario, samples: &[Sample]) -> Option<HorizontalFigures> {
+    let plan = scenario.horizontal.as_ref()?;
+    let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
+    Some(horizontal_figures(plan, &positions))
+}
+
 /// The horizontal figures of positions `(t, north, east)` in the plan's frame.
 pub fn horizontal_figures(plan: &HorizontalPlan, positions: &[(f64, f64, f64)]) -> HorizontalFigures {
     let first = plan.waypoints.first().map_or(0.0, |w| w.0);
@@ -220,10 +228,9 @@ pub fn summarise(samples: &[Sample], scenario: &Scenario, preview: f64) -> Summa
     }
     let mut solve: Vec<f64> = samples.iter().map(|s| s.cycle.solve_us / 1e3).collect();
     let mut cycle: Vec<f64> = samples.iter().map(|s| s.cycle.cycle_us / 1e3).collect();
-    let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
     Summary {
         samples: samples.len(),
-        horizontal: scenario.horizontal.as_ref().map(|plan| horizontal_figures(plan, &positions)),
+        horizontal: horizontal_of(scenario, samples),
         rms_depth_m: rms_depth,
         rms_heading_deg: rms_heading,
         max_overshoot_depth_m: os_d,

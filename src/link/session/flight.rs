@@ -73,8 +73,7 @@ pub(super) struct Flight<'l> {
     /// one: `(scenario time, north, east)`, what both pinc and the autopilot's hold steer by.
     pub(super) raw_positions: Vec<(f64, f64, f64)>,
     pub(super) js_gain: f64,
-    /// The scenario's horizontal plan, and where its zero lies in the autopilot's local frame
-    /// (the start, or the EKF origin), once control starts.
+    /// The scenario's horizontal plan (its zero: [`Flight::plan_offset`]).
     pub(super) plan: Option<crate::closed_loop::path_plan::HorizontalPlan>,
     /// Whether the horizontal goal is dropped (the position source lost), said when it changes.
     goal_dropped: bool,

@@ -50,8 +50,8 @@ pub enum AutopilotHold {
     /// GUIDED: position, velocity and heading by `SET_POSITION_TARGET_LOCAL_NED` (needs a
     /// position source).
     Guided,
-    /// POSHOLD: the position it entered at held by the autopilot, depth and heading targets
-    /// sent as for ALT_HOLD (needs a position source).
+    /// POSHOLD: the position it entered at held by the autopilot (needs a position source);
+    /// depth and heading targets are sent as for ALT_HOLD, and ArduSub ignores them there.
     PosHold,
 }
 
