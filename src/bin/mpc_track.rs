@@ -156,6 +156,11 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[arg(long, value_parser = ["althold", "guided", "poshold"], requires = "connect")]
     autopilot_hold: Option<String>,
+    /// With --connect: print one JSON line per control cycle on stdout (time, depth, heading,
+    /// position and their references), as `pinc serve` reads them.
+    #[cfg(feature = "vehicle")]
+    #[arg(long, requires = "connect")]
+    stream_samples: bool,
     /// Serve the run live over Foxglove's WebSocket protocol at [HOST:]PORT (loopback unless a
     /// host is given; port 0 picks a free one): the MCAP log's topics as they are written, to
     /// open in Foxglove without a file. A simulated run then goes in real time.
@@ -702,6 +707,7 @@ fn live(
         drive: &a.drive,
         estimator: &a.estimator,
         max_distance: a.max_distance,
+        stream_samples: a.stream_samples,
     };
     let mpc = mpc.map_err(|e| e.to_string())?;
     let hold = match a.autopilot_hold.as_deref() {

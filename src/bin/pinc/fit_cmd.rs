@@ -61,6 +61,19 @@ pub struct FitArgs {
     pub json: bool,
 }
 
+/// What the fit is doing, for a terminal or a page.
+pub fn stage_text(stage: &Stage) -> String {
+    match stage {
+        Stage::Read => "reading the recordings".to_string(),
+        Stage::Estimate => "estimating the state on the starting vehicle".into(),
+        Stage::Identify => "identifying the vehicle".into(),
+        Stage::SensorLag(n) => format!("finding the depth sensor's lag ({n} candidates)"),
+        Stage::Refine => "estimating and identifying again on the fitted vehicle and sensors".into(),
+        Stage::Train(_) => "training the hybrid".into(),
+        Stage::Report => "writing the report".into(),
+    }
+}
+
 pub fn run_fit(a: FitArgs) -> Result<(), String> {
     let mut settings = FitSettings::new(a.recordings.clone(), a.vehicle.clone());
     settings.epochs = a.epochs;
@@ -88,20 +101,11 @@ pub fn run_fit(a: FitArgs) -> Result<(), String> {
         .expect("static template")
         .progress_chars("=> ");
     let on_stage = |stage: Stage| {
-        let msg = match stage {
-            Stage::Read => "reading the recordings".to_string(),
-            Stage::Estimate => "estimating the state on the starting vehicle".into(),
-            Stage::Identify => "identifying the vehicle".into(),
-            Stage::SensorLag(n) => format!("finding the depth sensor's lag ({n} candidates)"),
-            Stage::Refine => "estimating and identifying again on the fitted vehicle and sensors".into(),
-            Stage::Train(n) => {
-                bar.set_style(epoch_style.clone());
-                bar.set_length(n as u64);
-                "training the hybrid".into()
-            }
-            Stage::Report => "writing the report".into(),
-        };
-        bar.set_message(msg);
+        if let Stage::Train(n) = stage {
+            bar.set_style(epoch_style.clone());
+            bar.set_length(n as u64);
+        }
+        bar.set_message(stage_text(&stage));
     };
     let on_epoch = |r: &pinc::train::EpochRecord| {
         bar.set_position(r.epoch as u64);

@@ -25,6 +25,8 @@ mod thrusters_cmd;
 mod train_cmd;
 mod trajectory_csv;
 #[cfg(feature = "vehicle")]
+mod serve;
+#[cfg(feature = "vehicle")]
 mod vehicle_cmd;
 
 #[derive(Parser)]
@@ -206,6 +208,10 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
+    /// The web page that takes an owner from an excitation to a fitted flight: the vehicle
+    /// live, excite, fit, fly, STOP, the data folder (BlueOS's page for pinc; docs/BLUEOS.md).
+    #[cfg(feature = "vehicle")]
+    Serve(Box<serve::ServeArgs>),
 }
 
 #[derive(Subcommand)]
@@ -296,6 +302,8 @@ fn main() -> ExitCode {
         }
         #[cfg(feature = "vehicle")]
         Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
+        #[cfg(feature = "vehicle")]
+        Command::Serve(args) => serve::run_serve(*args),
         #[cfg(not(feature = "vehicle"))]
         Command::Vehicle { .. } => {
             eprintln!(

@@ -80,6 +80,7 @@ pub(super) struct Flight<'l> {
     /// When the horizontal goal was dropped and taken up again (scenario time, s).
     pub(super) goal_changes: Vec<(f64, bool)>,
     max_distance: Option<f64>,
+    stream_samples: bool,
 }
 
 /// The state to control on, or why not yet.
@@ -130,6 +131,7 @@ impl<'l> Flight<'l> {
             goal_dropped: false,
             goal_changes: Vec::new(),
             max_distance: setup.max_distance,
+            stream_samples: setup.stream_samples,
         }
     }
 
@@ -664,6 +666,27 @@ impl<'l> Flight<'l> {
         if self.log_error.is_none() {
             self.log_error = self.log.record(&sample).err();
         }
+        if self.stream_samples {
+            stream_line(&sample);
+        }
         self.samples.push(sample);
     }
+}
+
+/// One cycle as a JSON line on stdout, flushed (a reader on a pipe sees it at once); missing
+/// values are nulls.
+fn stream_line(s: &Sample) {
+    use std::io::Write;
+    let r = &s.reference;
+    let (north_ref, east_ref) = r.horizontal.as_ref().map_or((None, None), |h| (Some(h.north), Some(h.east)));
+    let line = json!({
+        "t": s.t,
+        "depth_m": s.state[2], "depth_ref_m": r.depth,
+        "heading_deg": s.state[3].to_degrees(), "heading_ref_deg": r.heading.to_degrees(),
+        "north_m": s.state[0], "east_m": s.state[1], "north_ref_m": north_ref, "east_ref_m": east_ref,
+        "input": s.cycle.input.as_slice(),
+    });
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
 }

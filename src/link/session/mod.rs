@@ -114,6 +114,9 @@ pub struct SessionOptions<'a> {
     pub estimator: &'a EstimatorArgs,
     /// The farthest the vehicle may go from where control starts (m), with a position source.
     pub max_distance: Option<f64>,
+    /// One JSON line per control cycle on stdout (the time, depth, heading and position with
+    /// their references): what `pinc serve` plots live.
+    pub stream_samples: bool,
 }
 
 /// A session's outcome.
@@ -210,6 +213,7 @@ struct Setup<M> {
     dt: f64,
     position_free: bool,
     max_distance: Option<f64>,
+    stream_samples: bool,
 }
 
 impl<M: DiscreteModel + Clone> Setup<M> {
@@ -281,6 +285,7 @@ impl<M: DiscreteModel + Clone> Setup<M> {
             dt,
             position_free,
             max_distance: o.max_distance,
+            stream_samples: o.stream_samples,
         })
     }
 }

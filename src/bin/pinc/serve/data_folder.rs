@@ -1,0 +1,200 @@
+//! The data folder: everything the page lists, downloads and deletes lives under one folder,
+//! in four kinds (`recordings`, `excitations`, `models`, `flights`; a model or a flight is a
+//! folder of files). A name from a request is one plain file or folder name: anything that
+//! could leave the folder (`..`, `/`, `\`, a leading dot) is refused before the disk is touched.
+
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
+use std::time::UNIX_EPOCH;
+
+/// The kinds of things the folder holds, each in its own sub-folder.
+pub const KINDS: [&str; 4] = ["recordings", "excitations", "models", "flights"];
+
+/// Why a name or a file was refused.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DataError {
+    #[error("unknown kind {0:?}: one of recordings, excitations, models, flights")]
+    Kind(String),
+    #[error("{what} {name:?} is refused: names are letters, digits, '.', '_' and '-', not starting with a dot, at most 100 characters (no '..', '/' or '\\')")]
+    Name { what: &'static str, name: String },
+    #[error("{0} does not exist in the data folder")]
+    Missing(String),
+    #[error("{path}: {error}")]
+    Io { path: String, error: String },
+}
+
+/// A plain name: `[A-Za-z0-9._-]`, not starting with a dot, 1-100 characters.
+pub fn check_name(what: &'static str, name: &str) -> Result<(), DataError> {
+    let plain = !name.is_empty()
+        && name.len() <= 100
+        && !name.starts_with('.')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+    if plain { Ok(()) } else { Err(DataError::Name { what, name: name.to_string() }) }
+}
+
+/// The data folder.
+#[derive(Clone)]
+pub struct DataFolder {
+    root: PathBuf,
+}
+
+fn io(path: &Path, e: std::io::Error) -> DataError {
+    DataError::Io { path: path.display().to_string(), error: e.to_string() }
+}
+
+impl DataFolder {
+    /// The folder and its kinds' sub-folders, made if missing.
+    pub fn open(root: &Path) -> Result<Self, DataError> {
+        for kind in KINDS {
+            let dir = root.join(kind);
+            std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
+        }
+        Ok(Self { root: root.to_path_buf() })
+    }
+
+    /// The sub-folder of `kind`.
+    pub fn dir(&self, kind: &str) -> Result<PathBuf, DataError> {
+        if KINDS.contains(&kind) { Ok(self.root.join(kind)) } else { Err(DataError::Kind(kind.to_string())) }
+    }
+
+    /// The path of `kind/name` (or of `file` inside that folder), checked, not necessarily
+    /// existing.
+    pub fn path(&self, kind: &str, name: &str, file: Option<&str>) -> Result<PathBuf, DataError> {
+        check_name("name", name)?;
+        let mut path = self.dir(kind)?.join(name);
+        if let Some(file) = file {
+            check_name("file", file)?;
+            path.push(file);
+        }
+        Ok(path)
+    }
+
+    /// The path of an existing `kind/name[/file]`.
+    pub fn existing(&self, kind: &str, name: &str, file: Option<&str>) -> Result<PathBuf, DataError> {
+        let path = self.path(kind, name, file)?;
+        let shown = [Some(kind), Some(name), file].into_iter().flatten().collect::<Vec<_>>().join("/");
+        if path.symlink_metadata().is_ok() { Ok(path) } else { Err(DataError::Missing(shown)) }
+    }
+
+    /// A name `PREFIX-YYYYmmdd-HHMMSS` (UTC) not yet taken in `kind` (with `-2`, `-3`... if it is).
+    pub fn new_name(&self, kind: &str, prefix: &str, extension: &str) -> Result<String, DataError> {
+        let now = std::time::SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
+        let base = format!("{prefix}-{}", utc_stamp(now));
+        let dir = self.dir(kind)?;
+        let taken = |n: &str| dir.join(format!("{n}{extension}")).exists() || dir.join(format!("{n}{extension}.partial")).exists();
+        let mut name = base.clone();
+        let mut k = 2;
+        while taken(&name) {
+            name = format!("{base}-{k}");
+            k += 1;
+        }
+        Ok(format!("{name}{extension}"))
+    }
+
+    /// Every entry of every kind: name, size (a folder's: its files'), modified time, and a
+    /// folder's files; a recording still being written (or left by a killed run) ends in
+    /// `.partial`.
+    pub fn list(&self) -> Value {
+        let mut out = serde_json::Map::new();
+        for kind in KINDS {
+            let mut entries: Vec<Value> = Vec::new();
+            let Ok(read) = std::fs::read_dir(self.root.join(kind)) else { continue };
+            for entry in read.flatten() {
+                let name = entry.file_name().to_string_lossy().into_owned();
+                if check_name("name", &name).is_err() {
+                    continue;
+                }
+                let Ok(meta) = entry.metadata() else { continue };
+                let modified = meta.modified().ok().and_then(|m| m.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_secs());
+                let (size, files) = if meta.is_dir() {
+                    let mut files: Vec<(String, u64)> = std::fs::read_dir(entry.path())
+                        .map(|r| {
+                            r.flatten()
+                                .filter_map(|f| {
+                                    let m = f.metadata().ok().filter(|m| m.is_file())?;
+                                    Some((f.file_name().to_string_lossy().into_owned(), m.len()))
+                                })
+                                .filter(|(n, _)| check_name("file", n).is_ok())
+                                .collect()
+                        })
+                        .unwrap_or_default();
+                    files.sort();
+                    (files.iter().map(|f| f.1).sum(), Some(files.into_iter().map(|f| f.0).collect::<Vec<_>>()))
+                } else {
+                    (meta.len(), None)
+                };
+                entries.push(json!({"name": name, "size": size, "modified": modified, "files": files,
+                                    "partial": name.ends_with(".partial")}));
+            }
+            entries.sort_by(|a, b| b["modified"].as_u64().cmp(&a["modified"].as_u64()).then(a["name"].as_str().cmp(&b["name"].as_str())));
+            out.insert(kind.to_string(), Value::Array(entries));
+        }
+        Value::Object(out)
+    }
+
+    /// Deletes `kind/name` (a folder with its files).
+    pub fn delete(&self, kind: &str, name: &str) -> Result<(), DataError> {
+        let path = self.existing(kind, name, None)?;
+        let meta = path.symlink_metadata().map_err(|e| io(&path, e))?;
+        if meta.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) }.map_err(|e| io(&path, e))
+    }
+}
+
+/// `YYYYmmdd-HHMMSS` of seconds since 1970 (UTC), by the civil-from-days algorithm.
+fn utc_stamp(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}{month:02}{day:02}-{:02}{:02}{:02}", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_that_could_leave_the_folder_are_refused() {
+        for bad in ["..", "../x", "a/b", "a\\b", ".hidden", "", "a b", "x\0", &"a".repeat(101)] {
+            assert!(check_name("name", bad).is_err(), "{bad:?} was accepted");
+        }
+        for good in ["pool.mcap", "pool.mcap.partial", "fit-20261127-101500", "a_b-1.csv"] {
+            check_name("name", good).unwrap();
+        }
+    }
+
+    #[test]
+    fn paths_stay_in_their_kind_and_deletes_take_only_what_exists() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = DataFolder::open(dir.path()).unwrap();
+        assert_eq!(data.path("models", "m", Some("report.png")).unwrap(), dir.path().join("models/m/report.png"));
+        assert_eq!(data.path("secrets", "m", None), Err(DataError::Kind("secrets".into())));
+        assert!(matches!(data.path("models", "m", Some("../../etc")), Err(DataError::Name { what: "file", .. })));
+        assert_eq!(data.delete("recordings", "none.mcap"), Err(DataError::Missing("recordings/none.mcap".into())));
+        std::fs::write(dir.path().join("recordings/a.mcap.partial"), b"x").unwrap();
+        std::fs::create_dir(dir.path().join("models/fit-1")).unwrap();
+        std::fs::write(dir.path().join("models/fit-1/model.pinc"), b"abc").unwrap();
+        let list = data.list();
+        assert_eq!(list["recordings"][0]["name"], "a.mcap.partial");
+        assert_eq!(list["recordings"][0]["partial"], true);
+        assert_eq!(list["models"][0]["files"], json!(["model.pinc"]));
+        assert_eq!(list["models"][0]["size"], 3);
+        data.delete("models", "fit-1").unwrap();
+        assert!(!dir.path().join("models/fit-1").exists());
+    }
+
+    #[test]
+    fn stamps_are_utc_calendar_times() {
+        assert_eq!(utc_stamp(0), "19700101-000000");
+        // 2026-11-27 02:40:05 UTC.
+        assert_eq!(utc_stamp(1_795_747_205), "20261127-024005");
+        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+    }
+}

@@ -1,0 +1,412 @@
+//! One job at a time: an excitation or a flight runs as a child process (pinc's own
+//! `vehicle excite` and `mpc_track --connect`, with every safety stop they have), a fit in a
+//! thread. Children die with the server (Linux's parent-death signal): a server killed mid
+//! flight leaves the vehicle to the autopilot's own failsafe (pilot input lost: neutral in 3 s)
+//! and the recording as `.partial`. STOP interrupts the child (it sends neutral and disarms,
+//! as on Ctrl-C) beside the server's own neutral and disarm; a child still running 5 s later is
+//! killed.
+
+use serde_json::{Value, json};
+use std::collections::VecDeque;
+use std::ffi::OsString;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Lines of a job's output kept for the page.
+const KEPT_LINES: usize = 400;
+/// A child still running this long after STOP is killed.
+const KILL_AFTER: Duration = Duration::from_secs(5);
+
+/// What a job does.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Kind {
+    Excite,
+    Fit,
+    Fly,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Excite => "excite",
+            Kind::Fit => "fit",
+            Kind::Fly => "fly",
+        }
+    }
+}
+
+/// Where a job is.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum State {
+    Running,
+    Finished,
+    Failed,
+    Stopped,
+}
+
+impl State {
+    fn name(self) -> &'static str {
+        match self {
+            State::Running => "running",
+            State::Finished => "finished",
+            State::Failed => "failed",
+            State::Stopped => "stopped",
+        }
+    }
+}
+
+/// One job, as the page sees it.
+pub struct Job {
+    pub id: u64,
+    pub kind: Kind,
+    pub what: String,
+    started: Instant,
+    ended: Option<Instant>,
+    pub state: State,
+    lines: VecDeque<String>,
+    /// The excitation's watch: its last word.
+    pub verdict: Option<String>,
+    /// The fit's stage, and its epochs done of all.
+    pub stage: Option<String>,
+    pub epochs: Option<(usize, usize)>,
+    /// A flight's cycles as its process streams them.
+    pub samples: Vec<Value>,
+    /// What it made (kind, name) and its figures.
+    pub result: Option<Value>,
+    pub error: Option<String>,
+    pub exit_code: Option<i32>,
+    child: Option<u32>,
+    stop_asked: Option<Instant>,
+    interrupt: Arc<AtomicBool>,
+}
+
+impl Job {
+    /// `since`: the first sample to send (the page asks only for the new ones).
+    pub fn to_json(&self, since: usize) -> Value {
+        json!({
+            "id": self.id,
+            "kind": self.kind.name(),
+            "what": self.what,
+            "state": self.state.name(),
+            "elapsed_s": self.ended.unwrap_or_else(Instant::now).duration_since(self.started).as_secs_f64(),
+            "lines": self.lines,
+            "verdict": self.verdict,
+            "stage": self.stage,
+            "epochs": self.epochs,
+            "samples_total": self.samples.len(),
+            "samples_from": since.min(self.samples.len()),
+            "samples": self.samples.get(since..).unwrap_or(&[]),
+            "result": self.result,
+            "error": self.error,
+            "exit_code": self.exit_code,
+            "stop_asked_s_ago": self.stop_asked.map(|t| t.elapsed().as_secs_f64()),
+        })
+    }
+
+    fn say(&mut self, line: String) {
+        if self.lines.len() == KEPT_LINES {
+            self.lines.pop_front();
+        }
+        self.lines.push_back(line);
+    }
+}
+
+/// The current (or last) job, shared by the routes and the job's threads.
+#[derive(Clone, Default)]
+pub struct Jobs {
+    current: Arc<Mutex<Option<Job>>>,
+    next_id: Arc<Mutex<u64>>,
+}
+
+/// A process to run: the program and its arguments, for the page's log too.
+pub struct Step {
+    pub program: PathBuf,
+    pub args: Vec<OsString>,
+}
+
+impl Step {
+    fn shown(&self) -> String {
+        let mut s = self.program.display().to_string();
+        for a in &self.args {
+            s.push(' ');
+            s.push_str(&a.to_string_lossy());
+        }
+        s
+    }
+}
+
+/// What a child's run gave: its exit code (`None`: killed by a signal), and its standard
+/// output that was not a stream sample.
+pub struct Ran {
+    pub code: Option<i32>,
+    pub stdout: String,
+}
+
+impl Jobs {
+    /// Starts a job unless one runs (the refusal says which); `work` runs on its own thread
+    /// with a handle to report through, and returns what the job made or why it failed.
+    pub fn start(
+        &self,
+        kind: Kind,
+        what: String,
+        work: impl FnOnce(&Handle) -> Result<Value, String> + Send + 'static,
+    ) -> Result<u64, String> {
+        let mut current = self.current.lock().expect("jobs");
+        if let Some(j) = current.as_ref().filter(|j| j.state == State::Running) {
+            return Err(format!(
+                "refused: {} {} is running (job {}); one at a time: stop it or wait for its end",
+                j.kind.name(),
+                j.what,
+                j.id
+            ));
+        }
+        let id = {
+            let mut n = self.next_id.lock().expect("ids");
+            *n += 1;
+            *n
+        };
+        let interrupt = Arc::new(AtomicBool::new(false));
+        *current = Some(Job {
+            id,
+            kind,
+            what,
+            started: Instant::now(),
+            ended: None,
+            state: State::Running,
+            lines: VecDeque::new(),
+            verdict: None,
+            stage: None,
+            epochs: None,
+            samples: Vec::new(),
+            result: None,
+            error: None,
+            exit_code: None,
+            child: None,
+            stop_asked: None,
+            interrupt: interrupt.clone(),
+        });
+        drop(current);
+        let handle = Handle { jobs: self.clone(), id, interrupt };
+        std::thread::spawn(move || {
+            let outcome = work(&handle);
+            handle.update(|j| {
+                j.ended = Some(Instant::now());
+                j.child = None;
+                match outcome {
+                    Ok(result) => {
+                        j.result = Some(result);
+                        j.state = if j.stop_asked.is_some() { State::Stopped } else { State::Finished };
+                    }
+                    Err(e) => {
+                        j.say(format!("error: {e}"));
+                        j.error = Some(e);
+                        j.state = if j.stop_asked.is_some() { State::Stopped } else { State::Failed };
+                    }
+                }
+            });
+        });
+        Ok(id)
+    }
+
+    /// The running job told to stop: its child interrupted, or its fit's flag set. Whether a
+    /// job was running.
+    pub fn stop(&self) -> bool {
+        let mut current = self.current.lock().expect("jobs");
+        let Some(j) = current.as_mut().filter(|j| j.state == State::Running) else { return false };
+        j.stop_asked.get_or_insert_with(Instant::now);
+        j.interrupt.store(true, Ordering::Relaxed);
+        if let Some(pid) = j.child {
+            signal(pid, libc::SIGINT);
+        }
+        j.say("STOP asked".into());
+        true
+    }
+
+    /// Whether a job runs.
+    pub fn running(&self) -> bool {
+        self.current.lock().expect("jobs").as_ref().is_some_and(|j| j.state == State::Running)
+    }
+
+    pub fn to_json(&self, since: usize) -> Value {
+        self.current.lock().expect("jobs").as_ref().map_or(Value::Null, |j| j.to_json(since))
+    }
+}
+
+fn signal(pid: u32, sig: libc::c_int) {
+    if let Ok(pid) = libc::pid_t::try_from(pid) {
+        // SAFETY: kill(2) takes any pid and signal number; the pid is our own child's.
+        unsafe { libc::kill(pid, sig) };
+    }
+}
+
+/// A running job's view of itself.
+pub struct Handle {
+    jobs: Jobs,
+    id: u64,
+    interrupt: Arc<AtomicBool>,
+}
+
+impl Handle {
+    /// Changes this job (not a later one).
+    pub fn update(&self, f: impl FnOnce(&mut Job)) {
+        if let Some(j) = self.jobs.current.lock().expect("jobs").as_mut().filter(|j| j.id == self.id) {
+            f(j);
+        }
+    }
+
+    pub fn say(&self, line: impl Into<String>) {
+        let line = line.into();
+        self.update(|j| j.say(line));
+    }
+
+    /// Set when STOP was asked.
+    pub fn interrupt(&self) -> &AtomicBool {
+        &self.interrupt
+    }
+
+    /// Runs `step` to its end: its standard error line by line into the job's log (the
+    /// watch's lines also as the verdict), its standard output's JSON lines with a `t` as
+    /// samples; STOP interrupts it and kills it 5 s later.
+    pub fn run(&self, step: &Step) -> Result<Ran, String> {
+        if self.interrupt.load(Ordering::Relaxed) {
+            return Err("stopped before it started".into());
+        }
+        self.say(format!("$ {}", step.shown()));
+        let mut child = spawn(step).map_err(|e| format!("cannot start {}: {e}", step.program.display()))?;
+        self.update(|j| j.child = Some(child.id()));
+        let stderr = child.stderr.take().expect("piped");
+        let stdout = child.stdout.take().expect("piped");
+        let me = || Handle { jobs: self.jobs.clone(), id: self.id, interrupt: self.interrupt.clone() };
+        let errors = {
+            let me = me();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    me.update(|j| {
+                        if line.starts_with("watch") {
+                            j.verdict = Some(line.clone());
+                        }
+                        j.say(line);
+                    });
+                }
+            })
+        };
+        // Read on a thread too: the wait below must see a STOP while the child still writes.
+        let output = {
+            let me = me();
+            std::thread::spawn(move || {
+                let mut rest = String::new();
+                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                    match serde_json::from_str::<Value>(&line) {
+                        Ok(v) if v.get("t").is_some_and(Value::is_number) => me.update(|j| j.samples.push(v)),
+                        _ => {
+                            rest.push_str(&line);
+                            rest.push('\n');
+                        }
+                    }
+                }
+                rest
+            })
+        };
+        let status = wait(&mut child, self)?;
+        let _ = errors.join();
+        let rest = output.join().unwrap_or_default();
+        self.update(|j| j.exit_code = status.code());
+        Ok(Ran { code: status.code(), stdout: rest })
+    }
+}
+
+/// Waits for `child`, killing it 5 s after a STOP it did not obey.
+fn wait(child: &mut Child, handle: &Handle) -> Result<std::process::ExitStatus, String> {
+    loop {
+        if let Some(status) = child.try_wait().map_err(|e| e.to_string())? {
+            return Ok(status);
+        }
+        let mut overdue = false;
+        handle.update(|j| overdue = j.stop_asked.is_some_and(|t| t.elapsed() > KILL_AFTER));
+        if overdue {
+            handle.say(format!("still running {} s after STOP: killed", KILL_AFTER.as_secs()));
+            let _ = child.kill();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The child, its output piped, killed by the kernel if the server dies.
+fn spawn(step: &Step) -> std::io::Result<Child> {
+    let mut command = Command::new(&step.program);
+    command.args(&step.args).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: between fork and exec only prctl(2), which is async-signal-safe, runs.
+        unsafe {
+            command.pre_exec(|| {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    command.spawn()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wait_for_end(jobs: &Jobs) -> Value {
+        for _ in 0..400 {
+            let j = jobs.to_json(0);
+            if j["state"] != "running" {
+                return j;
+            }
+            std::thread::sleep(Duration::from_millis(25));
+        }
+        panic!("the job did not end: {}", jobs.to_json(0));
+    }
+
+    #[test]
+    fn one_job_at_a_time_and_samples_apart_from_the_rest() {
+        let jobs = Jobs::default();
+        let script = "echo '{\"t\": 0.08, \"depth_m\": 1}'; echo 'said' >&2; sleep 0.3; echo '{\"summary\": 1}'";
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()] };
+        jobs.start(Kind::Fly, "test".into(), move |h| {
+            let ran = h.run(&step)?;
+            Ok(json!({"rest": ran.stdout, "code": ran.code}))
+        })
+        .unwrap();
+        let refused = jobs.start(Kind::Fit, "second".into(), |_| Ok(Value::Null)).expect_err("one at a time");
+        assert!(refused.contains("fly test is running"), "{refused}");
+        let j = wait_for_end(&jobs);
+        assert_eq!(j["state"], "finished");
+        assert_eq!(j["samples"], json!([{"t": 0.08, "depth_m": 1}]));
+        assert_eq!(j["result"], json!({"rest": "{\"summary\": 1}\n", "code": 0}));
+        assert!(j["lines"].as_array().unwrap().iter().any(|l| l == "said"));
+        assert_eq!(jobs.to_json(1)["samples"], json!([]));
+    }
+
+    #[test]
+    fn stop_interrupts_the_child_and_kills_one_that_ignores_it() {
+        let jobs = Jobs::default();
+        // Traps SIGINT (says so and goes on): only the kill after 5 s ends it.
+        let script = "trap 'echo interrupted >&2' INT; for i in $(seq 100); do sleep 0.1; done";
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()] };
+        jobs.start(Kind::Excite, "stubborn".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        let asked = Instant::now();
+        assert!(jobs.stop());
+        let j = wait_for_end(&jobs);
+        let took = asked.elapsed();
+        assert_eq!(j["state"], "stopped");
+        assert_eq!(j["result"], Value::Null, "killed by a signal: no exit code");
+        assert!(took >= KILL_AFTER && took < KILL_AFTER + Duration::from_secs(2), "{took:?}");
+        let lines = j["lines"].as_array().unwrap();
+        assert!(lines.iter().any(|l| l == "interrupted"), "{lines:?}");
+        assert!(!jobs.stop(), "nothing runs any more");
+    }
+}

@@ -1,0 +1,96 @@
+//! `pinc serve`: the web page that takes an owner from an excitation to a fitted flight. It is
+//! BlueOS's page for pinc (an extension) and works as well on a laptop against any autopilot
+//! address (docs/BLUEOS.md).
+//!
+//! The parts: `vehicle_watch` (the server's own link: the vehicle live, a new link after a
+//! reboot, STOP's neutral and disarm), `jobs` (one job at a time: excite and fly as child
+//! processes, fit in a thread), `orders` (what the page asks, checked against the vehicle's
+//! limits), `data_folder` (what is listed, downloaded, deleted), `routes` (HTTP, the token,
+//! each refusal), and the page itself (`page.html`, no outside resources).
+
+mod data_folder;
+mod jobs;
+mod orders;
+mod routes;
+mod vehicle_watch;
+
+use pinc::link::cli::LinkArgs;
+use std::path::PathBuf;
+
+/// Arguments of `pinc serve`.
+#[derive(clap::Args)]
+pub struct ServeArgs {
+    /// The server's own link (the page's vehicle view and STOP), as for `pinc vehicle`.
+    #[command(flatten)]
+    link: LinkArgs,
+    /// Where excitations and flights connect [default: --connect]: BlueOS's TCP endpoint
+    /// takes several clients; a serial port or a simulator's one-client port needs a second.
+    #[arg(long, value_name = "URL")]
+    flight_connect: Option<String>,
+    /// The data folder: recordings, excitations, models and flights (made if missing).
+    #[arg(long, default_value = "pinc-data")]
+    data: PathBuf,
+    /// Address to listen on (BlueOS: 0.0.0.0, the vehicle's network).
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: String,
+    /// Port to listen on.
+    #[arg(long, default_value_t = 8780)]
+    port: u16,
+    /// The vehicle file (its [[thruster]] tables) excitations and fits start from [default:
+    /// DATA/vehicle.toml].
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
+    /// Deepest the page may ask for (m): references, the excitation's band, and every run's
+    /// --max-depth stop.
+    #[arg(long, default_value_t = 3.0)]
+    max_depth: f64,
+    /// Longest excitation or flight (s).
+    #[arg(long, default_value_t = 600.0)]
+    max_duration: f64,
+    /// The farthest a flight may go from where it starts (m): a path reaching past it is
+    /// refused, and crossing it stops the flight.
+    #[arg(long, default_value_t = 30.0)]
+    max_distance: f64,
+    /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
+    /// --run-arg=1`, or the estimator's sensor noise).
+    #[arg(long = "run-arg", value_name = "ARG", allow_hyphen_values = true)]
+    run_args: Vec<String>,
+}
+
+pub fn run_serve(a: ServeArgs) -> Result<(), String> {
+    let limits = orders::Limits { max_depth: a.max_depth, max_duration: a.max_duration, max_distance: a.max_distance };
+    for (flag, v) in [("--max-depth", a.max_depth), ("--max-duration", a.max_duration), ("--max-distance", a.max_distance)]
+    {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!("{flag} must be a positive number, got {v}"));
+        }
+    }
+    let data = data_folder::DataFolder::open(&a.data).map_err(|e| e.to_string())?;
+    let vehicle = a.vehicle.clone().or_else(|| Some(a.data.join("vehicle.toml")).filter(|p| p.is_file()));
+    let here = std::env::current_exe().map_err(|e| format!("cannot find this program: {e}"))?;
+    let bin = here.parent().map(PathBuf::from).unwrap_or_default();
+    let mpc_track = bin.join("mpc_track");
+    if !mpc_track.is_file() {
+        return Err(format!("{} is missing: pinc serve runs mpc_track from its own folder", mpc_track.display()));
+    }
+    let watcher = vehicle_watch::Watcher::default();
+    watcher.start(a.link.connect.clone(), a.link.options.clone());
+    let app = routes::App {
+        data,
+        watcher,
+        jobs: jobs::Jobs::default(),
+        token: format!("{:032x}", rand::random::<u128>()),
+        limits,
+        vehicle,
+        flight_connect: a.flight_connect.clone().unwrap_or_else(|| a.link.connect.clone()),
+        run_args: a.run_args.clone(),
+        pinc: here,
+        mpc_track,
+    };
+    let server = tiny_http::Server::http((a.bind.as_str(), a.port))
+        .map_err(|e| format!("cannot listen on {}:{}: {e}", a.bind, a.port))?;
+    // Scripts (and the tests) read the address from this line.
+    eprintln!("pinc serve: http://{} (data {}, vehicle at {})", server.server_addr(), a.data.display(), a.link.connect);
+    routes::serve(server, std::sync::Arc::new(app));
+    Ok(())
+}

@@ -1,0 +1,228 @@
+//! What the page asks for, checked against the vehicle's limits before anything is sent: an
+//! excitation, a fit, a flight. Each refusal names the field and what is wrong.
+
+use serde::Deserialize;
+use std::fmt::Write as _;
+
+/// The vehicle's limits, from `pinc serve`'s flags.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Deepest depth (m) any reference, band or stop may ask for.
+    pub max_depth: f64,
+    /// Longest excitation or flight (s).
+    pub max_duration: f64,
+    /// The farthest a path may go from the start (m).
+    pub max_distance: f64,
+}
+
+/// The designed excitation's axes.
+const AXES: [&str; 4] = ["surge", "sway", "heave", "yaw"];
+
+/// `POST api/excite`.
+#[derive(Deserialize, Debug)]
+#[serde(deny_unknown_fields)]
+pub struct ExciteOrder {
+    /// Depth band TOP,BOTTOM (m).
+    pub depth_band: [f64; 2],
+    pub axes: Vec<String>,
+    /// Longest the excitation plays (s): the watch stops it earlier once the fit would pass.
+    pub duration: f64,
+    #[serde(default)]
+    pub seed: u64,
+    /// Play the whole file (no watch stop).
+    #[serde(default)]
+    pub keep_going: bool,
+}
+
+/// `POST api/fit`.
+#[derive(Deserialize, Debug)]
+#[serde(deny_unknown_fields)]
+pub struct FitOrder {
+    /// A recording's name in the data folder.
+    pub recording: String,
+    #[serde(default = "default_epochs")]
+    pub epochs: usize,
+}
+
+fn default_epochs() -> usize {
+    30
+}
+
+/// `POST api/fly`.
+#[derive(Deserialize, Debug)]
+#[serde(deny_unknown_fields)]
+pub struct FlyOrder {
+    /// A fitted model's name (its folder in `models`).
+    pub model: String,
+    pub references: References,
+    /// Length (s).
+    pub duration: f64,
+}
+
+/// What the flight tracks.
+#[derive(Deserialize, Debug)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum References {
+    /// Depth FROM then TO at AT (s); heading likewise (deg).
+    Steps { depth: [f64; 2], depth_at: f64, heading: [f64; 2], heading_at: f64 },
+    /// Hold where control starts (needs a position source), with the scenario's depth step and turn.
+    Station,
+    /// A lawnmower from the start: width, length, spacing (m), speed (m/s), depth (m).
+    Survey { width: f64, length: f64, spacing: f64, speed: f64, depth: f64 },
+}
+
+fn finite(field: &str, v: f64) -> Result<f64, String> {
+    if v.is_finite() { Ok(v) } else { Err(format!("{field} must be a number, got {v}")) }
+}
+
+fn depth(field: &str, v: f64, limits: &Limits) -> Result<f64, String> {
+    let v = finite(field, v)?;
+    if (0.0..=limits.max_depth).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{field} {v} m is outside the vehicle's limits: 0 to {} m (pinc serve --max-depth)", limits.max_depth))
+    }
+}
+
+fn duration(field: &str, v: f64, limits: &Limits) -> Result<f64, String> {
+    let v = finite(field, v)?;
+    if v > 0.0 && v <= limits.max_duration {
+        Ok(v)
+    } else {
+        Err(format!("{field} {v} s must be above 0 and at most {} s (pinc serve --max-duration)", limits.max_duration))
+    }
+}
+
+fn positive(field: &str, v: f64) -> Result<f64, String> {
+    let v = finite(field, v)?;
+    if v > 0.0 { Ok(v) } else { Err(format!("{field} must be above 0, got {v}")) }
+}
+
+impl ExciteOrder {
+    pub fn check(&self, limits: &Limits) -> Result<(), String> {
+        let [top, bottom] = self.depth_band;
+        depth("depth_band top", top, limits)?;
+        depth("depth_band bottom", bottom, limits)?;
+        if bottom - top < 0.5 {
+            return Err(format!("depth_band {top},{bottom}: the bottom must be at least 0.5 m below the top"));
+        }
+        duration("duration", self.duration, limits)?;
+        if self.axes.is_empty() {
+            return Err("axes: choose at least one of surge, sway, heave, yaw".into());
+        }
+        if let Some(a) = self.axes.iter().find(|a| !AXES.contains(&a.as_str())) {
+            return Err(format!("axes: unknown axis {a:?} (surge, sway, heave, yaw)"));
+        }
+        Ok(())
+    }
+}
+
+impl FitOrder {
+    pub fn check(&self) -> Result<(), String> {
+        if (1..=2000).contains(&self.epochs) { Ok(()) } else { Err(format!("epochs {} must be 1 to 2000", self.epochs)) }
+    }
+}
+
+impl FlyOrder {
+    pub fn check(&self, limits: &Limits) -> Result<(), String> {
+        duration("duration", self.duration, limits)?;
+        match &self.references {
+            References::Steps { depth: [a, b], depth_at, heading: [h0, h1], heading_at } => {
+                depth("depth from", *a, limits)?;
+                depth("depth to", *b, limits)?;
+                for (field, v) in [("heading from", h0), ("heading to", h1)] {
+                    finite(field, *v)?;
+                }
+                for (field, at) in [("depth_at", depth_at), ("heading_at", heading_at)] {
+                    if !(finite(field, *at)? >= 0.0 && *at <= self.duration) {
+                        return Err(format!("{field} {at} s must be within the flight (0 to {} s)", self.duration));
+                    }
+                }
+            }
+            References::Station => {}
+            References::Survey { width, length, spacing, speed, depth: d } => {
+                for (field, v) in [("width", width), ("length", length), ("spacing", spacing), ("speed", speed)] {
+                    positive(field, *v)?;
+                }
+                depth("depth", *d, limits)?;
+                let reach = width.hypot(*length);
+                if reach > limits.max_distance {
+                    return Err(format!(
+                        "the survey reaches {reach:.1} m from the start, past the vehicle's limit of {} m \
+                         (pinc serve --max-distance)",
+                        limits.max_distance
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A steps order as `mpc_track --reference`'s CSV (a step is two rows at one time).
+    pub fn reference_csv(&self) -> Option<String> {
+        let References::Steps { depth, depth_at, heading, heading_at } = &self.references else { return None };
+        let at = |t: f64, d_at: f64, h_at: f64, after: bool| {
+            let pick = |v: &[f64; 2], when: f64| if t > when || (after && t == when) { v[1] } else { v[0] };
+            (pick(depth, d_at), pick(heading, h_at))
+        };
+        let mut times = vec![*depth_at, *heading_at];
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+        let mut csv = String::from("t,depth_m,heading_deg\n");
+        let (d, h) = at(0.0, *depth_at, *heading_at, false);
+        let _ = writeln!(csv, "0,{d},{h}");
+        for t in times {
+            for after in [false, true] {
+                let (d, h) = at(t, *depth_at, *heading_at, after);
+                let _ = writeln!(csv, "{t},{d},{h}");
+            }
+        }
+        let (d, h) = at(self.duration, *depth_at, *heading_at, true);
+        let _ = writeln!(csv, "{},{d},{h}", self.duration);
+        Some(csv)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LIMITS: Limits = Limits { max_depth: 3.0, max_duration: 600.0, max_distance: 20.0 };
+
+    fn fly(json: &str) -> Result<(), String> {
+        serde_json::from_str::<FlyOrder>(json).map_err(|e| e.to_string())?.check(&LIMITS)
+    }
+
+    #[test]
+    fn numbers_past_the_vehicles_limits_are_refused_naming_the_field() {
+        let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,5],"depth_at":10,"heading":[0,90],"heading_at":20}}"#).unwrap_err();
+        assert!(e.contains("depth to 5 m is outside the vehicle's limits: 0 to 3 m"), "{e}");
+        let e = fly(r#"{"model":"m","duration":3000,"references":{"kind":"station"}}"#).unwrap_err();
+        assert!(e.starts_with("duration 3000 s"), "{e}");
+        let e = fly(r#"{"model":"m","duration":60,"references":{"kind":"survey","width":40,"length":10,"spacing":2,"speed":0.3,"depth":2}}"#).unwrap_err();
+        assert!(e.contains("reaches 41.2 m from the start, past the vehicle's limit of 20 m"), "{e}");
+        let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,2],"depth_at":40,"heading":[0,90],"heading_at":20}}"#).unwrap_err();
+        assert!(e.contains("depth_at 40 s must be within the flight"), "{e}");
+        let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"orbit"}}"#).unwrap_err();
+        assert!(e.contains("unknown variant `orbit`"), "{e}");
+        let band = |b: &str| {
+            serde_json::from_str::<ExciteOrder>(&format!(r#"{{"depth_band":{b},"axes":["heave","yaw"],"duration":90}}"#))
+                .unwrap()
+                .check(&LIMITS)
+        };
+        assert!(band("[0.5,2.5]").is_ok());
+        assert!(band("[0.5,3.5]").unwrap_err().contains("depth_band bottom 3.5 m is outside"));
+        assert!(band("[2,2.2]").unwrap_err().contains("at least 0.5 m below"));
+        let axes = serde_json::from_str::<ExciteOrder>(r#"{"depth_band":[0.5,2],"axes":["roll"],"duration":90}"#).unwrap();
+        assert!(axes.check(&LIMITS).unwrap_err().contains("unknown axis \"roll\""));
+    }
+
+    #[test]
+    fn steps_become_a_reference_file_with_steps_as_two_rows_at_one_time() {
+        let o: FlyOrder = serde_json::from_str(
+            r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,2],"depth_at":10,"heading":[0,90],"heading_at":20}}"#,
+        )
+        .unwrap();
+        assert_eq!(o.reference_csv().unwrap(), "t,depth_m,heading_deg\n0,1,0\n10,1,0\n10,2,0\n20,2,0\n20,2,90\n30,2,90\n");
+    }
+}

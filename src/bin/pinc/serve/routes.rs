@@ -1,0 +1,395 @@
+//! The HTTP routes. Reads are GETs; everything that moves the vehicle or changes the data
+//! folder is a POST carrying the token the page was given in an `X-Pinc-Token` header
+//! (another site's page in the same browser cannot read the page, so it has no token, and
+//! cannot set the header without a CORS permission this server never gives). Every refusal
+//! is a JSON `{"error": ...}` with its status, and a line in the server's log.
+
+use super::data_folder::DataFolder;
+use super::jobs::{Handle, Jobs, Kind, Step};
+use super::orders::{ExciteOrder, FitOrder, FlyOrder, Limits, References};
+use super::vehicle_watch::Watcher;
+use serde::de::DeserializeOwned;
+use serde_json::{Value, json};
+use std::io::Read;
+use std::path::PathBuf;
+use std::sync::Arc;
+use tiny_http::{Header, Method, Request, Response, Server};
+
+/// The largest request body read (bytes).
+const MAX_BODY: u64 = 64 * 1024;
+/// The page, with `__PINC_TOKEN__` for the token.
+const PAGE: &str = include_str!("page.html");
+
+/// Everything the routes share.
+pub struct App {
+    pub data: DataFolder,
+    pub watcher: Watcher,
+    pub jobs: Jobs,
+    pub token: String,
+    pub limits: Limits,
+    pub vehicle: Option<PathBuf>,
+    pub flight_connect: String,
+    pub run_args: Vec<String>,
+    pub pinc: PathBuf,
+    pub mpc_track: PathBuf,
+}
+
+/// A refusal: status and message.
+struct Refused(u16, String);
+
+type Reply = Result<Response<std::io::Cursor<Vec<u8>>>, Refused>;
+
+fn header(name: &str, value: &str) -> Header {
+    Header::from_bytes(name.as_bytes(), value.as_bytes()).expect("ASCII header")
+}
+
+fn json_reply(status: u16, v: &Value) -> Response<std::io::Cursor<Vec<u8>>> {
+    Response::from_data(v.to_string().into_bytes())
+        .with_status_code(status)
+        .with_header(header("Content-Type", "application/json"))
+        .with_header(header("Cache-Control", "no-store"))
+}
+
+/// Answers requests for ever, each on its own thread (a download must not hold the page's polls).
+pub fn serve(server: Server, app: Arc<App>) {
+    for request in server.incoming_requests() {
+        let app = app.clone();
+        std::thread::spawn(move || app.answer(request));
+    }
+}
+
+impl App {
+    fn answer(&self, mut request: Request) {
+        let method = request.method().clone();
+        let url = request.url().to_string();
+        let (path, query) = url.split_once('?').unwrap_or((&url, ""));
+        let query: Vec<(String, String)> = form_urlencoded::parse(query.as_bytes()).into_owned().collect();
+        let reply = if method == Method::Get {
+            self.get(path, &query)
+        } else if method == Method::Post {
+            self.post(path, &mut request)
+        } else {
+            Err(Refused(405, format!("{method} is not answered here")))
+        };
+        let response = reply.unwrap_or_else(|Refused(status, message)| {
+            eprintln!("serve: refused {method} {path}: {message}");
+            json_reply(status, &json!({"error": message}))
+        });
+        let _ = request.respond(response);
+    }
+
+    fn get(&self, path: &str, query: &[(String, String)]) -> Reply {
+        let arg = |k: &str| query.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        match path {
+            "/" | "/index.html" => Ok(Response::from_data(PAGE.replace("__PINC_TOKEN__", &self.token).into_bytes())
+                .with_header(header("Content-Type", "text/html; charset=utf-8"))
+                .with_header(header("Cache-Control", "no-store"))),
+            // BlueOS scans the vehicle's ports for this and shows `/` in its interface.
+            "/register_service" => Ok(json_reply(
+                200,
+                &json!({
+                    "name": "pinc",
+                    "description": "Excite, fit and fly your vehicle with a learned model and an MPC",
+                    "icon": "mdi-chart-bell-curve-cumulative",
+                    "company": "pinc",
+                    "version": env!("CARGO_PKG_VERSION"),
+                    "webpage": env!("CARGO_PKG_REPOSITORY"),
+                    "api": "",
+                    "works_in_relative_paths": true,
+                }),
+            )),
+            "/api/state" => {
+                let since = arg("since").and_then(|s| s.parse().ok()).unwrap_or(0);
+                let vehicle = self.watcher.view.lock().expect("view").to_json();
+                Ok(json_reply(
+                    200,
+                    &json!({
+                        "vehicle": vehicle,
+                        "job": self.jobs.to_json(since),
+                        "server": {
+                            "version": env!("CARGO_PKG_VERSION"),
+                            "flight_connect": self.flight_connect,
+                            "vehicle_file": self.vehicle.as_ref().map(|p| p.display().to_string()),
+                            "limits": {"max_depth": self.limits.max_depth, "max_duration": self.limits.max_duration,
+                                       "max_distance": self.limits.max_distance},
+                            "trainer": cfg!(feature = "train"),
+                        },
+                    }),
+                ))
+            }
+            "/api/files" => Ok(json_reply(200, &self.data.list())),
+            "/api/download" => {
+                let (kind, name) = (arg("kind").unwrap_or(""), arg("name").unwrap_or(""));
+                let path = self.data.existing(kind, name, arg("file")).map_err(|e| Refused(404, e.to_string()))?;
+                if path.is_dir() {
+                    return Err(Refused(400, format!("{kind}/{name} is a folder: ask for one of its files")));
+                }
+                let bytes = std::fs::read(&path).map_err(|e| Refused(500, format!("{}: {e}", path.display())))?;
+                let file = path.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+                let kind = match path.extension().and_then(|e| e.to_str()) {
+                    Some("png") => "image/png",
+                    Some("json") => "application/json",
+                    Some("md" | "csv" | "toml") => "text/plain; charset=utf-8",
+                    _ => "application/octet-stream",
+                };
+                let mut response = Response::from_data(bytes).with_header(header("Content-Type", kind));
+                if arg("attachment").is_some() {
+                    response = response.with_header(header("Content-Disposition", &format!("attachment; filename=\"{file}\"")));
+                }
+                Ok(response)
+            }
+            _ => Err(Refused(404, format!("nothing at {path}"))),
+        }
+    }
+
+    fn post(&self, path: &str, request: &mut Request) -> Reply {
+        let token = request.headers().iter().find(|h| h.field.equiv("X-Pinc-Token")).map(|h| h.value.as_str().to_string());
+        if token.as_deref() != Some(self.token.as_str()) {
+            return Err(Refused(403, "missing or wrong token: commands come only from pinc's own page (reload it)".into()));
+        }
+        let mut body = String::new();
+        request
+            .as_reader()
+            .take(MAX_BODY + 1)
+            .read_to_string(&mut body)
+            .map_err(|e| Refused(400, format!("cannot read the request: {e}")))?;
+        if body.len() as u64 > MAX_BODY {
+            return Err(Refused(413, format!("the request is over {MAX_BODY} bytes")));
+        }
+        match path {
+            "/api/stop" => {
+                self.watcher.stop();
+                let job = self.jobs.stop();
+                eprintln!("serve: STOP (neutral and disarm sent{})", if job { ", the job told to stop" } else { "" });
+                Ok(json_reply(200, &json!({"stopped": true, "job": job})))
+            }
+            "/api/excite" => self.excite(parse(&body)?),
+            "/api/fit" => self.fit(parse(&body)?),
+            "/api/fly" => self.fly(parse(&body)?),
+            "/api/delete" => {
+                let order: DeleteOrder = parse(&body)?;
+                if self.jobs.running() {
+                    return Err(Refused(409, "refused: nothing is deleted while a job runs".into()));
+                }
+                self.data.delete(&order.kind, &order.name).map_err(|e| Refused(400, e.to_string()))?;
+                eprintln!("serve: deleted {}/{}", order.kind, order.name);
+                Ok(json_reply(200, &json!({"deleted": format!("{}/{}", order.kind, order.name)})))
+            }
+            _ => Err(Refused(404, format!("nothing at {path}"))),
+        }
+    }
+
+    fn vehicle_file(&self) -> Result<PathBuf, Refused> {
+        self.vehicle.clone().ok_or_else(|| {
+            Refused(400, "no vehicle file: start pinc serve with --vehicle V.toml or put vehicle.toml in the data folder".into())
+        })
+    }
+
+    fn started(&self, kind: Kind, what: String, work: impl FnOnce(&Handle) -> Result<Value, String> + Send + 'static) -> Reply {
+        let id = self.jobs.start(kind, what.clone(), work).map_err(|e| Refused(409, e))?;
+        eprintln!("serve: job {id}: {} {what}", kind.name());
+        Ok(json_reply(200, &json!({"job": id, "what": what})))
+    }
+
+    fn excite(&self, order: ExciteOrder) -> Reply {
+        order.check(&self.limits).map_err(|e| Refused(400, e))?;
+        let vehicle = self.vehicle_file()?;
+        let name = self.data.new_name("recordings", "excite", ".mcap").map_err(|e| Refused(500, e.to_string()))?;
+        let base = name.trim_end_matches(".mcap").to_string();
+        let inputs = self.data.path("excitations", &format!("{base}.csv"), None).map_err(|e| Refused(500, e.to_string()))?;
+        let out = self.data.path("recordings", &name, None).map_err(|e| Refused(500, e.to_string()))?;
+        let [top, bottom] = order.depth_band;
+        let design = Step {
+            program: self.pinc.clone(),
+            args: os_args([
+                "excitation".into(),
+                "--vehicle".into(),
+                path(&vehicle),
+                "--out".into(),
+                path(&inputs),
+                "--duration".into(),
+                order.duration.to_string(),
+                "--seed".into(),
+                order.seed.to_string(),
+                "--axes".into(),
+                order.axes.join(","),
+            ]),
+        };
+        let mut args = vec![
+            "vehicle".to_string(),
+            "excite".into(),
+            "--connect".into(),
+            self.flight_connect.clone(),
+            "--vehicle".into(),
+            path(&vehicle),
+            "--inputs".into(),
+            path(&inputs),
+            "--arm".into(),
+            format!("--depth-band={top},{bottom}"),
+            "--max-depth".into(),
+            self.limits.max_depth.to_string(),
+            "--out".into(),
+            path(&out),
+        ];
+        if order.keep_going {
+            args.push("--keep-going".into());
+        }
+        args.extend(self.run_args.iter().cloned());
+        let excite = Step { program: self.pinc.clone(), args: os_args(args) };
+        let data = self.data.clone();
+        self.started(Kind::Excite, format!("{name} ({} s at most, {top}-{bottom} m)", order.duration), move |h| {
+            let designed = h.run(&design)?;
+            if designed.code != Some(0) {
+                return Err(format!("the excitation could not be designed (exit {:?})", designed.code));
+            }
+            let ran = h.run(&excite)?;
+            // A killed or failed run leaves its recording as .partial, which the fit reads.
+            let kept = [name.clone(), format!("{name}.partial")].into_iter().find(|n| data.existing("recordings", n, None).is_ok());
+            match (ran.code, kept) {
+                (Some(0), Some(kept)) => Ok(json!({"recording": kept})),
+                (code, kept) => Err(format!("the excitation ended with exit {code:?}; kept: {}", kept.as_deref().unwrap_or("nothing"))),
+            }
+        })
+    }
+
+    fn fit(&self, order: FitOrder) -> Reply {
+        order.check().map_err(|e| Refused(400, e))?;
+        let recording = self.data.existing("recordings", &order.recording, None).map_err(|e| Refused(400, e.to_string()))?;
+        let vehicle = self.vehicle_file()?;
+        let name = self.data.new_name("models", "fit", "").map_err(|e| Refused(500, e.to_string()))?;
+        let out = self.data.path("models", &name, None).map_err(|e| Refused(500, e.to_string()))?;
+        let command = format!(
+            "pinc fit --recording {} --vehicle {} --out {} --epochs {}",
+            recording.display(),
+            vehicle.display(),
+            out.display(),
+            order.epochs
+        );
+        if !cfg!(feature = "train") {
+            return Err(Refused(
+                501,
+                format!(
+                    "this build has no trainer (a Raspberry Pi's): download the recording and run on a laptop \
+                     `pinc fit --recording {} --vehicle V.toml --out fitted`, then copy fitted/ into the data \
+                     folder's models/",
+                    order.recording
+                ),
+            ));
+        }
+        let epochs = order.epochs;
+        self.started(Kind::Fit, format!("{name} from {}", order.recording), move |h| {
+            fit_in_thread(h, recording, vehicle, out, epochs, &command).map(|mut v| {
+                v["model"] = json!(name);
+                v
+            })
+        })
+    }
+
+    fn fly(&self, order: FlyOrder) -> Reply {
+        order.check(&self.limits).map_err(|e| Refused(400, e))?;
+        let model = self.data.existing("models", &order.model, Some("model.pinc")).map_err(|e| Refused(400, e.to_string()))?;
+        let name = self.data.new_name("flights", "fly", "").map_err(|e| Refused(500, e.to_string()))?;
+        let dir = self.data.path("flights", &name, None).map_err(|e| Refused(500, e.to_string()))?;
+        std::fs::create_dir_all(&dir).map_err(|e| Refused(500, format!("{}: {e}", dir.display())))?;
+        let mut args = vec![
+            "--connect".to_string(),
+            self.flight_connect.clone(),
+            "--model".into(),
+            path(&model),
+            "--arm".into(),
+            "--max-depth".into(),
+            self.limits.max_depth.to_string(),
+            "--max-distance".into(),
+            self.limits.max_distance.to_string(),
+            "--stream-samples".into(),
+            "--json".into(),
+            "--out-dir".into(),
+            path(&dir),
+            "--duration".into(),
+            order.duration.to_string(),
+        ];
+        match &order.references {
+            References::Steps { .. } => {
+                let file = dir.join("references.csv");
+                let csv = order.reference_csv().expect("steps");
+                std::fs::write(&file, csv).map_err(|e| Refused(500, format!("{}: {e}", file.display())))?;
+                args.extend(["--reference".into(), path(&file)]);
+            }
+            References::Station => args.extend(["--scenario".into(), "station".into()]),
+            References::Survey { width, length, spacing, speed, depth } => {
+                args.push(format!("--survey={width},{length},{spacing},{speed},{depth}"));
+            }
+        }
+        args.extend(self.run_args.iter().cloned());
+        let step = Step { program: self.mpc_track.clone(), args: os_args(args) };
+        self.started(Kind::Fly, format!("{name} on {}", order.model), move |h| {
+            let ran = h.run(&step)?;
+            let summary: Option<Value> = serde_json::from_str(ran.stdout.trim()).ok();
+            if let Some(s) = &summary {
+                let _ = std::fs::write(dir.join("summary.json"), serde_json::to_string_pretty(s).unwrap_or_default());
+            }
+            match (ran.code, summary) {
+                (Some(0), Some(s)) => Ok(json!({"flight": name, "summary": s})),
+                (code, Some(s)) => {
+                    Err(format!("the flight ended with exit {code:?}: {}", s["stopped"].as_str().unwrap_or("see the log")))
+                }
+                (code, None) => Err(format!("the flight ended with exit {code:?} and no summary")),
+            }
+        })
+    }
+}
+
+/// `POST api/delete`.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DeleteOrder {
+    kind: String,
+    name: String,
+}
+
+fn parse<T: DeserializeOwned>(body: &str) -> Result<T, Refused> {
+    serde_json::from_str(body).map_err(|e| Refused(400, format!("the request is not what this command takes: {e}")))
+}
+
+fn path(p: &std::path::Path) -> String {
+    p.display().to_string()
+}
+
+fn os_args(args: impl IntoIterator<Item = String>) -> Vec<std::ffi::OsString> {
+    args.into_iter().map(Into::into).collect()
+}
+
+/// The fit on this machine, its stages and epochs shown on the page; the report's figures.
+#[cfg(feature = "train")]
+fn fit_in_thread(
+    h: &Handle,
+    recording: PathBuf,
+    vehicle: PathBuf,
+    out: PathBuf,
+    epochs: usize,
+    command: &str,
+) -> Result<Value, String> {
+    use pinc::fit::{FitSettings, fit, report};
+    let mut settings = FitSettings::new(vec![recording], vehicle);
+    settings.epochs = epochs;
+    h.say(format!("$ {command}"));
+    let on_stage = |stage| {
+        let text = crate::fit_cmd::stage_text(&stage);
+        h.say(text.clone());
+        h.update(|j| j.stage = Some(text));
+    };
+    let on_epoch = |r: &pinc::train::EpochRecord| h.update(|j| j.epochs = Some((r.epoch, epochs)));
+    let result = fit(&settings, h.interrupt(), on_stage, on_epoch).map_err(|e| e.to_string())?;
+    if h.interrupt().load(std::sync::atomic::Ordering::Relaxed) {
+        return Err("stopped: nothing written".into());
+    }
+    let written = report::write(&result, &out, command).map_err(|e| e.to_string())?;
+    let text = std::fs::read_to_string(&written.report_json).map_err(|e| e.to_string())?;
+    let report: Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    Ok(json!({"passed": report["passed"], "warnings": report["warnings"], "report": report}))
+}
+
+#[cfg(not(feature = "train"))]
+fn fit_in_thread(_: &Handle, _: PathBuf, _: PathBuf, _: PathBuf, _: usize, _: &str) -> Result<Value, String> {
+    Err("this build has no trainer".into())
+}
