@@ -63,12 +63,16 @@ BINARIES=(pinc mpc_track)
 EXAMPLES=(runtime_json)
 LIBRARIES=(libpinc_c.a libpinc_c.so)
 MODEL=models/mpc_pinc_thrust.pinc
+# The BlueROV2's vehicle file (its thrusters): what `pinc serve` excites and fits from until the
+# owner puts their own in the data folder.
+VEHICLE=models/bluerov2.toml
 list_outputs() {
   local dist_rel="${DIST#"$ROOT"/}" p f
   for p in "${ALL_PLATFORMS[@]}"; do
     for f in "${BINARIES[@]}" "${EXAMPLES[@]}" "${LIBRARIES[@]}" pinc.h; do echo "$dist_rel/$p/$f"; done
   done
   echo "$dist_rel/$MODEL"
+  echo "$dist_rel/$VEHICLE"
 }
 
 platforms=("${ALL_PLATFORMS[@]}")
@@ -250,6 +254,7 @@ log "compiler: $("$RUSTC_BIN" --version), $("$CARGO_BIN" --version)"
 for p in "${platforms[@]}"; do install_std "$p"; done
 mkdir -p "$DIST/$(dirname "$MODEL")"
 run install -m 644 "$ROOT/$MODEL" "$DIST/$MODEL"
+run install -m 644 "$ROOT/$VEHICLE" "$DIST/$VEHICLE"
 for p in "${platforms[@]}"; do build "$p"; done
 for p in "${platforms[@]}"; do check "$p"; done
 for p in "${platforms[@]}"; do log "$(printf '%-13s %6.0f s' "$p" "${SECONDS_OF[$p]}")"; done

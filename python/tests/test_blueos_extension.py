@@ -122,8 +122,12 @@ def test_entry_point_serves_on_the_port_and_folder_it_is_given():
     command = json.loads(ins["ENTRYPOINT"]) + json.loads(ins["CMD"])
     assert command[0].endswith("/pinc") and command[1] == "serve"
     flags = dict(zip(command[2::2], command[3::2]))
-    assert set(flags) == {"--data", "--port", "--connect"}
+    assert set(flags) == {"--data", "--port", "--bind", "--connect", "--vehicle"}
     assert flags["--data"] == "/data" and flags["--connect"] == "tcp:127.0.0.1:5777"
+    # Reachable from the topside's browser (host networking: the vehicle's own address).
+    assert flags["--bind"] == "0.0.0.0"
+    copied = [r.split()[-1] for w, r in instructions(DOCKERFILE) if w == "COPY"]
+    assert flags["--vehicle"] in copied
     host = json_label("permissions")["HostConfig"]
     assert host["Binds"][0].split(":")[1] == flags["--data"]
     assert f"{flags['--port']}/tcp" in json_label("permissions")["ExposedPorts"]

@@ -52,6 +52,11 @@ impl DataFolder {
         Ok(Self { root: root.to_path_buf() })
     }
 
+    /// The folder itself.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
     /// The sub-folder of `kind`.
     pub fn dir(&self, kind: &str) -> Result<PathBuf, DataError> {
         if KINDS.contains(&kind) { Ok(self.root.join(kind)) } else { Err(DataError::Kind(kind.to_string())) }

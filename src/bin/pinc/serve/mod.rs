@@ -36,8 +36,8 @@ pub struct ServeArgs {
     /// Port to listen on.
     #[arg(long, default_value_t = 8780)]
     port: u16,
-    /// The vehicle file (its [[thruster]] tables) excitations and fits start from [default:
-    /// DATA/vehicle.toml].
+    /// The vehicle file (its [[thruster]] tables) excitations and fits start from, unless the
+    /// data folder has its own `vehicle.toml` (the owner's, which wins).
     #[arg(long)]
     vehicle: Option<PathBuf>,
     /// Deepest the page may ask for (m): references, the excitation's band, and every run's
@@ -66,7 +66,6 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         }
     }
     let data = data_folder::DataFolder::open(&a.data).map_err(|e| e.to_string())?;
-    let vehicle = a.vehicle.clone().or_else(|| Some(a.data.join("vehicle.toml")).filter(|p| p.is_file()));
     let here = std::env::current_exe().map_err(|e| format!("cannot find this program: {e}"))?;
     let bin = here.parent().map(PathBuf::from).unwrap_or_default();
     let mpc_track = bin.join("mpc_track");
@@ -81,7 +80,7 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         jobs: jobs::Jobs::default(),
         token: format!("{:032x}", rand::random::<u128>()),
         limits,
-        vehicle,
+        vehicle: a.vehicle.clone(),
         flight_connect: a.flight_connect.clone().unwrap_or_else(|| a.link.connect.clone()),
         run_args: a.run_args.clone(),
         pinc: here,

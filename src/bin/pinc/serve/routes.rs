@@ -109,7 +109,7 @@ impl App {
                         "server": {
                             "version": env!("CARGO_PKG_VERSION"),
                             "flight_connect": self.flight_connect,
-                            "vehicle_file": self.vehicle.as_ref().map(|p| p.display().to_string()),
+                            "vehicle_file": self.vehicle_file().ok().map(|p| p.display().to_string()),
                             "limits": {"max_depth": self.limits.max_depth, "max_duration": self.limits.max_duration,
                                        "max_distance": self.limits.max_distance},
                             "trainer": cfg!(feature = "train"),
@@ -179,8 +179,10 @@ impl App {
         }
     }
 
+    /// The data folder's `vehicle.toml` (the owner's), else `--vehicle`.
     fn vehicle_file(&self) -> Result<PathBuf, Refused> {
-        self.vehicle.clone().ok_or_else(|| {
+        let own = self.data.root().join("vehicle.toml");
+        own.is_file().then_some(own).or_else(|| self.vehicle.clone()).ok_or_else(|| {
             Refused(400, "no vehicle file: start pinc serve with --vehicle V.toml or put vehicle.toml in the data folder".into())
         })
     }
@@ -240,14 +242,18 @@ impl App {
         self.started(Kind::Excite, format!("{name} ({} s at most, {top}-{bottom} m)", order.duration), move |h| {
             let designed = h.run(&design)?;
             if designed.code != Some(0) {
-                return Err(format!("the excitation could not be designed (exit {:?})", designed.code));
+                return Err(format!("the excitation could not be designed ({})", exit_text(designed.code)));
             }
             let ran = h.run(&excite)?;
             // A killed or failed run leaves its recording as .partial, which the fit reads.
             let kept = [name.clone(), format!("{name}.partial")].into_iter().find(|n| data.existing("recordings", n, None).is_ok());
             match (ran.code, kept) {
                 (Some(0), Some(kept)) => Ok(json!({"recording": kept})),
-                (code, kept) => Err(format!("the excitation ended with exit {code:?}; kept: {}", kept.as_deref().unwrap_or("nothing"))),
+                (code, kept) => Err(format!(
+                    "the excitation ended with {}; kept: {}",
+                    exit_text(code),
+                    kept.as_deref().unwrap_or("nothing")
+                )),
             }
         })
     }
@@ -330,10 +336,12 @@ impl App {
             }
             match (ran.code, summary) {
                 (Some(0), Some(s)) => Ok(json!({"flight": name, "summary": s})),
-                (code, Some(s)) => {
-                    Err(format!("the flight ended with exit {code:?}: {}", s["stopped"].as_str().unwrap_or("see the log")))
-                }
-                (code, None) => Err(format!("the flight ended with exit {code:?} and no summary")),
+                (code, Some(s)) => Err(format!(
+                    "the flight ended with {}: {}",
+                    exit_text(code),
+                    s["stopped"].as_str().unwrap_or("see the log")
+                )),
+                (code, None) => Err(format!("the flight ended with {} and no summary", exit_text(code))),
             }
         })
     }
@@ -345,6 +353,11 @@ impl App {
 struct DeleteOrder {
     kind: String,
     name: String,
+}
+
+/// A child's end in words.
+fn exit_text(code: Option<i32>) -> String {
+    code.map_or_else(|| "no exit code (killed by a signal)".to_string(), |c| format!("exit code {c}"))
 }
 
 fn parse<T: DeserializeOwned>(body: &str) -> Result<T, Refused> {

@@ -11,6 +11,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+/// `HEARTBEAT`'s message id.
+const HEARTBEAT_ID: u32 = 0;
+
 /// A link with no heartbeat from the autopilot for this long is replaced.
 const QUIET: Duration = Duration::from_secs(3);
 /// How long STOP repeats neutral and the disarm (a command can be lost on UDP).
@@ -21,6 +24,9 @@ const STOP_EVERY: Duration = Duration::from_millis(100);
 const STALE: Duration = Duration::from_secs(2);
 /// `EKF_STATUS_REPORT`'s rate (Hz): the estimator's health on the page.
 const EKF_RATE_HZ: f64 = 2.0;
+/// `HEARTBEAT`'s rate (Hz) on this link: the mode and the armed flag on the page, and when a
+/// STOP's disarm took, to a tenth of a second (the autopilot's default is 1 Hz).
+const HEARTBEAT_RATE_HZ: f64 = 10.0;
 
 /// What the page shows of the link and the vehicle.
 #[derive(Default)]
@@ -125,7 +131,10 @@ impl Watcher {
         autopilot: &Autopilot,
         mut assembler: pinc::link::StateAssembler,
     ) -> String {
-        if let Err(e) = link.set_message_rate(EKF_STATUS_REPORT_ID, EKF_RATE_HZ) {
+        let rates = link
+            .set_message_rate(EKF_STATUS_REPORT_ID, EKF_RATE_HZ)
+            .and_then(|()| link.set_message_rate(HEARTBEAT_ID, HEARTBEAT_RATE_HZ));
+        if let Err(e) = rates {
             return e.to_string();
         }
         {

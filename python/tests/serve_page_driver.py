@@ -1,0 +1,237 @@
+"""Drives `pinc serve`'s page in a real browser (Debian's chromium, headless, through
+chromedriver and selenium) against ArduSub's simulator, as an owner would: the status, an
+excitation until the watch stops it, a fit, a 30 s flight, and STOP during a second flight. Meant
+to run inside run_in_netns.sh's namespace (everything on its loopback):
+
+- an independent observer (pymavlink) is the firmware's first client (on 5760: it starts the
+  simulation) and notes, on this machine's clock, every heartbeat's armed flag (asked at 10 Hz)
+  and the thruster outputs;
+- `pinc serve` keeps its own link on 5762, its runs connect on 5763;
+- each step leaves a screenshot; the page's figures and the observer's times go to --out (JSON).
+
+usage: serve_page_driver.py --pinc BIN --vehicle V.toml --data DIR --shots DIR --out FILE [--run-arg ARG]...
+"""
+
+import argparse
+import json
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+from pymavlink import mavutil
+from selenium import webdriver
+from selenium.webdriver.chrome.options import Options
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import Select
+
+PORT = 8780
+HEARTBEAT, SERVO_OUTPUT_RAW = 0, 36
+
+
+class Observer:
+    """The firmware as a bystander sees it: (monotonic time, armed) per heartbeat, and the
+    thruster outputs (monotonic time, servo1..6)."""
+
+    def __init__(self):
+        self.m = None
+        for _ in range(150):
+            try:
+                self.m = mavutil.mavlink_connection("tcp:127.0.0.1:5760", source_system=255, source_component=190,
+                                                    retries=0)
+                break
+            except OSError:
+                time.sleep(0.2)
+        assert self.m is not None, "the simulator's 5760 did not open"
+        self.heartbeats, self.outputs, self.mode = [], [], None
+        self.lock = threading.Lock()
+        threading.Thread(target=self.read, daemon=True).start()
+
+    def ask_rates(self):
+        for msg_id, hz in ((HEARTBEAT, 10), (SERVO_OUTPUT_RAW, 25)):
+            self.m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id,
+                                         1e6 / hz, 0, 0, 0, 0, 0)
+
+    def read(self):
+        while True:
+            msg = self.m.recv_match(blocking=True, timeout=1)
+            if msg is None:
+                continue
+            now = time.monotonic()
+            kind = msg.get_type()
+            with self.lock:
+                if kind == "HEARTBEAT" and msg.get_srcSystem() == 1 and msg.get_srcComponent() == 1:
+                    armed = bool(msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                    self.heartbeats.append((now, armed))
+                    self.mode = msg.custom_mode
+                elif kind == "SERVO_OUTPUT_RAW":
+                    self.outputs.append((now, [getattr(msg, f"servo{i}_raw") for i in range(1, 7)]))
+
+    def armed(self):
+        with self.lock:
+            return bool(self.heartbeats) and self.heartbeats[-1][1]
+
+    def disarmed_after(self, t):
+        with self.lock:
+            return next((h[0] - t for h in self.heartbeats if h[0] >= t and not h[1]), None)
+
+    def outputs_after(self, t, span=1.0):
+        with self.lock:
+            return [(round(o[0] - t, 3), o[1]) for o in self.outputs if t - 0.2 <= o[0] <= t + span]
+
+
+def wait(what, ok, timeout, every=0.2):
+    until = time.monotonic() + timeout
+    while time.monotonic() < until:
+        v = ok()
+        if v:
+            return v
+        time.sleep(every)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--pinc", required=True)
+    p.add_argument("--vehicle", required=True)
+    p.add_argument("--data", required=True)
+    p.add_argument("--shots", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--run-arg", action="append", default=[])
+    a = p.parse_args()
+    shots = Path(a.shots)
+    shots.mkdir(parents=True, exist_ok=True)
+    result = {"steps": []}
+
+    observer = Observer()
+    serve_log = open(Path(a.out).with_suffix(".serve.log"), "w")
+    serve = subprocess.Popen([a.pinc, "serve", "--connect", "tcp:127.0.0.1:5762", "--flight-connect",
+                              "tcp:127.0.0.1:5763", "--data", a.data, "--port", str(PORT), "--vehicle", a.vehicle,
+                              *[f"--run-arg={x}" for x in a.run_arg]],
+                             stdout=serve_log, stderr=subprocess.STDOUT)
+    options = Options()
+    options.binary_location = "/usr/bin/chromium"
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000"):
+        options.add_argument(flag)
+    browser = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+    text = lambda id_: browser.find_element(By.ID, id_).text  # noqa: E731
+
+    def shot(name):
+        browser.save_screenshot(str(shots / f"{len(result['steps']) + 1:02d}_{name}.png"))
+        result["steps"].append(name)
+
+    def field(id_, value):
+        e = browser.find_element(By.ID, id_)
+        e.clear()
+        e.send_keys(str(value))
+
+    def click(id_):
+        browser.find_element(By.ID, id_).click()
+
+    def job_done(timeout):
+        wait("the job's end", lambda: text("job-state") in ("finished", "failed", "stopped"), timeout)
+        return text("job-state")
+
+    try:
+        wait("pinc serve", lambda: serve.poll() is None and _answers(), 30)
+        browser.get(f"http://127.0.0.1:{PORT}/")
+        observer.ask_rates()
+        # 1. Status: the link, the mode and a depth, as the observer sees the firmware.
+        wait("the vehicle on the page", lambda: text("link-state").startswith("connected") and text("v-depth") != "-", 60)
+        result["status"] = {k: text(k) for k in ("link-state", "v-mode", "v-armed", "v-depth", "v-heading", "v-position",
+                                                  "v-ekf")}
+        result["observer_mode"] = observer.mode
+        shot("status")
+
+        # 2. The excitation, until the watch's stop.
+        field("ex-top", 0.5)
+        field("ex-bottom", 2.5)
+        field("ex-duration", 150)
+        click("ex-start")
+        wait("the excitation to start", lambda: text("job-kind") == "excite", 10)
+        wait("armed by the excitation", observer.armed, 60)
+        result["excite_state"] = job_done(240)
+        result["excite"] = {"verdict": text("job-verdict"), "recording": _maybe(browser, "excite-recording"),
+                            "elapsed": text("job-elapsed")}
+        shot("excited")
+
+        # 3. The fit of that recording (few epochs: the test's time).
+        wait("the recording in the list", lambda: result["excite"]["recording"] in
+             [o.text for o in Select(browser.find_element(By.ID, "fit-recording")).options], 10)
+        Select(browser.find_element(By.ID, "fit-recording")).select_by_visible_text(result["excite"]["recording"])
+        field("fit-epochs", 5)
+        click("fit-start")
+        wait("the fit to start", lambda: text("job-kind") == "fit", 10)
+        result["fit_state"] = job_done(600)
+        result["fit"] = {"passed": _maybe(browser, "fit-passed"), "model": _maybe(browser, "fit-model"),
+                         "warnings": _maybe(browser, "fit-warnings")}
+        wait("the report's plot", lambda: browser.execute_script(
+            "const i = document.getElementById('fit-report-img'); return i && i.complete && i.naturalWidth > 0;"), 20)
+        shot("fitted")
+
+        # 4. A 30 s flight of depth and heading steps on the fitted model.
+        model = result["fit"]["model"]
+        wait("the model in the list", lambda: model in
+             [o.text for o in Select(browser.find_element(By.ID, "fly-model")).options], 10)
+        Select(browser.find_element(By.ID, "fly-model")).select_by_visible_text(model)
+        for k, v in (("fly-d0", 1.0), ("fly-d1", 1.5), ("fly-dat", 10), ("fly-h0", 0), ("fly-h1", 45), ("fly-hat", 15),
+                     ("fly-duration", 30)):
+            field(k, v)
+        click("fly-start")
+        wait("the flight to start", lambda: text("job-kind") == "fly", 10)
+        wait("live samples", lambda: int(text("job-samples")) >= 100, 90)
+        shot("flying")
+        result["flight_state"] = job_done(120)
+        result["flight"] = {k: _maybe(browser, k) for k in ("fig-samples", "fig-rms-depth", "fig-rms-heading",
+                                                            "fig-stopped", "job-samples", "job-what")}
+        shot("flown")
+
+        # 5. STOP during a second flight: neutral and disarmed, as the observer sees it.
+        field("fly-duration", 60)
+        click("fly-start")
+        wait("the second flight", lambda: text("job-kind") == "fly" and text("job-state") == "running", 10)
+        wait("armed, and control running", lambda: observer.armed() and int(text("job-samples")) >= 25, 90, every=0.05)
+        clicked = time.monotonic()
+        click("stop")
+        wait("disarmed", lambda: observer.disarmed_after(clicked) is not None, 5, every=0.02)
+        time.sleep(1.0)
+        result["stop"] = {"disarmed_after_s": observer.disarmed_after(clicked),
+                          "outputs": observer.outputs_after(clicked)}
+        result["stop_state"] = job_done(15)
+        wait("the page's STOP line", lambda: "disarmed seen after" in text("stop-result")
+             and not text("stop-result").endswith("after -"), 5)
+        result["stop"]["page"] = text("stop-result")
+        result["stop"]["job_log_tail"] = text("job-log").splitlines()[-4:]
+        shot("stopped")
+
+        # 6. Reloading the page keeps the job, the data folder lists everything.
+        browser.refresh()
+        wait("the page after a reload", lambda: text("job-state") == "stopped", 10)
+        result["files"] = [(r.get_attribute("data-kind"), r.get_attribute("data-name"))
+                           for r in browser.find_elements(By.CSS_SELECTOR, "#files tr")]
+        shot("reloaded")
+    finally:
+        result["serve_exit"] = serve.poll()
+        browser.quit()
+        serve.terminate()
+        serve.wait(10)
+        Path(a.out).write_text(json.dumps(result, indent=1))
+
+
+def _answers():
+    import urllib.request
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{PORT}/api/state", timeout=1) as r:
+            return r.status == 200
+    except OSError:
+        return False
+
+
+def _maybe(browser, id_):
+    found = browser.find_elements(By.ID, id_)
+    return found[0].text if found else None
+
+
+if __name__ == "__main__":
+    main()
