@@ -98,6 +98,12 @@ def test_stop_reaches_neutral_and_disarmed_within_half_a_second(clicked):
     _, result = clicked
     stop = result["stop"]
     assert stop["disarmed_after_s"] is not None and stop["disarmed_after_s"] <= 0.5, stop
+    # The thrusters' outputs (SERVO_OUTPUT_RAW at 25 Hz): neutral within 0.5 s, and neutral since.
+    after = [(dt, outputs) for dt, outputs in stop["outputs"] if dt >= 0]
+    neutral = [all(v == 1500 for v in outputs) for _, outputs in after]
+    assert True in neutral, after
+    first = neutral.index(True)
+    assert after[first][0] <= 0.5 and all(neutral[first:]), after
     assert result["stop_state"] == "stopped"
     assert "disarmed seen after" in stop["page"]
     # The flight's own process stopped too, saying why.

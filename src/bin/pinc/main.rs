@@ -19,13 +19,13 @@ mod eval_cmd;
 mod fit_cmd;
 mod identify_cmd;
 mod import_cmd;
+#[cfg(feature = "vehicle")]
+mod serve;
 mod sweep_cmd;
 mod thrusters_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
 mod trajectory_csv;
-#[cfg(feature = "vehicle")]
-mod serve;
 #[cfg(feature = "vehicle")]
 mod vehicle_cmd;
 

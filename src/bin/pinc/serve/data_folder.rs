@@ -15,7 +15,9 @@ pub const KINDS: [&str; 4] = ["recordings", "excitations", "models", "flights"];
 pub enum DataError {
     #[error("unknown kind {0:?}: one of recordings, excitations, models, flights")]
     Kind(String),
-    #[error("{what} {name:?} is refused: names are letters, digits, '.', '_' and '-', not starting with a dot, at most 100 characters (no '..', '/' or '\\')")]
+    #[error(
+        "{what} {name:?} is refused: names are letters, digits, '.', '_' and '-', not starting with a dot, at most 100 characters (no '..', '/' or '\\')"
+    )]
     Name { what: &'static str, name: String },
     #[error("{0} does not exist in the data folder")]
     Missing(String),
@@ -86,7 +88,9 @@ impl DataFolder {
         let now = std::time::SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
         let base = format!("{prefix}-{}", utc_stamp(now));
         let dir = self.dir(kind)?;
-        let taken = |n: &str| dir.join(format!("{n}{extension}")).exists() || dir.join(format!("{n}{extension}.partial")).exists();
+        let taken = |n: &str| {
+            dir.join(format!("{n}{extension}")).exists() || dir.join(format!("{n}{extension}.partial")).exists()
+        };
         let mut name = base.clone();
         let mut k = 2;
         while taken(&name) {
@@ -110,7 +114,8 @@ impl DataFolder {
                     continue;
                 }
                 let Ok(meta) = entry.metadata() else { continue };
-                let modified = meta.modified().ok().and_then(|m| m.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_secs());
+                let modified =
+                    meta.modified().ok().and_then(|m| m.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_secs());
                 let (size, files) = if meta.is_dir() {
                     let mut files: Vec<(String, u64)> = std::fs::read_dir(entry.path())
                         .map(|r| {
@@ -131,7 +136,9 @@ impl DataFolder {
                 entries.push(json!({"name": name, "size": size, "modified": modified, "files": files,
                                     "partial": name.ends_with(".partial")}));
             }
-            entries.sort_by(|a, b| b["modified"].as_u64().cmp(&a["modified"].as_u64()).then(a["name"].as_str().cmp(&b["name"].as_str())));
+            entries.sort_by(|a, b| {
+                b["modified"].as_u64().cmp(&a["modified"].as_u64()).then(a["name"].as_str().cmp(&b["name"].as_str()))
+            });
             out.insert(kind.to_string(), Value::Array(entries));
         }
         Value::Object(out)
@@ -141,7 +148,8 @@ impl DataFolder {
     pub fn delete(&self, kind: &str, name: &str) -> Result<(), DataError> {
         let path = self.existing(kind, name, None)?;
         let meta = path.symlink_metadata().map_err(|e| io(&path, e))?;
-        if meta.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) }.map_err(|e| io(&path, e))
+        if meta.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) }
+            .map_err(|e| io(&path, e))
     }
 }
 

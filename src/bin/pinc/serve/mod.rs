@@ -59,7 +59,8 @@ pub struct ServeArgs {
 
 pub fn run_serve(a: ServeArgs) -> Result<(), String> {
     let limits = orders::Limits { max_depth: a.max_depth, max_duration: a.max_duration, max_distance: a.max_distance };
-    for (flag, v) in [("--max-depth", a.max_depth), ("--max-duration", a.max_duration), ("--max-distance", a.max_distance)]
+    for (flag, v) in
+        [("--max-depth", a.max_depth), ("--max-duration", a.max_duration), ("--max-distance", a.max_distance)]
     {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{flag} must be a positive number, got {v}"));

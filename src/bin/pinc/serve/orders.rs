@@ -80,7 +80,10 @@ fn depth(field: &str, v: f64, limits: &Limits) -> Result<f64, String> {
     if (0.0..=limits.max_depth).contains(&v) {
         Ok(v)
     } else {
-        Err(format!("{field} {v} m is outside the vehicle's limits: 0 to {} m (pinc serve --max-depth)", limits.max_depth))
+        Err(format!(
+            "{field} {v} m is outside the vehicle's limits: 0 to {} m (pinc serve --max-depth)",
+            limits.max_depth
+        ))
     }
 }
 
@@ -119,7 +122,11 @@ impl ExciteOrder {
 
 impl FitOrder {
     pub fn check(&self) -> Result<(), String> {
-        if (1..=2000).contains(&self.epochs) { Ok(()) } else { Err(format!("epochs {} must be 1 to 2000", self.epochs)) }
+        if (1..=2000).contains(&self.epochs) {
+            Ok(())
+        } else {
+            Err(format!("epochs {} must be 1 to 2000", self.epochs))
+        }
     }
 }
 
@@ -206,14 +213,17 @@ mod tests {
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"orbit"}}"#).unwrap_err();
         assert!(e.contains("unknown variant `orbit`"), "{e}");
         let band = |b: &str| {
-            serde_json::from_str::<ExciteOrder>(&format!(r#"{{"depth_band":{b},"axes":["heave","yaw"],"duration":90}}"#))
-                .unwrap()
-                .check(&LIMITS)
+            serde_json::from_str::<ExciteOrder>(&format!(
+                r#"{{"depth_band":{b},"axes":["heave","yaw"],"duration":90}}"#
+            ))
+            .unwrap()
+            .check(&LIMITS)
         };
         assert!(band("[0.5,2.5]").is_ok());
         assert!(band("[0.5,3.5]").unwrap_err().contains("depth_band bottom 3.5 m is outside"));
         assert!(band("[2,2.2]").unwrap_err().contains("at least 0.5 m below"));
-        let axes = serde_json::from_str::<ExciteOrder>(r#"{"depth_band":[0.5,2],"axes":["roll"],"duration":90}"#).unwrap();
+        let axes =
+            serde_json::from_str::<ExciteOrder>(r#"{"depth_band":[0.5,2],"axes":["roll"],"duration":90}"#).unwrap();
         assert!(axes.check(&LIMITS).unwrap_err().contains("unknown axis \"roll\""));
     }
 
@@ -223,6 +233,9 @@ mod tests {
             r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,2],"depth_at":10,"heading":[0,90],"heading_at":20}}"#,
         )
         .unwrap();
-        assert_eq!(o.reference_csv().unwrap(), "t,depth_m,heading_deg\n0,1,0\n10,1,0\n10,2,0\n20,2,0\n20,2,90\n30,2,90\n");
+        assert_eq!(
+            o.reference_csv().unwrap(),
+            "t,depth_m,heading_deg\n0,1,0\n10,1,0\n10,2,0\n20,2,0\n20,2,90\n30,2,90\n"
+        );
     }
 }

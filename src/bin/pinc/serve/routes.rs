@@ -134,7 +134,8 @@ impl App {
                 };
                 let mut response = Response::from_data(bytes).with_header(header("Content-Type", kind));
                 if arg("attachment").is_some() {
-                    response = response.with_header(header("Content-Disposition", &format!("attachment; filename=\"{file}\"")));
+                    response = response
+                        .with_header(header("Content-Disposition", &format!("attachment; filename=\"{file}\"")));
                 }
                 Ok(response)
             }
@@ -143,9 +144,13 @@ impl App {
     }
 
     fn post(&self, path: &str, request: &mut Request) -> Reply {
-        let token = request.headers().iter().find(|h| h.field.equiv("X-Pinc-Token")).map(|h| h.value.as_str().to_string());
+        let token =
+            request.headers().iter().find(|h| h.field.equiv("X-Pinc-Token")).map(|h| h.value.as_str().to_string());
         if token.as_deref() != Some(self.token.as_str()) {
-            return Err(Refused(403, "missing or wrong token: commands come only from pinc's own page (reload it)".into()));
+            return Err(Refused(
+                403,
+                "missing or wrong token: commands come only from pinc's own page (reload it)".into(),
+            ));
         }
         let mut body = String::new();
         request
@@ -183,11 +188,19 @@ impl App {
     fn vehicle_file(&self) -> Result<PathBuf, Refused> {
         let own = self.data.root().join("vehicle.toml");
         own.is_file().then_some(own).or_else(|| self.vehicle.clone()).ok_or_else(|| {
-            Refused(400, "no vehicle file: start pinc serve with --vehicle V.toml or put vehicle.toml in the data folder".into())
+            Refused(
+                400,
+                "no vehicle file: start pinc serve with --vehicle V.toml or put vehicle.toml in the data folder".into(),
+            )
         })
     }
 
-    fn started(&self, kind: Kind, what: String, work: impl FnOnce(&Handle) -> Result<Value, String> + Send + 'static) -> Reply {
+    fn started(
+        &self,
+        kind: Kind,
+        what: String,
+        work: impl FnOnce(&Handle) -> Result<Value, String> + Send + 'static,
+    ) -> Reply {
         let id = self.jobs.start(kind, what.clone(), work).map_err(|e| Refused(409, e))?;
         eprintln!("serve: job {id}: {} {what}", kind.name());
         Ok(json_reply(200, &json!({"job": id, "what": what})))
@@ -198,7 +211,8 @@ impl App {
         let vehicle = self.vehicle_file()?;
         let name = self.data.new_name("recordings", "excite", ".mcap").map_err(|e| Refused(500, e.to_string()))?;
         let base = name.trim_end_matches(".mcap").to_string();
-        let inputs = self.data.path("excitations", &format!("{base}.csv"), None).map_err(|e| Refused(500, e.to_string()))?;
+        let inputs =
+            self.data.path("excitations", &format!("{base}.csv"), None).map_err(|e| Refused(500, e.to_string()))?;
         let out = self.data.path("recordings", &name, None).map_err(|e| Refused(500, e.to_string()))?;
         let [top, bottom] = order.depth_band;
         let design = Step {
@@ -246,7 +260,9 @@ impl App {
             }
             let ran = h.run(&excite)?;
             // A killed or failed run leaves its recording as .partial, which the fit reads.
-            let kept = [name.clone(), format!("{name}.partial")].into_iter().find(|n| data.existing("recordings", n, None).is_ok());
+            let kept = [name.clone(), format!("{name}.partial")]
+                .into_iter()
+                .find(|n| data.existing("recordings", n, None).is_ok());
             match (ran.code, kept) {
                 (Some(0), Some(kept)) => Ok(json!({"recording": kept})),
                 (code, kept) => Err(format!(
@@ -260,7 +276,8 @@ impl App {
 
     fn fit(&self, order: FitOrder) -> Reply {
         order.check().map_err(|e| Refused(400, e))?;
-        let recording = self.data.existing("recordings", &order.recording, None).map_err(|e| Refused(400, e.to_string()))?;
+        let recording =
+            self.data.existing("recordings", &order.recording, None).map_err(|e| Refused(400, e.to_string()))?;
         let vehicle = self.vehicle_file()?;
         let name = self.data.new_name("models", "fit", "").map_err(|e| Refused(500, e.to_string()))?;
         let out = self.data.path("models", &name, None).map_err(|e| Refused(500, e.to_string()))?;
@@ -293,7 +310,8 @@ impl App {
 
     fn fly(&self, order: FlyOrder) -> Reply {
         order.check(&self.limits).map_err(|e| Refused(400, e))?;
-        let model = self.data.existing("models", &order.model, Some("model.pinc")).map_err(|e| Refused(400, e.to_string()))?;
+        let model =
+            self.data.existing("models", &order.model, Some("model.pinc")).map_err(|e| Refused(400, e.to_string()))?;
         let name = self.data.new_name("flights", "fly", "").map_err(|e| Refused(500, e.to_string()))?;
         let dir = self.data.path("flights", &name, None).map_err(|e| Refused(500, e.to_string()))?;
         std::fs::create_dir_all(&dir).map_err(|e| Refused(500, format!("{}: {e}", dir.display())))?;

@@ -61,9 +61,10 @@ fn fresh<T: Copy>(v: Option<(Instant, T)>) -> Option<T> {
 
 impl VehicleView {
     pub fn to_json(&self) -> Value {
-        let ekf = self.ekf.as_ref().map(|e| {
-            json!({"flags": e.flags, "not_ready": e.not_ready(), "position_measured": e.position_measured()})
-        });
+        let ekf = self
+            .ekf
+            .as_ref()
+            .map(|e| json!({"flags": e.flags, "not_ready": e.not_ready(), "position_measured": e.position_measured()}));
         let stop = self.stop.map(|s| {
             let after = |t: Option<Instant>| t.map(|t| t.saturating_duration_since(s.asked).as_secs_f64());
             json!({"ago_s": s.asked.elapsed().as_secs_f64(), "sent_after_s": after(s.sent),

@@ -1,0 +1,190 @@
+"""`pinc serve`'s refusals, each before anything is sent: a command without the page's token,
+a name that could leave the data folder, numbers past the vehicle's limits, a file that is not
+there, a second job. And in a real browser (Debian's chromium, when installed): a refusal shown
+on the page, and another site's page that cannot read pinc's page or command the vehicle.
+
+No autopilot is needed: the server keeps trying its link while it answers.
+"""
+
+import http.server
+import json
+import re
+import subprocess
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from test_vehicle_link import ROOT, pinc_binary
+
+VEHICLE = ROOT / "tests" / "fixtures" / "ardusub" / "sitl_vectored.toml"
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    data = tmp_path_factory.mktemp("serve_data")
+    # Port 9 (discard): nothing answers there, as with an autopilot switched off.
+    proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
+                             "--data", str(data), "--port", "0", "--vehicle", str(VEHICLE), "--max-depth", "3"],
+                            stderr=subprocess.PIPE, text=True)
+    first = proc.stderr.readline()
+    m = re.search(r"http://(127\.0\.0\.1:\d+)", first)
+    assert m, first
+    log = []
+    threading.Thread(target=lambda: log.extend(proc.stderr), daemon=True).start()
+    base = f"http://{m.group(1)}"
+    page = urllib.request.urlopen(base + "/").read().decode()
+    token = re.search(r'const TOKEN = "([0-9a-f]{32})"', page).group(1)
+    yield base, token, data, log
+    proc.terminate()
+    proc.wait(10)
+
+
+def call(base, path, body=None, token=None, method=None):
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["X-Pinc-Token"] = token
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(base + path, data=data, headers=headers, method=method)
+    try:
+        with urllib.request.urlopen(req) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read())
+
+
+def test_commands_without_the_pages_token_are_refused(server):
+    base, token, _, log = server
+    for bad in (None, "0" * 32, token[:-1]):
+        status, reply = call(base, "/api/stop", {}, token=bad)
+        assert status == 403 and "token" in reply["error"], (bad, reply)
+        status, reply = call(base, "/api/excite", {"depth_band": [0.5, 2], "axes": ["heave"], "duration": 60}, token=bad)
+        assert status == 403
+    assert any("refused POST /api/stop: missing or wrong token" in line for line in log), log
+    # The token itself never leaves the page: not in the state a script can read.
+    assert token not in json.dumps(call(base, "/api/state")[1])
+
+
+@pytest.mark.parametrize("query", [
+    "kind=recordings&name=..", "kind=recordings&name=../../etc/passwd", "kind=recordings&name=%2Fetc%2Fpasswd",
+    "kind=models&name=m&file=..%2F..%2Fx", "kind=recordings&name=.hidden", "kind=..&name=x",
+])
+def test_names_that_could_leave_the_data_folder_are_refused(server, query):
+    base, token, _, _ = server
+    status, reply = call(base, "/api/download?" + query)
+    assert status == 404 and ("refused" in reply["error"] or "unknown kind" in reply["error"]), reply
+
+
+def test_deletes_and_fits_take_only_plain_names_that_exist(server):
+    base, token, data, _ = server
+    outside = data.parent / "outside.txt"
+    outside.write_text("keep me")
+    status, reply = call(base, "/api/delete", {"kind": "recordings", "name": "../outside.txt"}, token=token)
+    assert status == 400 and "refused" in reply["error"] and outside.exists()
+    status, reply = call(base, "/api/delete", {"kind": "recordings", "name": "none.mcap"}, token=token)
+    assert status == 400 and reply["error"] == "recordings/none.mcap does not exist in the data folder"
+    status, reply = call(base, "/api/fit", {"recording": "none.mcap"}, token=token)
+    assert status == 400 and "does not exist" in reply["error"]
+    status, reply = call(base, "/api/fly", {"model": "none", "duration": 30, "references": {"kind": "station"}},
+                         token=token)
+    assert status == 400 and reply["error"] == "models/none/model.pinc does not exist in the data folder"
+    (data / "recordings" / "kept.mcap").write_bytes(b"x")
+    status, reply = call(base, "/api/delete", {"kind": "recordings", "name": "kept.mcap"}, token=token)
+    assert status == 200 and not (data / "recordings" / "kept.mcap").exists()
+
+
+@pytest.mark.parametrize("path,body,says", [
+    ("/api/excite", {"depth_band": [0.5, 3.5], "axes": ["heave"], "duration": 60},
+     "depth_band bottom 3.5 m is outside the vehicle's limits: 0 to 3 m"),
+    ("/api/excite", {"depth_band": [0.5, 2], "axes": ["roll"], "duration": 60}, 'unknown axis "roll"'),
+    ("/api/excite", {"depth_band": [0.5, 2], "axes": ["heave"], "duration": 6000}, "duration 6000 s"),
+    ("/api/fly", {"model": "m", "duration": 30, "references": {"kind": "steps", "depth": [1, 9], "depth_at": 5,
+                                                               "heading": [0, 0], "heading_at": 5}},
+     "depth to 9 m is outside the vehicle's limits"),
+    ("/api/fly", {"model": "m", "duration": 90, "references": {"kind": "survey", "width": 60, "length": 10,
+                                                               "spacing": 2, "speed": 0.3, "depth": 2}},
+     "past the vehicle's limit of 30 m"),
+    ("/api/fly", {"model": "m", "duration": 30, "references": {"kind": "station"}, "arm": False},
+     "unknown field `arm`"),
+    ("/api/fit", {"recording": "x.mcap", "epochs": 0}, "epochs 0 must be 1 to 2000"),
+])
+def test_numbers_past_the_vehicles_limits_are_refused_before_anything_is_sent(server, path, body, says):
+    base, token, _, log = server
+    status, reply = call(base, path, body, token=token)
+    assert status == 400 and says in reply["error"], reply
+    assert call(base, "/api/state")[1]["job"] is None, "nothing started"
+
+
+# The browser part: Debian's chromium, when installed.
+BROWSER = Path("/usr/bin/chromium").exists() and Path("/usr/bin/chromedriver").exists()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not BROWSER:
+        pytest.skip("/usr/bin/chromium or /usr/bin/chromedriver is missing: apt install chromium chromium-driver")
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the Python package's test extra")
+    from selenium.webdriver.chrome.service import Service
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):
+        options.add_argument(flag)
+    b = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+    yield b
+    b.quit()
+
+
+def wait_for(what, ok, browser, timeout=10):
+    from selenium.webdriver.support.ui import WebDriverWait
+    return WebDriverWait(browser, timeout).until(lambda _: ok(), message=what)
+
+
+def test_a_refusal_is_shown_on_the_page(server, browser, tmp_path):
+    from selenium.webdriver.common.by import By
+    base, _, _, _ = server
+    browser.get(base + "/")
+    bottom = browser.find_element(By.ID, "ex-bottom")
+    bottom.clear()
+    bottom.send_keys("5")
+    browser.find_element(By.ID, "ex-start").click()
+    message = lambda: browser.find_element(By.ID, "message").text  # noqa: E731
+    wait_for("the refusal", lambda: "outside the vehicle's limits" in message(), browser)
+    assert message() == "depth_band bottom 5 m is outside the vehicle's limits: 0 to 3 m (pinc serve --max-depth)"
+    assert browser.find_element(By.ID, "message").get_attribute("class") == "bad"
+    browser.save_screenshot(str(tmp_path / "refusal.png"))
+
+
+EVIL = """<!doctype html><html><body><script>
+const out = {};
+fetch("TARGET/").then(r => r.text()).then(t => out.read = t.slice(0, 40)).catch(e => out.read = "blocked: " + e)
+  .then(() => fetch("TARGET/api/stop", {method: "POST", headers: {"X-Pinc-Token": "guess"}, body: "{}"}))
+  .then(r => out.stop = r.status).catch(e => out.stop = "blocked: " + e)
+  .then(() => fetch("TARGET/api/excite", {method: "POST", mode: "no-cors", body: "{}"}))
+  .then(r => out.simple = r.type).catch(e => out.simple = "blocked: " + e)
+  .then(() => { document.title = JSON.stringify(out); });
+</script></body></html>"""
+
+
+def test_another_sites_page_can_neither_read_the_token_nor_command(server, browser, tmp_path):
+    base, _, _, log = server
+    (tmp_path / "evil.html").write_text(EVIL.replace("TARGET", base))
+    handler = lambda *a, **k: http.server.SimpleHTTPRequestHandler(*a, directory=str(tmp_path), **k)  # noqa: E731
+    site = http.server.ThreadingHTTPServer(("127.0.0.2", 0), handler)
+    threading.Thread(target=site.serve_forever, daemon=True).start()
+    try:
+        browser.get(f"http://127.0.0.2:{site.server_address[1]}/evil.html")
+        wait_for("the other site's script", lambda: browser.title.startswith("{"), browser)
+        out = json.loads(browser.title)
+    finally:
+        site.shutdown()
+    print(out)
+    # Reading pinc's page (and so its token) across origins: blocked by the browser.
+    assert str(out["read"]).startswith("blocked"), out
+    # A header-carrying POST needs a CORS preflight the server never grants: never sent.
+    assert str(out["stop"]).startswith("blocked"), out
+    # A "simple" POST is sent, but carries no token: refused by the server.
+    assert out["simple"] == "opaque"
+    assert any("refused POST /api/excite: missing or wrong token" in line for line in log), log
+    assert not any("STOP (neutral" in line for line in log), log
