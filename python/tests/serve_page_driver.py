@@ -7,6 +7,8 @@ to run inside run_in_netns.sh's namespace (everything on its loopback):
   simulation) and notes, on this machine's clock, every heartbeat's armed flag (asked at 10 Hz)
   and the thruster outputs;
 - `pinc serve` keeps its own link on 5762, its runs connect on 5763;
+- then the autopilot reboots (the server's link comes back), and the server is killed mid-excitation
+  (the autopilot's failsafe takes over, the recording stays `.partial`; a new server fits it);
 - each step leaves a screenshot; the page's figures and the observer's times go to --out (JSON).
 
 usage: serve_page_driver.py --pinc BIN --vehicle V.toml --data DIR --shots DIR --out FILE [--run-arg ARG]...
@@ -35,18 +37,28 @@ class Observer:
     thruster outputs (monotonic time, servo1..6)."""
 
     def __init__(self):
-        self.m = None
-        for _ in range(150):
-            try:
-                self.m = mavutil.mavlink_connection("tcp:127.0.0.1:5760", source_system=255, source_component=190,
-                                                    retries=0)
-                break
-            except OSError:
-                time.sleep(0.2)
-        assert self.m is not None, "the simulator's 5760 did not open"
+        self.m = self.connect()
         self.heartbeats, self.outputs, self.mode = [], [], None
         self.lock = threading.Lock()
         threading.Thread(target=self.read, daemon=True).start()
+
+    @staticmethod
+    def connect():
+        for _ in range(150):
+            try:
+                return mavutil.mavlink_connection("tcp:127.0.0.1:5760", source_system=255, source_component=190,
+                                                  retries=0)
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError("the simulator's 5760 did not open")
+
+    def reboot(self):
+        """Reboots the autopilot (the simulator starts itself again) and connects to it again:
+        the simulation waits for a client on 5760."""
+        self.m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0, 1, 0, 0, 0, 0, 0, 0)
+        time.sleep(1.0)
+        self.m = self.connect()
+        self.ask_rates()
 
     def ask_rates(self):
         for msg_id, hz in ((HEARTBEAT, 10), (SERVO_OUTPUT_RAW, 25)):
@@ -55,7 +67,11 @@ class Observer:
 
     def read(self):
         while True:
-            msg = self.m.recv_match(blocking=True, timeout=1)
+            try:
+                msg = self.m.recv_match(blocking=True, timeout=1)
+            except OSError:
+                time.sleep(0.1)
+                continue
             if msg is None:
                 continue
             now = time.monotonic()
@@ -106,10 +122,14 @@ def main():
 
     observer = Observer()
     serve_log = open(Path(a.out).with_suffix(".serve.log"), "w")
-    serve = subprocess.Popen([a.pinc, "serve", "--connect", "tcp:127.0.0.1:5762", "--flight-connect",
-                              "tcp:127.0.0.1:5763", "--data", a.data, "--port", str(PORT), "--vehicle", a.vehicle,
-                              *[f"--run-arg={x}" for x in a.run_arg]],
-                             stdout=serve_log, stderr=subprocess.STDOUT)
+
+    def start_serve():
+        return subprocess.Popen([a.pinc, "serve", "--connect", "tcp:127.0.0.1:5762", "--flight-connect",
+                                 "tcp:127.0.0.1:5763", "--data", a.data, "--port", str(PORT), "--vehicle", a.vehicle,
+                                 *[f"--run-arg={x}" for x in a.run_arg]],
+                                stdout=serve_log, stderr=subprocess.STDOUT)
+
+    serve = start_serve()
     options = Options()
     options.binary_location = "/usr/bin/chromium"
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000"):
@@ -182,6 +202,18 @@ def main():
         wait("the flight to start", lambda: text("job-kind") == "fly", 10)
         wait("live samples", lambda: int(text("job-samples")) >= 100, 90)
         shot("flying")
+        # A reload mid-flight: the flight goes on, the page gets its whole history again; a
+        # second tab sees the same job.
+        before = int(text("job-samples"))
+        browser.refresh()
+        wait("the page after a reload", lambda: text("job-state") == "running" and int(text("job-samples")) > before, 10)
+        first = browser.current_window_handle
+        browser.switch_to.new_window("tab")
+        browser.get(f"http://127.0.0.1:{PORT}/")
+        wait("the second tab", lambda: text("job-state") == "running", 10)
+        result["second_tab"] = {"job-what": text("job-what"), "job-samples": int(text("job-samples"))}
+        browser.close()
+        browser.switch_to.window(first)
         result["flight_state"] = job_done(120)
         result["flight"] = {k: _maybe(browser, k) for k in ("fig-samples", "fig-rms-depth", "fig-rms-heading",
                                                             "fig-stopped", "job-samples", "job-what")}
@@ -211,12 +243,58 @@ def main():
         result["files"] = [(r.get_attribute("data-kind"), r.get_attribute("data-name"))
                            for r in browser.find_elements(By.CSS_SELECTOR, "#files tr")]
         shot("reloaded")
+
+        # 7. The autopilot reboots: the server's link comes back by itself.
+        links = state()["vehicle"]["links_opened"]
+        observer.reboot()
+        wait("the link again", lambda: state()["vehicle"]["connected"] and state()["vehicle"]["links_opened"] > links, 60)
+        wait("the page's link", lambda: text("link-state").startswith("connected"), 10)
+        result["reboot"] = {"links_opened": state()["vehicle"]["links_opened"], "page": text("link-state")}
+        shot("rebooted")
+
+        # 8. The server killed mid-excitation: the run dies with it, the autopilot's pilot-input
+        # failsafe takes the thrusters to neutral, the recording stays as .partial; a new server
+        # lists it and fits it.
+        field("ex-duration", 90)
+        click("ex-keep-going")
+        click("ex-start")
+        wait("the excitation", lambda: text("job-kind") == "excite" and text("job-state") == "running", 10)
+        wait("armed", observer.armed, 60)
+        # Long enough for the fit (at least 208 sample periods of excitation after arming).
+        wait("50 s of excitation", lambda: float(text("job-elapsed").strip("( s)")) >= 50, 90, every=0.5)
+        killed = time.monotonic()
+        serve.kill()
+        serve.wait()
+        time.sleep(6.0)
+        left = subprocess.run(["pgrep", "-f", "vehicle excite"], capture_output=True, text=True).stdout.split()
+        result["killed"] = {"outputs": observer.outputs_after(killed, span=6.0), "children_left": left,
+                            "armed_after_6_s": observer.armed()}
+        serve = start_serve()
+        wait("pinc serve again", _answers, 30)
+        browser.get(f"http://127.0.0.1:{PORT}/")
+        wait("the partial recording listed", lambda: any(
+            "partial" in r.text for r in browser.find_elements(By.CSS_SELECTOR, "#files tr")), 20)
+        partial = [o.text for o in Select(browser.find_element(By.ID, "fit-recording")).options if o.text.endswith(".partial")]
+        result["killed"]["partial"] = partial
+        Select(browser.find_element(By.ID, "fit-recording")).select_by_visible_text(partial[0])
+        field("fit-epochs", 5)
+        click("fit-start")
+        wait("the fit to start", lambda: text("job-kind") == "fit", 10)
+        result["partial_fit_state"] = job_done(300)
+        result["partial_fit"] = {"passed": _maybe(browser, "fit-passed"), "error": _maybe(browser, "job-error")}
+        shot("partial_fitted")
     finally:
         result["serve_exit"] = serve.poll()
         browser.quit()
         serve.terminate()
         serve.wait(10)
         Path(a.out).write_text(json.dumps(result, indent=1))
+
+
+def state():
+    import urllib.request
+    with urllib.request.urlopen(f"http://127.0.0.1:{PORT}/api/state", timeout=2) as r:
+        return json.loads(r.read())
 
 
 def _answers():

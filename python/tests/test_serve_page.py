@@ -108,3 +108,29 @@ def test_stop_reaches_neutral_and_disarmed_within_half_a_second(clicked):
     assert "disarmed seen after" in stop["page"]
     # The flight's own process stopped too, saying why.
     assert any("interrupted" in line or "STOP" in line for line in stop["job_log_tail"]), stop
+
+
+def test_a_reload_and_a_second_tab_see_the_flight_going_on(clicked):
+    _, result = clicked
+    assert result["second_tab"]["job-what"] == result["flight"]["job-what"]
+    assert result["second_tab"]["job-samples"] >= 100
+
+
+def test_the_link_comes_back_after_the_autopilot_reboots(clicked):
+    _, result = clicked
+    assert result["reboot"]["links_opened"] >= 2 and result["reboot"]["page"].startswith("connected"), result["reboot"]
+
+
+def test_a_server_killed_mid_run_leaves_the_vehicle_to_the_failsafe_and_a_partial_recording(clicked):
+    _, result = clicked
+    killed = result["killed"]
+    assert killed["children_left"] == [], "the excitation died with the server"
+    # ArduSub's pilot-input failsafe (3 s without MANUAL_CONTROL): the thrusters to neutral.
+    after = [(dt, outputs) for dt, outputs in killed["outputs"] if dt >= 0]
+    neutral = [all(v == 1500 for v in outputs) for _, outputs in after]
+    assert True in neutral, after
+    first = neutral.index(True)
+    print(f"neutral {after[first][0]:.2f} s after the kill")
+    assert after[first][0] <= 4.0 and all(neutral[first:]), after
+    assert len(killed["partial"]) == 1 and killed["partial"][0].endswith(".mcap.partial")
+    assert result["partial_fit_state"] == "finished", result["partial_fit"]
