@@ -49,8 +49,8 @@ def settings(**kw):
     "disturbed", "station" or "survey"; reference; path: a waypoint CSV, path_frame: "start"
     or "origin"; survey: [width, length, spacing, speed, depth]; path_heading (deg, else along
     the track); current: [north, east] m/s; max_distance (m); duration, horizon, disturbance_gain, envelope_constraints, envelope_penalty,
-    envelope_margin, input_rate, solver_time_limit, condensing_block, sparse_qp, qp: "clarabel" or
-    "riccati"). Unset keys keep `mpc_track`'s defaults."""
+    envelope_margin, input_rate, solver_time_limit, condensing_block, sparse_qp, qp: "riccati" (the
+    default) or "clarabel"). Unset keys keep `mpc_track`'s defaults."""
     unknown = sorted(set(kw) - set(_DEFAULTS))
     if unknown:
         raise ValueError(f"settings: unknown key(s) {unknown} (known: {sorted(_DEFAULTS)})")

@@ -95,11 +95,12 @@ def test_one_run_is_mpc_tracks_and_draws_repeat():
 
 
 def test_the_riccati_solver_runs_the_same_closed_loop(tmp_path):
-    """`qp="riccati"` reaches the controller: the same run as Clarabel's to the solvers'
-    real-time tolerances, on a perturbed plant too; an unknown solver is refused by name."""
-    riccati = {**SETTINGS, "qp": "riccati"}
+    """`qp="riccati"` (the default) reaches the controller: the same run as Clarabel's to the
+    solvers' real-time tolerances, on a perturbed plant too; an unknown solver is refused by name."""
+    riccati, clarabel = {**SETTINGS, "qp": "riccati"}, {**SETTINGS, "qp": "clarabel"}
+    assert closed_loop.run(SETTINGS) == closed_loop.run(riccati), "riccati is the default"
     for seed in (None, 3):
-        a, b = closed_loop.run(SETTINGS, seed=seed), closed_loop.run(riccati, seed=seed)
+        a, b = closed_loop.run(clarabel, seed=seed), closed_loop.run(riccati, seed=seed)
         assert b.get("fallbacks", 0) == 0 and b.get("success", True), b
         for k in ("rms_depth_m", "rms_heading_deg"):
             assert b[k] == pytest.approx(a[k], rel=0.01), (k, a[k], b[k])

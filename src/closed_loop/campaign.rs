@@ -65,8 +65,9 @@ pub struct Settings {
     pub condensing_block: Option<usize>,
     /// Solve the QP as before partial condensing ([`MpcConfig::with_sparse_qp`]), for comparison.
     pub sparse_qp: bool,
-    /// The QP solver: Clarabel (the default) or the Riccati interior-point method.
-    pub qp: QpSolver,
+    /// The QP solver [`None`: the Riccati interior-point method, or Clarabel with
+    /// `sparse_qp`, its formulation].
+    pub qp: Option<QpSolver>,
 }
 
 impl Default for Settings {
@@ -93,7 +94,7 @@ impl Default for Settings {
             solver_time_limit: None,
             condensing_block: None,
             sparse_qp: false,
-            qp: QpSolver::Clarabel,
+            qp: None,
         }
     }
 }
@@ -181,10 +182,10 @@ impl Campaign {
             }
             scenario.current = c;
         }
-        if s.sparse_qp && s.qp != QpSolver::Clarabel {
+        let qp = s.qp.unwrap_or(if s.sparse_qp { QpSolver::Clarabel } else { QpSolver::Riccati });
+        if s.sparse_qp && qp != QpSolver::Clarabel {
             return Err(SetupError::Setting(format!(
-                "sparse_qp is a formulation of Clarabel's QP; the {} solver takes the stages as they are",
-                s.qp
+                "sparse_qp is a formulation of Clarabel's QP; the {qp} solver takes the stages as they are"
             )));
         }
         let defaults = MpcConfig::default();
@@ -198,7 +199,7 @@ impl Campaign {
             envelope_margin: s.envelope_margin,
             solver_time_limit: s.solver_time_limit.unwrap_or(defaults.solver_time_limit),
             condensing_block: s.condensing_block.unwrap_or(defaults.condensing_block),
-            qp: s.qp,
+            qp,
             ..defaults
         };
         let config = if s.sparse_qp { config.with_sparse_qp() } else { config };

@@ -13,7 +13,7 @@ use pinc::traits::DiscreteModel;
 use pinc::vehicle::{Rk4Vehicle, VehicleParams};
 
 fn campaign(scenario: &str, qp: QpSolver) -> Campaign {
-    let s = Settings { scenario: scenario.into(), qp, solver_time_limit: Some(10.0), ..Settings::default() };
+    let s = Settings { scenario: scenario.into(), qp: Some(qp), solver_time_limit: Some(10.0), ..Settings::default() };
     Campaign::new(&s).unwrap()
 }
 

@@ -134,3 +134,19 @@ fn a_riccati_cycle_out_of_iterations_falls_back_without_a_nan() {
     assert_eq!(report.fallback, Some(pinc::mpc::Fallback::Solver(clarabel::solver::SolverStatus::MaxIterations)));
     assert!(report.input.iter().all(|v| v.is_finite()));
 }
+
+/// The Riccati solver is the campaigns' (so `mpc_track`'s, the live session's and Python's)
+/// default; `sparse_qp`, a formulation of Clarabel's QP, takes Clarabel unless told otherwise
+/// and refuses the Riccati solver by name.
+#[test]
+fn campaigns_default_to_riccati_and_the_sparse_qp_to_clarabel() {
+    let model = format!("{}/models/mpc_pinc_thrust.pinc", env!("CARGO_MANIFEST_DIR"));
+    let campaign = |s: Settings| Campaign::new(&Settings { model: model.clone().into(), ..s });
+    assert_eq!(campaign(Settings::default()).unwrap().config.qp, QpSolver::Riccati);
+    let sparse = campaign(Settings { sparse_qp: true, ..Settings::default() }).unwrap();
+    assert_eq!((sparse.config.qp, sparse.config.condensing_block), (QpSolver::Clarabel, 1));
+    let e = campaign(Settings { sparse_qp: true, qp: Some(QpSolver::Riccati), ..Settings::default() })
+        .err()
+        .expect("the Riccati solver has no sparse formulation");
+    assert!(e.to_string().contains("sparse_qp is a formulation of Clarabel's QP; the riccati solver"), "{e}");
+}
