@@ -132,20 +132,20 @@ def test_the_shipped_model_holds_a_stock_vehicle_on_its_defaults(pinc_stock):
     assert live["truth_rms"]["depth_m"] <= 0.20 and s["rms_heading_deg"] <= 6.0
 
 
-def test_the_riccati_solver_flies_the_stock_vehicle_as_clarabel_does(tmp_path, pinc_stock):
-    # The live session takes `--qp riccati` from the same settings: on the firmware it tracks
-    # as the Clarabel run of the same test session (measured: truth depth RMS 0.1250 against
-    # 0.1252 m, heading 4.23 against 4.25 deg, solve median 0.10 against 0.51 ms), every cycle
-    # solved.
-    _, clarabel = pinc_stock
-    r, s = fly(tmp_path, "--qp", "riccati")
+def test_the_default_riccati_solver_flies_the_stock_vehicle_as_clarabel_does(tmp_path, pinc_stock):
+    # The live session's default solver (Riccati) tracks as Clarabel on the firmware (measured
+    # before the switch: truth depth RMS 0.1250 against 0.1252 m, heading 4.23 against 4.25 deg,
+    # solve median 0.10 against 0.51 ms), every cycle solved.
+    _, riccati = pinc_stock
+    r, s = fly(tmp_path, "--qp", "clarabel")
     assert s["stopped"] is None and r.returncode == 0, r.stderr
-    assert s["samples"] >= 740 and s["fallbacks"] == 0, s
+    assert riccati["samples"] >= 740 and riccati["fallbacks"] == 0, riccati
     for key in ("depth_m", "heading_deg"):
-        got, want = s["live"]["truth_rms"][key], clarabel["live"]["truth_rms"][key]
+        got, want = riccati["live"]["truth_rms"][key], s["live"]["truth_rms"][key]
         assert abs(got - want) <= 0.1 * want, (key, got, want)
-    run = {m.name: m.metadata for m in metadata(Path(s["log"]))}["run"]
-    assert run["qp_solver"] == "riccati"
+    solvers = {who: {m.name: m.metadata for m in metadata(Path(run["log"]))}["run"]["qp_solver"]
+               for who, run in (("default", riccati), ("asked", s))}
+    assert solvers == {"default": "riccati", "asked": "clarabel"}
 
 
 def test_ardusubs_own_althold_flies_the_same_references_beside_pinc(tmp_path, pinc_stock):
