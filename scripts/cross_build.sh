@@ -7,7 +7,8 @@
 #   dist/<platform>/pinc, mpc_track      the command lines, with the live link (feature `vehicle`)
 #   dist/<platform>/libpinc_c.a, .so     the C ABI (workspace member `capi`), and pinc.h
 #   dist/<platform>/runtime_json         examples/runtime_json.rs, for python/tests/test_cross_platform.py
-# and dist/models/mpc_pinc_thrust.pinc, the model mpc_track flies by default.
+# and dist/models/mpc_pinc_thrust.pinc, the model mpc_track flies by default, and
+# dist/models/bluerov2.toml, the vehicle file `pinc serve` starts from in the image.
 # blueos/Dockerfile copies from there; it compiles nothing.
 #
 # Usage: scripts/cross_build.sh [--platforms linux-arm-v7,linux-arm64,linux-amd64]
