@@ -263,7 +263,8 @@ impl Handle {
         self.update(|j| j.say(line));
     }
 
-    /// Set when STOP was asked.
+    /// Set when STOP was asked (the fit watches it; builds without the trainer have no fit).
+    #[cfg_attr(not(feature = "train"), allow(dead_code))]
     pub fn interrupt(&self) -> &AtomicBool {
         &self.interrupt
     }
