@@ -331,7 +331,7 @@ fn try_main(a: Args) -> Result<(), String> {
         Some(run) => run,
         None => {
             let (samples, log_error) = if a.oracle {
-                let oracle = Rk4Vehicle { params: vehicle, ..Rk4Vehicle::with_dt(predictor.dt()) };
+                let oracle = Rk4Vehicle::for_control(vehicle, predictor.dt());
                 closed_loop(
                     Mpc::new(oracle, cfg.clone()).map_err(|e| e.to_string())?,
                     scenario,
@@ -718,7 +718,7 @@ fn live(
         None => None,
     };
     let outcome = if a.oracle {
-        let oracle = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(mpc.model().dt()) };
+        let oracle = Rk4Vehicle::for_control(*vehicle, mpc.model().dt());
         let flyer = match hold {
             Some(hold) => Flyer::Autopilot { hold, model: oracle },
             None => Flyer::Mpc(Box::new(Mpc::new(oracle, mpc.config().clone()).map_err(|e| e.to_string())?)),

@@ -243,9 +243,10 @@ impl Campaign {
         Ok(summarise(&samples, &self.scenario, self.config.horizon as f64 * self.model.dt))
     }
 
-    /// The analytic model of the nominal plant at the model's sample time.
+    /// The analytic model of the nominal plant at the model's sample time, as a controller's
+    /// model ([`Rk4Vehicle::for_control`]).
     pub fn oracle(&self) -> Rk4Vehicle {
-        Rk4Vehicle { params: self.vehicle, ..Rk4Vehicle::with_dt(self.model.dt) }
+        Rk4Vehicle::for_control(self.vehicle, self.model.dt)
     }
 }
 

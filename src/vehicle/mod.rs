@@ -15,7 +15,7 @@ pub use dynamics::{
 };
 #[cfg(feature = "cli")]
 pub use file::VehicleFileError;
-pub use integrator::{DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
+pub use integrator::{CONTROL_SUBSTEPS, DEFAULT_SUBSTEPS, Rk4Vehicle, rk4};
 pub use params::{ParamsError, VehicleParams, terminal_speed};
 #[cfg(feature = "cli")]
 pub use thrusters::{Allocation, CommandUnit, Thruster, ThrusterCurve, Thrusters, standalone_thruster_tables};

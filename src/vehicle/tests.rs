@@ -203,3 +203,34 @@ fn discrete_jacobians_match_central_differences() {
         assert!((col - b.column(j)).amax() < 1e-8, "B column {j}");
     }
 }
+
+/// The controller's model ([`CONTROL_SUBSTEPS`]) against the default integration, one sample
+/// period at a time along 60 s of a manoeuvre (faster than the default closed loop flies): the
+/// step within 2e-7 and its Jacobians within 1e-5 (measured 1.0e-7, 5.8e-6 and 8.6e-7). Half as
+/// many sub-steps would be 16x further off (RK4's fourth order), so the count is the fewest
+/// that keeps these margins.
+#[test]
+fn control_substeps_give_the_default_step_within_2e7_and_its_jacobians_within_1e5() {
+    let (fine, control) = (Rk4Vehicle::default(), Rk4Vehicle::for_control(VehicleParams::default(), 0.08));
+    assert_eq!(control.substeps, CONTROL_SUBSTEPS);
+    let half = Rk4Vehicle { substeps: CONTROL_SUBSTEPS / 2, ..control };
+    let mut x = to_network(&start());
+    let (mut worst, mut worst_half) = ([0.0f64; 3], 0.0f64);
+    for k in 0..750 {
+        let u = manoeuvre(k);
+        let (xf, af, bf) = fine.step_with_jacobians(&x, &u);
+        let (xc, ac, bc) = control.step_with_jacobians(&x, &u);
+        let (xh, ..) = half.step_with_jacobians(&x, &u);
+        worst[0] = worst[0].max((xc - xf).amax());
+        worst[1] = worst[1].max((ac - af).amax());
+        worst[2] = worst[2].max((bc - bf).amax());
+        worst_half = worst_half.max((xh - xf).amax());
+        x = xf;
+    }
+    eprintln!(
+        "{CONTROL_SUBSTEPS} sub-steps against {DEFAULT_SUBSTEPS}: step {:e}, A {:e}, B {:e}; half as many: step {worst_half:e}",
+        worst[0], worst[1], worst[2]
+    );
+    assert!(worst[0] < 2e-7 && worst[1] < 1e-5 && worst[2] < 1e-5, "{worst:?}");
+    assert!(worst_half > 8.0 * worst[0], "RK4's order: {worst_half:e} against {:e}", worst[0]);
+}
