@@ -145,8 +145,8 @@ fn campaigns_default_to_riccati_and_the_sparse_qp_to_clarabel() {
     assert_eq!(campaign(Settings::default()).unwrap().config.qp, QpSolver::Riccati);
     let sparse = campaign(Settings { sparse_qp: true, ..Settings::default() }).unwrap();
     assert_eq!((sparse.config.qp, sparse.config.condensing_block), (QpSolver::Clarabel, 1));
-    let e = campaign(Settings { sparse_qp: true, qp: Some(QpSolver::Riccati), ..Settings::default() })
-        .err()
-        .expect("the Riccati solver has no sparse formulation");
+    let Err(e) = campaign(Settings { sparse_qp: true, qp: Some(QpSolver::Riccati), ..Settings::default() }) else {
+        panic!("the Riccati solver has no sparse formulation")
+    };
     assert!(e.to_string().contains("sparse_qp is a formulation of Clarabel's QP; the riccati solver"), "{e}");
 }
