@@ -329,6 +329,7 @@ pub fn load_mapping(path: &Path) -> Result<CsvMapping, ImportError> {
 }
 
 /// The columns a mapping reads, resolved against one file's header.
+#[derive(Default)]
 struct Columns {
     /// Header index of each column read, in slot order.
     index: Vec<usize>,
@@ -392,10 +393,108 @@ const ENU_TO_NED: Matrix3<f64> = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0,
 /// FRD body axes to FLU (its own inverse): flip y and z.
 const FRD_TO_FLU: Matrix3<f64> = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
 
+/// How a row's time is found.
+#[derive(Clone, Copy)]
+enum TimePlan {
+    /// A time-stamp column (its slot) and the seconds per unit.
+    Column { slot: usize, scale: f64 },
+    /// No column: row `i` is at `i / rate` s.
+    Rate(f64),
+}
+
+impl TimePlan {
+    /// The time (s) of data row `row` (from 0) whose parsed fields are `vals`.
+    fn at(self, vals: &[f64], row: usize) -> f64 {
+        match self {
+            Self::Column { slot, scale } => vals[slot] * scale,
+            Self::Rate(rate) => row as f64 / rate,
+        }
+    }
+}
+
+/// The axes of a vector the mapping reads, and its conversion to pinc's (NED world, FRD body).
+trait Axes: Copy {
+    /// `v` in pinc's axes.
+    fn to_pinc(self, v: [f64; 3]) -> [f64; 3];
+}
+
+impl Axes for WorldFrame {
+    fn to_pinc(self, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            WorldFrame::Ned => v,
+            WorldFrame::Enu => [v[1], v[0], -v[2]],
+        }
+    }
+}
+
+impl Axes for VelocityAxes {
+    fn to_pinc(self, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            VelocityAxes::BodyFrd | VelocityAxes::WorldNed => v,
+            VelocityAxes::BodyFlu => [v[0], -v[1], -v[2]],
+            VelocityAxes::WorldEnu => WorldFrame::Enu.to_pinc(v),
+        }
+    }
+}
+
+/// Three columns read as one vector in `axes` (a position, a velocity), and their names for
+/// the report.
+struct VectorPlan<A> {
+    slots: [usize; 3],
+    axes: A,
+    source: String,
+}
+
+impl<A: Axes> VectorPlan<A> {
+    /// The vector of a row, in pinc's axes.
+    fn of(&self, vals: &[f64]) -> [f64; 3] {
+        self.axes.to_pinc(self.slots.map(|s| vals[s]))
+    }
+}
+
 /// How the heading columns turn into roll, pitch, yaw.
 enum Heading {
     Yaw { slot: usize, scale: f64, enu: bool },
     Quaternion { slots: [usize; 4], columns: String, enu_flu: bool },
+}
+
+impl Heading {
+    /// Roll, pitch, yaw of a row (NaN for a quaternion with a missing part).
+    ///
+    /// # Errors
+    /// A quaternion off unit length, naming the line of `record` and data row `row` (from 0).
+    fn attitude(&self, vals: &[f64], record: &csv::ByteRecord, row: usize) -> Result<[f64; 3], String> {
+        Ok(match self {
+            Heading::Yaw { slot, scale, enu } => {
+                let yaw = vals[*slot] * scale;
+                [0.0, 0.0, if *enu { wrap_angle(FRAC_PI_2 - yaw) } else { wrap_angle(yaw) }]
+            }
+            Heading::Quaternion { slots, columns, enu_flu } => {
+                let [w, x, y, z] = slots.map(|s| vals[s]);
+                let norm = (w * w + x * x + y * y + z * z).sqrt();
+                if norm.is_nan() {
+                    [f64::NAN; 3]
+                } else {
+                    if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+                        return Err(format!(
+                            "line {} (data row {}): quaternion {columns} has length {norm:.6}, not 1 (tolerance {QUATERNION_NORM_TOLERANCE})",
+                            line_of(record),
+                            row + 1
+                        ));
+                    }
+                    let r = rotation(w / norm, x / norm, y / norm, z / norm);
+                    euler_zyx(&if *enu_flu { ENU_TO_NED * r * FRD_TO_FLU } else { r })
+                }
+            }
+        })
+    }
+}
+
+/// The yaw-rate column, its factor to rad/s about the down axis, and its name.
+struct YawRatePlan {
+    slot: usize,
+    scale: f64,
+    source: String,
 }
 
 /// How the input columns turn into `[X, Y, Z, Mz]`.
@@ -404,11 +503,389 @@ enum InputPlan {
     Thrusters { slots: Vec<usize>, channels: Vec<usize>, n_channels: usize },
 }
 
+impl InputPlan {
+    /// The body input of a row; thruster commands go into `commands` (by channel) and through
+    /// `commands_to_input`, a missing one makes the whole input NaN.
+    fn of(&self, vals: &[f64], commands: &mut [f64], commands_to_input: Option<CommandsToInput<'_>>) -> [f64; 4] {
+        match self {
+            InputPlan::Wrench { slots, flu } => {
+                let w = slots.map(|s| vals[s]);
+                if *flu { [w[0], -w[1], -w[2], -w[3]] } else { w }
+            }
+            InputPlan::Thrusters { slots, channels, .. } => {
+                let mut missing = false;
+                for (&s, &c) in slots.iter().zip(channels) {
+                    commands[c - 1] = vals[s];
+                    missing |= vals[s].is_nan();
+                }
+                if missing {
+                    [f64::NAN; 4]
+                } else {
+                    let f = commands_to_input.expect("checked when planned");
+                    let u = f(commands);
+                    [u[0], u[1], u[2], u[3]]
+                }
+            }
+        }
+    }
+}
+
+/// What a mapping reads from one file, resolved against its header before any row is read:
+/// the columns parsed, how each quantity is converted, and the notes saying so.
+struct Plan {
+    cols: Columns,
+    time: TimePlan,
+    position: Option<VectorPlan<WorldFrame>>,
+    heading: Option<Heading>,
+    velocity: Option<VectorPlan<VelocityAxes>>,
+    yaw_rate: Option<YawRatePlan>,
+    /// The input's conversion and its columns' names.
+    input: Option<(InputPlan, String)>,
+    notes: Vec<String>,
+}
+
+/// Resolves a mapping's sections against a header, one at a time, collecting the columns to
+/// parse and a note per section.
+struct Resolver<'h> {
+    header: &'h [String],
+    cols: Columns,
+    notes: Vec<String>,
+}
+
+impl Plan {
+    /// Every section of `mapping` resolved against `header`, in the mapping's order (time,
+    /// position, heading, velocity, yaw rate, input), so the first column missing from the
+    /// header is the one reported. `has_thrusters`: a conversion of thruster commands is given.
+    ///
+    /// # Errors
+    /// A column not in the header (listing it), or thruster columns without the thrusters.
+    fn new(mapping: &CsvMapping, header: &[String], has_thrusters: bool) -> Result<Self, String> {
+        let mut r = Resolver { header, cols: Columns::default(), notes: Vec::new() };
+        let time = r.time(&mapping.time)?;
+        let position = mapping.position.as_ref().map(|p| r.position(p)).transpose()?;
+        let heading = mapping.heading.as_ref().map(|h| r.heading(h)).transpose()?;
+        let velocity = mapping.velocity.as_ref().map(|v| r.velocity(v)).transpose()?;
+        let yaw_rate = mapping.yaw_rate.as_ref().map(|y| r.yaw_rate(y)).transpose()?;
+        let input = mapping.input.as_ref().map(|i| r.input(i, mapping, has_thrusters)).transpose()?;
+        Ok(Self { cols: r.cols, time, position, heading, velocity, yaw_rate, input, notes: r.notes })
+    }
+
+    /// The streams read, the notes with the row count (and a torn last line), as the reader
+    /// returns them; velocities go to the body or the world stream by their axes.
+    ///
+    /// # Errors
+    /// No row after the header.
+    fn finish(self, streams: Streams, rows: usize, torn: Option<String>) -> Result<StreamSet, String> {
+        if rows == 0 {
+            return Err("no rows after the header".into());
+        }
+        let mut notes = self.notes;
+        notes.push(format!("{rows} rows"));
+        notes.extend(torn);
+        let (mut velocity_body, mut velocity_ned) = (None, None);
+        match self.velocity.as_ref().map(|v| v.axes) {
+            Some(VelocityAxes::BodyFrd | VelocityAxes::BodyFlu) => velocity_body = streams.velocity,
+            Some(VelocityAxes::WorldNed | VelocityAxes::WorldEnu) => velocity_ned = streams.velocity,
+            None => {}
+        }
+        Ok(StreamSet {
+            position: streams.position,
+            depth: None,
+            attitude: streams.attitude,
+            velocity_ned,
+            velocity_body,
+            yaw_rate: streams.yaw_rate,
+            input: streams.input,
+            notes,
+        })
+    }
+}
+
+impl Resolver<'_> {
+    /// `[time]`: the column and its unit, or the fixed rate.
+    fn time(&mut self, t: &TimeMapping) -> Result<TimePlan, String> {
+        match (&t.column, t.rate_hz) {
+            (Some(c), _) => {
+                let unit = t.unit.unwrap_or(TimeUnit::S);
+                let name = match unit {
+                    TimeUnit::S => "s",
+                    TimeUnit::Ms => "ms (converted to s)",
+                    TimeUnit::Us => "us (converted to s)",
+                    TimeUnit::Ns => "ns (converted to s)",
+                };
+                self.notes.push(format!("time: column {c} in {name}"));
+                Ok(TimePlan::Column { slot: self.cols.slot(self.header, c, "[time] column")?, scale: unit.seconds() })
+            }
+            (None, Some(rate)) => {
+                self.notes.push(format!("time: no column, a fixed rate of {rate} Hz from t = 0"));
+                Ok(TimePlan::Rate(rate))
+            }
+            (None, None) => unreachable!("checked"),
+        }
+    }
+
+    /// `[position]`: three columns, NED or ENU.
+    fn position(&mut self, p: &PositionMapping) -> Result<VectorPlan<WorldFrame>, String> {
+        let slots = self.cols.slots(self.header, &p.columns, "[position] columns")?;
+        self.notes.push(match p.frame {
+            WorldFrame::Ned => format!("position: {} in NED", p.columns.join(",")),
+            WorldFrame::Enu => {
+                format!("position: {} in ENU (z up), converted to NED: (x, y, z) -> (y, x, -z)", p.columns.join(","))
+            }
+        });
+        Ok(VectorPlan { slots, axes: p.frame, source: p.columns.join(",") })
+    }
+
+    /// `[heading]`: a yaw column (roll and pitch 0) or a quaternion.
+    fn heading(&mut self, h: &HeadingMapping) -> Result<Heading, String> {
+        Ok(match (&h.yaw_column, &h.quaternion_columns) {
+            (Some(c), _) => {
+                let unit = h.unit.unwrap_or(AngleUnit::Rad);
+                let enu = h.frame == HeadingFrame::Enu;
+                self.notes.push(format!(
+                    "heading: yaw column {c} in {}{}; roll and pitch not in the file, taken as 0",
+                    if unit == AngleUnit::Deg { "deg" } else { "rad" },
+                    if enu {
+                        ", counter-clockwise from east, converted: psi = pi/2 - yaw"
+                    } else {
+                        ", clockwise from north"
+                    }
+                ));
+                Heading::Yaw {
+                    slot: self.cols.slot(self.header, c, "[heading] yaw_column")?,
+                    scale: unit.radians(),
+                    enu,
+                }
+            }
+            (None, Some(q)) => {
+                let order = h.order.unwrap_or(QuaternionOrder::Xyzw);
+                let s = self.cols.slots(self.header, q, "[heading] quaternion_columns")?;
+                // Slots in the order w, x, y, z.
+                let slots = match order {
+                    QuaternionOrder::Xyzw => [s[3], s[0], s[1], s[2]],
+                    QuaternionOrder::Wxyz => s,
+                };
+                let enu_flu = h.frame == HeadingFrame::EnuFlu;
+                self.notes.push(format!(
+                    "heading: quaternion {} ({order:?} order){}; roll, pitch, yaw (Z-Y-X) taken from it",
+                    q.join(","),
+                    if enu_flu {
+                        ", FLU body to ENU world, converted to FRD body to NED world (psi = pi/2 - yaw_enu)"
+                    } else {
+                        ", FRD body to NED world"
+                    }
+                ));
+                Heading::Quaternion { slots, columns: q.join(","), enu_flu }
+            }
+            (None, None) => unreachable!("checked"),
+        })
+    }
+
+    /// `[velocity]`: three columns in body or world axes.
+    fn velocity(&mut self, v: &VelocityMapping) -> Result<VectorPlan<VelocityAxes>, String> {
+        let slots = self.cols.slots(self.header, &v.columns, "[velocity] columns")?;
+        let what = match v.axes {
+            VelocityAxes::BodyFrd => "body FRD axes",
+            VelocityAxes::BodyFlu => "body FLU axes, converted to FRD: (x, y, z) -> (x, -y, -z)",
+            VelocityAxes::WorldNed => "world NED axes (rotated into the body by the attitude when resampled)",
+            VelocityAxes::WorldEnu => "world ENU axes, converted to NED: (x, y, z) -> (y, x, -z)",
+        };
+        self.notes.push(format!("velocity: {} in {what}", v.columns.join(",")));
+        Ok(VectorPlan { slots, axes: v.axes, source: v.columns.join(",") })
+    }
+
+    /// `[yaw_rate]`: one column about the down or the up axis.
+    fn yaw_rate(&mut self, y: &YawRateMapping) -> Result<YawRatePlan, String> {
+        let slot = self.cols.slot(self.header, &y.column, "[yaw_rate] column")?;
+        let unit = y.unit.unwrap_or(AngleUnit::Rad);
+        let flu = y.axes == BodyFrame::Flu;
+        self.notes.push(format!(
+            "yaw rate: {} in {}/s{}",
+            y.column,
+            if unit == AngleUnit::Deg { "deg" } else { "rad" },
+            if flu { " about the up axis (FLU), sign flipped to the down axis" } else { " about the down axis (FRD)" }
+        ));
+        Ok(YawRatePlan { slot, scale: unit.radians() * if flu { -1.0 } else { 1.0 }, source: y.column.clone() })
+    }
+
+    /// `[input]`: the wrench columns, or thruster columns by channel (which need the thrusters).
+    fn input(
+        &mut self,
+        i: &InputMapping,
+        mapping: &CsvMapping,
+        has_thrusters: bool,
+    ) -> Result<(InputPlan, String), String> {
+        match (&i.wrench_columns, &i.thruster_columns) {
+            (Some(w), _) => {
+                let flu = i.axes == Some(BodyFrame::Flu);
+                self.notes.push(format!(
+                    "input: wrench {}{}",
+                    w.join(","),
+                    if flu { " in FLU, converted to FRD: (X, Y, Z, Mz) -> (X, -Y, -Z, -Mz)" } else { " in FRD" }
+                ));
+                let slots = self.cols.slots(self.header, w, "[input] wrench_columns")?;
+                Ok((InputPlan::Wrench { slots, flu }, w.join(",")))
+            }
+            (None, Some(t)) => {
+                if !has_thrusters {
+                    return Err(
+                        "the mapping's [input] thruster_columns need the vehicle's thrusters (a vehicle file with a thruster layout)"
+                            .into(),
+                    );
+                }
+                let channels = mapping.channels().expect("thruster input");
+                let slots = t
+                    .iter()
+                    .map(|c| self.cols.slot(self.header, c, "[input] thruster_columns"))
+                    .collect::<Result<Vec<_>, _>>()?;
+                self.notes.push(format!(
+                    "input: thruster commands {} on channels {:?}, converted to a body wrench by the vehicle's thrusters",
+                    t.join(","),
+                    channels
+                ));
+                let n_channels = channels.iter().copied().max().unwrap_or(0);
+                Ok((InputPlan::Thrusters { slots, channels, n_channels }, t.join(",")))
+            }
+            (None, None) => unreachable!("checked"),
+        }
+    }
+}
+
+/// The series a file fills, one per section its plan reads.
+struct Streams {
+    position: Option<Series<3>>,
+    attitude: Option<Series<3>>,
+    velocity: Option<Series<3>>,
+    yaw_rate: Option<Series<1>>,
+    input: Option<Series<4>>,
+    /// A row's thruster commands by channel (NaN on channels the mapping does not name).
+    commands: Vec<f64>,
+}
+
+impl Streams {
+    /// Empty series named after their columns.
+    fn new(plan: &Plan) -> Self {
+        Self {
+            position: plan.position.as_ref().map(|p| Series::new(p.source.clone())),
+            attitude: plan.heading.as_ref().map(|h| {
+                Series::new(match h {
+                    Heading::Yaw { slot, .. } => plan.cols.name[*slot].clone(),
+                    Heading::Quaternion { columns, .. } => columns.clone(),
+                })
+            }),
+            velocity: plan.velocity.as_ref().map(|v| Series::new(v.source.clone())),
+            yaw_rate: plan.yaw_rate.as_ref().map(|y| Series::new(y.source.clone())),
+            input: plan.input.as_ref().map(|i| Series::new(i.1.clone())),
+            commands: vec![
+                f64::NAN;
+                plan.input.as_ref().map_or(0, |i| match &i.0 {
+                    InputPlan::Thrusters { n_channels, .. } => *n_channels,
+                    InputPlan::Wrench { .. } => 0,
+                })
+            ],
+        }
+    }
+
+    /// Appends one row, each quantity converted as the plan says.
+    ///
+    /// # Errors
+    /// A quaternion off unit length.
+    fn push(
+        &mut self,
+        plan: &Plan,
+        vals: &[f64],
+        record: &csv::ByteRecord,
+        row: usize,
+        commands_to_input: Option<CommandsToInput<'_>>,
+    ) -> Result<(), String> {
+        let t = plan.time.at(vals, row);
+        if let (Some(p), Some(series)) = (&plan.position, &mut self.position) {
+            series.push(t, p.of(vals));
+        }
+        if let (Some(h), Some(series)) = (&plan.heading, &mut self.attitude) {
+            series.push(t, h.attitude(vals, record, row)?);
+        }
+        if let (Some(v), Some(series)) = (&plan.velocity, &mut self.velocity) {
+            series.push(t, v.of(vals));
+        }
+        if let (Some(y), Some(series)) = (&plan.yaw_rate, &mut self.yaw_rate) {
+            series.push(t, [vals[y.slot] * y.scale]);
+        }
+        if let (Some((i, _)), Some(series)) = (&plan.input, &mut self.input) {
+            series.push(t, i.of(vals, &mut self.commands, commands_to_input));
+        }
+        Ok(())
+    }
+}
+
+/// The line of the file a record was read from.
+fn line_of(record: &csv::ByteRecord) -> u64 {
+    record.position().map_or(0, |p| p.line())
+}
+
+/// Opens the file as the mapping's CSV dialect and reads its header.
+fn open(path: &Path, mapping: &CsvMapping) -> Result<(csv::Reader<std::fs::File>, Vec<String>), ImportError> {
+    let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let delimiter = mapping.delimiter.as_deref().map_or(b',', |d| d.as_bytes()[0]);
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .delimiter(delimiter)
+        .trim(csv::Trim::Headers)
+        .buffer_capacity(1 << 16)
+        .from_reader(file);
+    let header: Vec<String> = reader
+        .headers()
+        .map_err(|e| ImportError::Malformed { path: path.to_path_buf(), message: format!("line 1: {e}") })?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    Ok((reader, header))
+}
+
+/// Reads every row into `streams`, parsing only the plan's columns; returns the number of rows
+/// and the note of a torn last line.
+///
+/// # Errors
+/// A damaged row before the last line, a field that is not a number, a quaternion off unit
+/// length.
+fn read_rows(
+    reader: &mut csv::Reader<std::fs::File>,
+    header: &[String],
+    plan: &Plan,
+    streams: &mut Streams,
+    commands_to_input: Option<CommandsToInput<'_>>,
+) -> Result<(usize, Option<String>), String> {
+    let mut record = csv::ByteRecord::new();
+    let mut vals = vec![0.0; plan.cols.index.len()];
+    let mut row = 0usize;
+    let mut torn: Option<String> = None;
+    while next_row(reader, &mut record, header.len(), &mut torn)? {
+        for (v, &idx) in vals.iter_mut().zip(&plan.cols.index) {
+            let field = &record[idx];
+            *v = parse_field(field).ok_or_else(|| {
+                format!(
+                    "line {}: column {}: {:?} is not a number",
+                    line_of(&record),
+                    header[idx],
+                    String::from_utf8_lossy(field.trim_ascii())
+                )
+            })?;
+        }
+        streams.push(plan, &vals, &record, row, commands_to_input)?;
+        row += 1;
+    }
+    Ok((row, torn))
+}
+
 /// Reads one CSV file through `mapping`, converting every quantity to pinc's frames and units.
 /// Only the columns the mapping names are parsed; an empty field or `nan` is a missing value
 /// (NaN, skipped by the windowing). Thruster command columns go through `commands_to_input`
 /// (commands by channel, index `c - 1` for channel `c`; channels the mapping does not name
 /// are NaN); a row with a missing command gets a NaN input.
+///
+/// The stages: the mapping checked, the file opened and its header read, every column the
+/// mapping names resolved against the header (`Plan`) before any row is read, the rows read
+/// and converted, the streams returned with the notes.
 ///
 /// # Errors
 /// One line naming the file: the file cannot be read, a column the mapping names is not in
@@ -423,305 +900,11 @@ pub fn read_mapped_csv(
 ) -> Result<StreamSet, ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
     mapping.check().map_err(|m| malformed(format!("mapping: {m}")))?;
-    let file = std::fs::File::open(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let delimiter = mapping.delimiter.as_deref().map_or(b',', |d| d.as_bytes()[0]);
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .delimiter(delimiter)
-        .trim(csv::Trim::Headers)
-        .buffer_capacity(1 << 16)
-        .from_reader(file);
-    let header: Vec<String> =
-        reader.headers().map_err(|e| malformed(format!("line 1: {e}")))?.iter().map(str::to_string).collect();
-    let width = header.len();
-
-    // Resolve every named column to a slot before reading any row.
-    let mut cols = Columns { index: Vec::new(), name: Vec::new() };
-    let mut notes = Vec::new();
-    let time = match (&mapping.time.column, mapping.time.rate_hz) {
-        (Some(c), _) => {
-            let unit = mapping.time.unit.unwrap_or(TimeUnit::S);
-            let name = match unit {
-                TimeUnit::S => "s",
-                TimeUnit::Ms => "ms (converted to s)",
-                TimeUnit::Us => "us (converted to s)",
-                TimeUnit::Ns => "ns (converted to s)",
-            };
-            notes.push(format!("time: column {c} in {name}"));
-            Ok((cols.slot(&header, c, "[time] column").map_err(&malformed)?, unit.seconds()))
-        }
-        (None, Some(rate)) => {
-            notes.push(format!("time: no column, a fixed rate of {rate} Hz from t = 0"));
-            Err(rate)
-        }
-        (None, None) => unreachable!("checked"),
-    };
-    let position = match &mapping.position {
-        Some(p) => {
-            let slots = cols.slots(&header, &p.columns, "[position] columns").map_err(&malformed)?;
-            notes.push(match p.frame {
-                WorldFrame::Ned => format!("position: {} in NED", p.columns.join(",")),
-                WorldFrame::Enu => {
-                    format!(
-                        "position: {} in ENU (z up), converted to NED: (x, y, z) -> (y, x, -z)",
-                        p.columns.join(",")
-                    )
-                }
-            });
-            Some((slots, p.frame == WorldFrame::Enu, p.columns.join(",")))
-        }
-        None => None,
-    };
-    let heading = match &mapping.heading {
-        Some(h) => Some(match (&h.yaw_column, &h.quaternion_columns) {
-            (Some(c), _) => {
-                let unit = h.unit.unwrap_or(AngleUnit::Rad);
-                let enu = h.frame == HeadingFrame::Enu;
-                notes.push(format!(
-                    "heading: yaw column {c} in {}{}; roll and pitch not in the file, taken as 0",
-                    if unit == AngleUnit::Deg { "deg" } else { "rad" },
-                    if enu {
-                        ", counter-clockwise from east, converted: psi = pi/2 - yaw"
-                    } else {
-                        ", clockwise from north"
-                    }
-                ));
-                Heading::Yaw {
-                    slot: cols.slot(&header, c, "[heading] yaw_column").map_err(&malformed)?,
-                    scale: unit.radians(),
-                    enu,
-                }
-            }
-            (None, Some(q)) => {
-                let order = h.order.unwrap_or(QuaternionOrder::Xyzw);
-                let s = cols.slots(&header, q, "[heading] quaternion_columns").map_err(&malformed)?;
-                // Slots in the order w, x, y, z.
-                let slots = match order {
-                    QuaternionOrder::Xyzw => [s[3], s[0], s[1], s[2]],
-                    QuaternionOrder::Wxyz => s,
-                };
-                let enu_flu = h.frame == HeadingFrame::EnuFlu;
-                notes.push(format!(
-                    "heading: quaternion {} ({order:?} order){}; roll, pitch, yaw (Z-Y-X) taken from it",
-                    q.join(","),
-                    if enu_flu {
-                        ", FLU body to ENU world, converted to FRD body to NED world (psi = pi/2 - yaw_enu)"
-                    } else {
-                        ", FRD body to NED world"
-                    }
-                ));
-                Heading::Quaternion { slots, columns: q.join(","), enu_flu }
-            }
-            (None, None) => unreachable!("checked"),
-        }),
-        None => None,
-    };
-    let velocity = match &mapping.velocity {
-        Some(v) => {
-            let slots = cols.slots(&header, &v.columns, "[velocity] columns").map_err(&malformed)?;
-            let what = match v.axes {
-                VelocityAxes::BodyFrd => "body FRD axes",
-                VelocityAxes::BodyFlu => "body FLU axes, converted to FRD: (x, y, z) -> (x, -y, -z)",
-                VelocityAxes::WorldNed => "world NED axes (rotated into the body by the attitude when resampled)",
-                VelocityAxes::WorldEnu => "world ENU axes, converted to NED: (x, y, z) -> (y, x, -z)",
-            };
-            notes.push(format!("velocity: {} in {what}", v.columns.join(",")));
-            Some((slots, v.axes, v.columns.join(",")))
-        }
-        None => None,
-    };
-    let yaw_rate = match &mapping.yaw_rate {
-        Some(y) => {
-            let slot = cols.slot(&header, &y.column, "[yaw_rate] column").map_err(&malformed)?;
-            let unit = y.unit.unwrap_or(AngleUnit::Rad);
-            let flu = y.axes == BodyFrame::Flu;
-            notes.push(format!(
-                "yaw rate: {} in {}/s{}",
-                y.column,
-                if unit == AngleUnit::Deg { "deg" } else { "rad" },
-                if flu {
-                    " about the up axis (FLU), sign flipped to the down axis"
-                } else {
-                    " about the down axis (FRD)"
-                }
-            ));
-            Some((slot, unit.radians() * if flu { -1.0 } else { 1.0 }, y.column.clone()))
-        }
-        None => None,
-    };
-    let input = match &mapping.input {
-        Some(i) => Some(match (&i.wrench_columns, &i.thruster_columns) {
-            (Some(w), _) => {
-                let flu = i.axes == Some(BodyFrame::Flu);
-                notes.push(format!(
-                    "input: wrench {}{}",
-                    w.join(","),
-                    if flu { " in FLU, converted to FRD: (X, Y, Z, Mz) -> (X, -Y, -Z, -Mz)" } else { " in FRD" }
-                ));
-                (
-                    InputPlan::Wrench {
-                        slots: cols.slots(&header, w, "[input] wrench_columns").map_err(&malformed)?,
-                        flu,
-                    },
-                    w.join(","),
-                )
-            }
-            (None, Some(t)) => {
-                if commands_to_input.is_none() {
-                    return Err(malformed(
-                        "the mapping's [input] thruster_columns need the vehicle's thrusters (a vehicle file with a thruster layout)"
-                            .into(),
-                    ));
-                }
-                let channels = mapping.channels().expect("thruster input");
-                let slots = t
-                    .iter()
-                    .map(|c| cols.slot(&header, c, "[input] thruster_columns"))
-                    .collect::<Result<Vec<_>, _>>()
-                    .map_err(&malformed)?;
-                notes.push(format!(
-                    "input: thruster commands {} on channels {:?}, converted to a body wrench by the vehicle's thrusters",
-                    t.join(","),
-                    channels
-                ));
-                let n_channels = channels.iter().copied().max().unwrap_or(0);
-                (InputPlan::Thrusters { slots, channels, n_channels }, t.join(","))
-            }
-            (None, None) => unreachable!("checked"),
-        }),
-        None => None,
-    };
-
-    let mut out = StreamSet::default();
-    let mut pos_s = position.as_ref().map(|p| Series::<3>::new(p.2.clone()));
-    let mut att_s = heading.as_ref().map(|h| {
-        Series::<3>::new(match h {
-            Heading::Yaw { slot, .. } => cols.name[*slot].clone(),
-            Heading::Quaternion { columns, .. } => columns.clone(),
-        })
-    });
-    let mut vel_s = velocity.as_ref().map(|v| Series::<3>::new(v.2.clone()));
-    let mut rate_s = yaw_rate.as_ref().map(|y| Series::<1>::new(y.2.clone()));
-    let mut input_s = input.as_ref().map(|i| Series::<4>::new(i.1.clone()));
-
-    let mut record = csv::ByteRecord::new();
-    let mut vals = vec![0.0; cols.index.len()];
-    let mut commands = vec![
-        f64::NAN;
-        input.as_ref().map_or(0, |i| match &i.0 {
-            InputPlan::Thrusters { n_channels, .. } => *n_channels,
-            InputPlan::Wrench { .. } => 0,
-        })
-    ];
-    let mut row = 0usize;
-    let mut torn: Option<String> = None;
-    loop {
-        if !next_row(&mut reader, &mut record, width, &mut torn).map_err(malformed)? {
-            break;
-        }
-        for (v, &idx) in vals.iter_mut().zip(&cols.index) {
-            let field = &record[idx];
-            *v = match parse_field(field) {
-                Some(x) => x,
-                None => {
-                    let line = record.position().map_or(0, |p| p.line());
-                    return Err(malformed(format!(
-                        "line {line}: column {}: {:?} is not a number",
-                        header[idx],
-                        String::from_utf8_lossy(field.trim_ascii())
-                    )));
-                }
-            };
-        }
-        let t = match time {
-            Ok((slot, scale)) => vals[slot] * scale,
-            Err(rate) => row as f64 / rate,
-        };
-        if let (Some((s, enu, _)), Some(series)) = (&position, &mut pos_s) {
-            let p = [vals[s[0]], vals[s[1]], vals[s[2]]];
-            series.push(t, if *enu { [p[1], p[0], -p[2]] } else { p });
-        }
-        if let (Some(h), Some(series)) = (&heading, &mut att_s) {
-            let att = match h {
-                Heading::Yaw { slot, scale, enu } => {
-                    let yaw = vals[*slot] * scale;
-                    [0.0, 0.0, if *enu { wrap_angle(FRAC_PI_2 - yaw) } else { wrap_angle(yaw) }]
-                }
-                Heading::Quaternion { slots, columns, enu_flu } => {
-                    let [w, x, y, z] = slots.map(|s| vals[s]);
-                    let norm = (w * w + x * x + y * y + z * z).sqrt();
-                    if norm.is_nan() {
-                        [f64::NAN; 3]
-                    } else {
-                        if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
-                            let line = record.position().map_or(0, |p| p.line());
-                            return Err(malformed(format!(
-                                "line {line} (data row {}): quaternion {columns} has length {norm:.6}, not 1 (tolerance {QUATERNION_NORM_TOLERANCE})",
-                                row + 1
-                            )));
-                        }
-                        let r = rotation(w / norm, x / norm, y / norm, z / norm);
-                        euler_zyx(&if *enu_flu { ENU_TO_NED * r * FRD_TO_FLU } else { r })
-                    }
-                }
-            };
-            series.push(t, att);
-        }
-        if let (Some((s, axes, _)), Some(series)) = (&velocity, &mut vel_s) {
-            let v = [vals[s[0]], vals[s[1]], vals[s[2]]];
-            series.push(
-                t,
-                match axes {
-                    VelocityAxes::BodyFrd | VelocityAxes::WorldNed => v,
-                    VelocityAxes::BodyFlu => [v[0], -v[1], -v[2]],
-                    VelocityAxes::WorldEnu => [v[1], v[0], -v[2]],
-                },
-            );
-        }
-        if let (Some((slot, scale, _)), Some(series)) = (&yaw_rate, &mut rate_s) {
-            series.push(t, [vals[*slot] * scale]);
-        }
-        if let (Some((plan, _)), Some(series)) = (&input, &mut input_s) {
-            let u = match plan {
-                InputPlan::Wrench { slots, flu } => {
-                    let w = slots.map(|s| vals[s]);
-                    if *flu { [w[0], -w[1], -w[2], -w[3]] } else { w }
-                }
-                InputPlan::Thrusters { slots, channels, .. } => {
-                    let mut missing = false;
-                    for (&s, &c) in slots.iter().zip(channels) {
-                        commands[c - 1] = vals[s];
-                        missing |= vals[s].is_nan();
-                    }
-                    if missing {
-                        [f64::NAN; 4]
-                    } else {
-                        let f = commands_to_input.expect("checked above");
-                        let u = f(&commands);
-                        [u[0], u[1], u[2], u[3]]
-                    }
-                }
-            };
-            series.push(t, u);
-        }
-        row += 1;
-    }
-    if row == 0 {
-        return Err(malformed("no rows after the header".into()));
-    }
-    notes.push(format!("{row} rows"));
-    notes.extend(torn);
-    out.position = pos_s;
-    out.attitude = att_s;
-    match velocity.as_ref().map(|v| v.1) {
-        Some(VelocityAxes::BodyFrd | VelocityAxes::BodyFlu) => out.velocity_body = vel_s,
-        Some(VelocityAxes::WorldNed | VelocityAxes::WorldEnu) => out.velocity_ned = vel_s,
-        None => {}
-    }
-    out.yaw_rate = rate_s;
-    out.input = input_s;
-    out.notes = notes;
-    Ok(out)
+    let (mut reader, header) = open(path, mapping)?;
+    let plan = Plan::new(mapping, &header, commands_to_input.is_some()).map_err(malformed)?;
+    let mut streams = Streams::new(&plan);
+    let (rows, torn) = read_rows(&mut reader, &header, &plan, &mut streams, commands_to_input).map_err(malformed)?;
+    plan.finish(streams, rows, torn).map_err(malformed)
 }
 
 #[cfg(test)]

@@ -214,6 +214,259 @@ fn info<const N: usize>(name: &str, s: &Series<N>, c: &Clean<N>, tol: f64) -> St
     }
 }
 
+/// One stream's cleaned times and gap tolerance, for the common span and the gaps.
+struct Span {
+    name: String,
+    t: Vec<f64>,
+    tol: f64,
+}
+
+/// A log's streams cleaned ([`clean`]), the attitude and the input always there.
+struct Cleaned {
+    position: Option<Clean<3>>,
+    depth: Option<Clean<1>>,
+    att: Clean<3>,
+    vel_ned: Option<Clean<3>>,
+    vel_body: Option<Clean<3>>,
+    yaw_rate: Option<Clean<1>>,
+    inp: Clean<4>,
+    /// Every stream's span, in the order above (the input last).
+    spans: Vec<Span>,
+}
+
+impl Cleaned {
+    /// Cleans every stream of `set` (which has an attitude and an input), reporting each in
+    /// `report` with its gap tolerance `tol_of(its times)`.
+    fn new(set: &StreamSet, tol_of: &dyn Fn(&[f64]) -> f64, report: &mut StreamReport) -> Self {
+        let mut spans = Vec::new();
+        macro_rules! take {
+            ($field:ident, $name:literal) => {
+                set.$field.as_ref().map(|s| {
+                    let c = clean(s);
+                    let tol = tol_of(&c.t);
+                    report.streams.push(info($name, s, &c, tol));
+                    spans.push(Span { name: $name.to_string(), t: c.t.clone(), tol });
+                    c
+                })
+            };
+        }
+        let position = take!(position, "position");
+        let depth = take!(depth, "depth");
+        let att = take!(attitude, "attitude").expect("checked by check_parts");
+        let vel_ned = take!(velocity_ned, "velocity_ned");
+        let vel_body = take!(velocity_body, "velocity_body");
+        let yaw_rate = take!(yaw_rate, "yaw_rate");
+        let inp = take!(input, "input").expect("checked by check_parts");
+        Self { position, depth, att, vel_ned, vel_body, yaw_rate, inp, spans }
+    }
+
+    /// The time span every stream covers.
+    ///
+    /// # Errors
+    /// A stream without a sample, or streams that share no time.
+    fn common_span(&self) -> Result<(f64, f64), String> {
+        let spans = &self.spans;
+        for s in spans {
+            if s.t.is_empty() {
+                return Err(format!("the {} stream has no sample with a finite time stamp", s.name));
+            }
+        }
+        let start = spans.iter().map(|s| s.t[0]).fold(f64::NEG_INFINITY, f64::max);
+        let end = spans.iter().map(|s| *s.t.last().expect("non-empty")).fold(f64::INFINITY, f64::min);
+        if end < start {
+            let each: Vec<String> = spans
+                .iter()
+                .map(|s| format!("{} {:.3}..{:.3} s", s.name, s.t[0], s.t.last().unwrap_or(&0.0)))
+                .collect();
+            return Err(format!("the streams share no time span: {}", each.join(", ")));
+        }
+        Ok((start, end))
+    }
+
+    /// What the resampling derives for want of a stream, one note each.
+    fn derivation_notes(&self) -> Vec<String> {
+        let mut notes = Vec::new();
+        if self.yaw_rate.is_none() {
+            notes.push("yaw rate: central difference of the unwrapped yaw at the attitude samples".into());
+        }
+        if self.vel_body.is_none() {
+            notes.push("body velocity: the NED velocity rotated by roll, pitch and yaw (R^T v)".into());
+        }
+        if self.depth.is_some() {
+            notes.push("z: from the depth stream".into());
+        }
+        if self.position.is_none() {
+            notes.push(
+                "x, y: no position in the log; dead-reckoned from u, v and yaw (trapezoid on the grid, from 0 at each stretch)"
+                    .into(),
+            );
+        }
+        notes
+    }
+}
+
+/// The parts a state is assembled from.
+///
+/// # Errors
+/// No attitude, no input, neither position nor depth, or no velocity.
+fn check_parts(set: &StreamSet) -> Result<(), String> {
+    let missing = |what: &str| Err(format!("no {what} in the log: the state cannot be assembled"));
+    if set.attitude.is_none() {
+        return missing("attitude (yaw)");
+    }
+    if set.input.is_none() {
+        return missing("input (body forces)");
+    }
+    if set.position.is_none() && set.depth.is_none() {
+        return missing("position or depth");
+    }
+    if set.velocity_body.is_none() && set.velocity_ned.is_none() {
+        return missing("velocity (body or NED)");
+    }
+    Ok(())
+}
+
+/// The grid times, and where each stretch between gaps starts in them.
+#[derive(Default)]
+struct Grid {
+    t: Vec<f64>,
+    stretch_starts: Vec<usize>,
+}
+
+impl Grid {
+    /// Points every `dt` over `[start, end]`, none strictly inside a gap of any span; each
+    /// stretch starts at a gap's end (at least 1.5 `dt` after the last point).
+    fn new(spans: &[Span], start: f64, end: f64, dt: f64) -> Self {
+        // Gap interiors of every stream, merged.
+        let mut gaps: Vec<(f64, f64)> = spans
+            .iter()
+            .flat_map(|s| s.t.windows(2).filter(|w| w[1] - w[0] > s.tol).map(|w| (w[0], w[1])).collect::<Vec<_>>())
+            .collect();
+        gaps.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut grid = Self::default();
+        let mut cur = start;
+        for &(a, b) in &gaps {
+            if b <= cur || a >= end {
+                if a >= end {
+                    break;
+                }
+                continue;
+            }
+            if a >= cur {
+                grid.push_stretch(cur, a, dt);
+            }
+            cur = b;
+        }
+        if cur <= end {
+            grid.push_stretch(cur, end, dt);
+        }
+        grid
+    }
+
+    /// One stretch of points from `from` (or 1.5 `dt` after the last point) up to `to`.
+    fn push_stretch(&mut self, from: f64, to: f64, dt: f64) {
+        let from = self.t.last().map_or(from, |&l| from.max(l + 1.5 * dt));
+        if to < from - SNAP * dt {
+            return;
+        }
+        self.stretch_starts.push(self.t.len());
+        let n = ((to - from) / dt + SNAP).floor() as usize;
+        self.t.extend((0..=n).map(|k| from + k as f64 * dt));
+    }
+}
+
+/// The attitude with its yaw unwrapped, and the yaw rate derived from it for a log without one.
+struct Unwrapped {
+    yaw: Vec<f64>,
+    /// Roll and pitch as logged, the unwrapped yaw.
+    att: Vec<[f64; 3]>,
+    /// The central difference of the unwrapped yaw at the attitude samples (one-sided at the
+    /// ends and next to gaps), when the log has no yaw rate.
+    derived_r: Option<Vec<[f64; 1]>>,
+}
+
+impl Unwrapped {
+    /// `rate_tol`: the gap tolerance of the attitude when the rate is derived, `None` when the
+    /// log has a yaw rate.
+    fn new(att: &Clean<3>, rate_tol: Option<f64>) -> Self {
+        let yaw = unwrap(&att.v.iter().map(|v| v[2]).collect::<Vec<_>>());
+        let unwrapped = att.v.iter().zip(&yaw).map(|(v, &y)| [v[0], v[1], y]).collect();
+        let derived_r = rate_tol.map(|tol| {
+            let t = &att.t;
+            (0..t.len())
+                .map(|i| {
+                    let lo = if i > 0 && t[i] - t[i - 1] <= tol { i - 1 } else { i };
+                    let hi = if i + 1 < t.len() && t[i + 1] - t[i] <= tol { i + 1 } else { i };
+                    [if hi > lo { (yaw[hi] - yaw[lo]) / (t[hi] - t[lo]) } else { f64::NAN }]
+                })
+                .collect()
+        });
+        Self { yaw, att: unwrapped, derived_r }
+    }
+}
+
+/// The state at each grid time: position (z from the depth where there is one, x and y NaN
+/// without a position), the yaw wrapped back, body velocities given or rotated from NED, the
+/// yaw rate given or derived.
+fn states_on(grid: &[f64], c: &Cleaned, unwrapped: &Unwrapped, dt: f64) -> Vec<SimState> {
+    let att = &c.att;
+    let mut att_i = Interp::new(&att.t, &unwrapped.att, dt);
+    let mut pos_i = c.position.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
+    let mut depth_i = c.depth.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
+    let mut ned_i = c.vel_ned.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
+    let mut body_i = c.vel_body.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
+    let mut r_i = match (&c.yaw_rate, &unwrapped.derived_r) {
+        (Some(c), _) => Interp::new(&c.t, &c.v, dt),
+        (None, Some(r)) => Interp::new(&att.t, r, dt),
+        (None, None) => unreachable!("derived when not given"),
+    };
+    let mut states = Vec::with_capacity(grid.len());
+    for &g in grid {
+        let (i, j, wy) = att_i.locate(g);
+        let [roll, pitch, yaw] = att_i.at(g);
+        // Snapped to a sample, the logged yaw comes back exactly (no turn added and removed).
+        let psi = if i == j && att.v[i][2] > -PI && att.v[i][2] <= PI {
+            att.v[i][2]
+        } else if i == j {
+            wrap_angle(att.v[i][2])
+        } else {
+            wrap_angle(unwrapped.yaw[i] + wy * (unwrapped.yaw[j] - unwrapped.yaw[i]))
+        };
+        let p = pos_i.as_mut().map_or([f64::NAN; 3], |i| i.at(g));
+        let z = depth_i.as_mut().map_or(p[2], |i| i.at(g)[0]);
+        let [u, v, w] = match (&mut body_i, &mut ned_i) {
+            (Some(b), _) => b.at(g),
+            (None, Some(n)) => ned_to_body(n.at(g), roll, pitch, yaw),
+            (None, None) => unreachable!("checked above"),
+        };
+        let r = r_i.at(g)[0];
+        states.push(SimState::from([p[0], p[1], z, psi, u, v, w, r]));
+    }
+    states
+}
+
+/// x and y dead-reckoned from u, v and yaw: the trapezoid rule on the grid, from 0 at the start
+/// of each stretch.
+fn dead_reckon(states: &mut [SimState], stretch_starts: &[usize], dt: f64) {
+    for (s, &from) in stretch_starts.iter().enumerate() {
+        let to = stretch_starts.get(s + 1).copied().unwrap_or(states.len());
+        let (mut x, mut y) = (0.0, 0.0);
+        for k in from..to {
+            if k > from {
+                let vel = |st: &SimState| {
+                    let (sn, cs) = st[3].sin_cos();
+                    (cs * st[4] - sn * st[5], sn * st[4] + cs * st[5])
+                };
+                let (a, b) = (vel(&states[k - 1]), vel(&states[k]));
+                x += 0.5 * dt * (a.0 + b.0);
+                y += 0.5 * dt * (a.1 + b.1);
+            }
+            states[k][0] = x;
+            states[k][1] = y;
+        }
+    }
+}
+
 /// Resamples a log's streams onto a grid of period `dt` over their common span.
 ///
 /// - States: position (z from `depth` where there is one) linearly interpolated; yaw unwrapped,
@@ -230,6 +483,10 @@ fn info<const N: usize>(name: &str, s: &Series<N>, c: &Clean<N>, tol: f64) -> St
 ///   last point, so the windowing sees the break and counts it). A NaN sample gives NaN at
 ///   the grid points that use it, which the windowing skips and counts.
 ///
+/// The stages: the parts checked, every stream cleaned and reported (`Cleaned`), the common span,
+/// the grid between the gaps (`Grid`), the yaw unwrapped (`Unwrapped`), the notes,
+/// the states on the grid, x and y dead-reckoned without a position, the inputs averaged.
+///
 /// # Errors
 /// No attitude, no input, neither position nor depth, no velocity, a stream without samples,
 /// or streams that do not overlap in time.
@@ -240,167 +497,20 @@ pub fn resample(
     path: &Path,
 ) -> Result<(Recording, StreamReport), ImportError> {
     let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
-    let missing = |what: &str| malformed(format!("no {what} in the log: the state cannot be assembled"));
-    if set.attitude.is_none() {
-        return Err(missing("attitude (yaw)"));
-    }
-    if set.input.is_none() {
-        return Err(missing("input (body forces)"));
-    }
-    if set.position.is_none() && set.depth.is_none() {
-        return Err(missing("position or depth"));
-    }
-    if set.velocity_body.is_none() && set.velocity_ned.is_none() {
-        return Err(missing("velocity (body or NED)"));
-    }
+    check_parts(set).map_err(malformed)?;
     let tol_of = |t: &[f64]| gap_tolerance.unwrap_or_else(|| default_gap_tolerance(t, dt));
     let mut report = StreamReport { streams: Vec::new(), notes: set.notes.clone() };
-    // Every stream's cleaned times, for the span and the gaps.
-    let mut spans: Vec<(String, Vec<f64>, f64)> = Vec::new();
-    macro_rules! take {
-        ($field:ident, $name:literal) => {
-            set.$field.as_ref().map(|s| {
-                let c = clean(s);
-                let tol = tol_of(&c.t);
-                report.streams.push(info($name, s, &c, tol));
-                spans.push(($name.to_string(), c.t.clone(), tol));
-                c
-            })
-        };
+    let cleaned = Cleaned::new(set, &tol_of, &mut report);
+    let (start, end) = cleaned.common_span().map_err(malformed)?;
+    let grid = Grid::new(&cleaned.spans, start, end, dt);
+    let unwrapped = Unwrapped::new(&cleaned.att, cleaned.yaw_rate.is_none().then(|| tol_of(&cleaned.att.t)));
+    report.notes.extend(cleaned.derivation_notes());
+    let mut states = states_on(&grid.t, &cleaned, &unwrapped, dt);
+    if cleaned.position.is_none() {
+        dead_reckon(&mut states, &grid.stretch_starts, dt);
     }
-    let position = take!(position, "position");
-    let depth = take!(depth, "depth");
-    let att = take!(attitude, "attitude").expect("checked above");
-    let vel_ned = take!(velocity_ned, "velocity_ned");
-    let vel_body = take!(velocity_body, "velocity_body");
-    let yaw_rate = take!(yaw_rate, "yaw_rate");
-    let inp = take!(input, "input").expect("checked above");
-    for (name, t, _) in &spans {
-        if t.is_empty() {
-            return Err(malformed(format!("the {name} stream has no sample with a finite time stamp")));
-        }
-    }
-    let start = spans.iter().map(|(_, t, _)| t[0]).fold(f64::NEG_INFINITY, f64::max);
-    let end = spans.iter().map(|(_, t, _)| *t.last().expect("non-empty")).fold(f64::INFINITY, f64::min);
-    if end < start {
-        let each: Vec<String> =
-            spans.iter().map(|(n, t, _)| format!("{n} {:.3}..{:.3} s", t[0], t.last().unwrap_or(&0.0))).collect();
-        return Err(malformed(format!("the streams share no time span: {}", each.join(", "))));
-    }
-    // Gap interiors of every stream, merged.
-    let mut gaps: Vec<(f64, f64)> = spans
-        .iter()
-        .flat_map(|(_, t, tol)| t.windows(2).filter(|w| w[1] - w[0] > *tol).map(|w| (w[0], w[1])).collect::<Vec<_>>())
-        .collect();
-    gaps.sort_by(|a, b| a.0.total_cmp(&b.0));
     let snap = SNAP * dt;
-    let mut grid: Vec<f64> = Vec::new();
-    let mut stretch_starts: Vec<usize> = Vec::new();
-    let mut cur = start;
-    let mut push_stretch = |from: f64, to: f64, grid: &mut Vec<f64>| {
-        let from = grid.last().map_or(from, |&l| from.max(l + 1.5 * dt));
-        if to < from - snap {
-            return;
-        }
-        stretch_starts.push(grid.len());
-        let n = ((to - from) / dt + SNAP).floor() as usize;
-        grid.extend((0..=n).map(|k| from + k as f64 * dt));
-    };
-    for &(a, b) in &gaps {
-        if b <= cur || a >= end {
-            if a >= end {
-                break;
-            }
-            continue;
-        }
-        if a >= cur {
-            push_stretch(cur, a, &mut grid);
-        }
-        cur = b;
-    }
-    if cur <= end {
-        push_stretch(cur, end, &mut grid);
-    }
-    // Yaw unwrapped; roll and pitch as logged.
-    let yaw_u = unwrap(&att.v.iter().map(|v| v[2]).collect::<Vec<_>>());
-    let att_u: Vec<[f64; 3]> = att.v.iter().zip(&yaw_u).map(|(v, &y)| [v[0], v[1], y]).collect();
-    let mut att_i = Interp::new(&att.t, &att_u, dt);
-    let mut pos_i = position.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
-    let mut depth_i = depth.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
-    let mut ned_i = vel_ned.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
-    let mut body_i = vel_body.as_ref().map(|c| Interp::new(&c.t, &c.v, dt));
-    let derived_r: Option<Vec<[f64; 1]>> = yaw_rate.is_none().then(|| {
-        let tol = tol_of(&att.t);
-        let t = &att.t;
-        (0..t.len())
-            .map(|i| {
-                let lo = if i > 0 && t[i] - t[i - 1] <= tol { i - 1 } else { i };
-                let hi = if i + 1 < t.len() && t[i + 1] - t[i] <= tol { i + 1 } else { i };
-                [if hi > lo { (yaw_u[hi] - yaw_u[lo]) / (t[hi] - t[lo]) } else { f64::NAN }]
-            })
-            .collect()
-    });
-    let mut r_i = match (&yaw_rate, &derived_r) {
-        (Some(c), _) => Interp::new(&c.t, &c.v, dt),
-        (None, Some(r)) => Interp::new(&att.t, r, dt),
-        (None, None) => unreachable!("derived when not given"),
-    };
-    if yaw_rate.is_none() {
-        report.notes.push("yaw rate: central difference of the unwrapped yaw at the attitude samples".into());
-    }
-    if vel_body.is_none() {
-        report.notes.push("body velocity: the NED velocity rotated by roll, pitch and yaw (R^T v)".into());
-    }
-    if depth.is_some() {
-        report.notes.push("z: from the depth stream".into());
-    }
-    if position.is_none() {
-        report.notes.push(
-            "x, y: no position in the log; dead-reckoned from u, v and yaw (trapezoid on the grid, from 0 at each stretch)"
-                .into(),
-        );
-    }
-    let mut states = Vec::with_capacity(grid.len());
-    for &g in &grid {
-        let (i, j, wy) = att_i.locate(g);
-        let [roll, pitch, yaw] = att_i.at(g);
-        // Snapped to a sample, the logged yaw comes back exactly (no turn added and removed).
-        let psi = if i == j && att.v[i][2] > -PI && att.v[i][2] <= PI {
-            att.v[i][2]
-        } else if i == j {
-            wrap_angle(att.v[i][2])
-        } else {
-            wrap_angle(yaw_u[i] + wy * (yaw_u[j] - yaw_u[i]))
-        };
-        let p = pos_i.as_mut().map_or([f64::NAN; 3], |i| i.at(g));
-        let z = depth_i.as_mut().map_or(p[2], |i| i.at(g)[0]);
-        let [u, v, w] = match (&mut body_i, &mut ned_i) {
-            (Some(b), _) => b.at(g),
-            (None, Some(n)) => ned_to_body(n.at(g), roll, pitch, yaw),
-            (None, None) => unreachable!("checked above"),
-        };
-        let r = r_i.at(g)[0];
-        states.push(SimState::from([p[0], p[1], z, psi, u, v, w, r]));
-    }
-    if position.is_none() {
-        for (s, &from) in stretch_starts.iter().enumerate() {
-            let to = stretch_starts.get(s + 1).copied().unwrap_or(grid.len());
-            let (mut x, mut y) = (0.0, 0.0);
-            for k in from..to {
-                if k > from {
-                    let vel = |st: &SimState| {
-                        let (sn, cs) = st[3].sin_cos();
-                        (cs * st[4] - sn * st[5], sn * st[4] + cs * st[5])
-                    };
-                    let (a, b) = (vel(&states[k - 1]), vel(&states[k]));
-                    x += 0.5 * dt * (a.0 + b.0);
-                    y += 0.5 * dt * (a.1 + b.1);
-                }
-                states[k][0] = x;
-                states[k][1] = y;
-            }
-        }
-    }
-    let inputs = grid.iter().map(|&g| Input::from(held_mean(&inp.t, &inp.v, g, g + dt, snap))).collect();
-    Ok((Recording { path: path.to_path_buf(), t: grid, states, inputs, notes: Vec::new() }, report))
+    let inp = &cleaned.inp;
+    let inputs = grid.t.iter().map(|&g| Input::from(held_mean(&inp.t, &inp.v, g, g + dt, snap))).collect();
+    Ok((Recording { path: path.to_path_buf(), t: grid.t, states, inputs, notes: Vec::new() }, report))
 }

@@ -13,6 +13,7 @@ use super::ardupilot::{ArdupilotOptions, Decoded, build};
 use super::streams::{Series, StreamSet};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::{MavlinkVersion, Message};
+use std::ops::ControlFlow;
 use std::path::Path;
 
 const V1: u8 = 0xFE;
@@ -129,80 +130,154 @@ pub fn tlog_messages(path: &Path) -> Result<TlogMessages, ImportError> {
     Ok(out)
 }
 
-/// Reads a telemetry log into the streams (see the module documentation and
-/// docs/LOGS_ARDUPILOT.md): `ATTITUDE` (attitude, yaw rate), `LOCAL_POSITION_NED` (the EKF's
-/// NED position and velocity), `SCALED_PRESSURE2` or else `SCALED_PRESSURE` (depth, only
-/// where there is no position), `SERVO_OUTPUT_RAW` (thruster outputs), `MANUAL_CONTROL`
-/// (pilot commands), from the system that sends `ATTITUDE`.
-///
-/// # Errors
-/// The file cannot be read, holds no valid MAVLink frame, or lacks a message the streams need
-/// (`ImportError::Malformed`, naming the file and the message); inputs asked for without a
-/// thruster conversion (`ImportError::Unusable`).
-pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, ImportError> {
-    let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
-    let buf = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-    let mut d = Decoded::default();
-    let mut att = Series::new("ATTITUDE.roll,pitch,yaw");
-    let mut rate = Series::new("ATTITUDE.yawspeed");
-    let mut pos = Series::new("LOCAL_POSITION_NED.x,y,z");
-    let mut vel = Series::new("LOCAL_POSITION_NED.vx,vy,vz");
-    let mut press = [Series::<1>::new("SCALED_PRESSURE.press_abs"), Series::<1>::new("SCALED_PRESSURE2.press_abs")];
-    let (mut out_t, mut out_pwm) = (Vec::new(), Vec::new());
-    let mut pilot = Series::new("MANUAL_CONTROL.x,y,z,r");
-    let (mut frames, mut damaged, mut other, mut skipped_bytes, mut out_of_order) =
-        (0usize, 0usize, 0usize, 0usize, 0usize);
-    let mut autopilot: Option<u8> = None;
-    // Latest boot time (s) and the receive time (µs) it came with: MANUAL_CONTROL has no time
-    // of its own and is placed by the receive time elapsed since.
-    let mut latest: Option<(f64, u64)> = None;
-    let mut torn = None;
-    let mut reboot = None;
-    let mut p = 0;
-    let push = |s: &mut Series<1>, t: f64, v: f64, n: &mut usize| {
-        if s.t.last().is_some_and(|&l| t < l) {
-            *n += 1;
-        } else {
-            s.push(t, [v]);
+/// A frame of a message read.
+struct Frame {
+    /// The byte the frame starts at (after its time stamp).
+    at: usize,
+    /// The ground station's receive time (µs since 1970).
+    received: u64,
+    /// The sender's system id.
+    sys: u8,
+    msg: MavMessage,
+}
+
+/// What a walk over a telemetry log steps over instead of a message read.
+enum Skip {
+    /// No frame starts after the time stamp here: one byte.
+    Byte,
+    /// A frame with a bad checksum (or that does not parse): one byte, its length byte may be
+    /// wrong too.
+    Damaged,
+    /// A good frame of a message not read, whole.
+    Other,
+    /// The file ends inside the frame whose time stamp is at this byte.
+    Torn(usize),
+}
+
+/// A walk over the frames of a telemetry log, each checked and, if it is one of the messages
+/// read, decoded; it ends at the end of the file or after a torn frame.
+struct Walk<'b> {
+    buf: &'b [u8],
+    p: usize,
+}
+
+impl Iterator for Walk<'_> {
+    type Item = Result<Frame, Skip>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let buf = self.buf;
+        if self.p + STAMP >= buf.len() {
+            return None;
         }
-    };
-    while p + STAMP < buf.len() {
-        let q = p + STAMP;
-        let len = match frame_len(&buf, q) {
+        let (p, q) = (self.p, self.p + STAMP);
+        let len = match frame_len(buf, q) {
             None => {
-                skipped_bytes += 1;
-                p += 1;
-                continue;
+                self.p += 1;
+                return Some(Err(Skip::Byte));
             }
             Some(Err(())) => {
-                torn = Some(p);
-                break;
+                self.p = buf.len();
+                return Some(Err(Skip::Torn(p)));
             }
             Some(Ok(len)) => len,
         };
-        let frame = &buf[q..q + len];
         let received = u64::from_be_bytes(buf[p..q].try_into().expect("8 bytes"));
-        let (sys, msg) = match decode(frame) {
-            Ok(m) => m,
+        Some(match decode(&buf[q..q + len]) {
+            Ok((sys, msg)) => {
+                self.p = q + len;
+                Ok(Frame { at: q, received, sys, msg })
+            }
             Err(true) => {
-                other += 1;
-                p = q + len;
-                continue;
+                self.p = q + len;
+                Err(Skip::Other)
             }
             Err(false) => {
-                // A damaged frame: its length byte may be wrong too, so look for the next one.
-                damaged += 1;
-                skipped_bytes += 1;
-                p += 1;
-                continue;
+                self.p += 1;
+                Err(Skip::Damaged)
             }
-        };
-        frames += 1;
-        p = q + len;
+        })
+    }
+}
+
+/// What a telemetry log gave: the series, the thruster outputs and pilot commands, and the
+/// counts the notes report.
+struct Scan {
+    att: Series<3>,
+    rate: Series<1>,
+    pos: Series<3>,
+    vel: Series<3>,
+    /// `SCALED_PRESSURE` and `SCALED_PRESSURE2` (Pa).
+    press: [Series<1>; 2],
+    out_t: Vec<f64>,
+    out_pwm: Vec<Vec<f64>>,
+    pilot: Series<4>,
+    frames: usize,
+    damaged: usize,
+    other: usize,
+    skipped_bytes: usize,
+    out_of_order: usize,
+    /// The system that sends `ATTITUDE`, once it has.
+    autopilot: Option<u8>,
+    /// Latest boot time (s) and the receive time (µs) it came with: MANUAL_CONTROL has no time
+    /// of its own and is placed by the receive time elapsed since.
+    latest: Option<(f64, u64)>,
+    /// Where the file ends inside a frame.
+    torn: Option<usize>,
+    /// A reboot: the byte, the latest boot time before and the one after (s).
+    reboot: Option<(usize, f64, f64)>,
+}
+
+impl Scan {
+    fn new() -> Self {
+        Self {
+            att: Series::new("ATTITUDE.roll,pitch,yaw"),
+            rate: Series::new("ATTITUDE.yawspeed"),
+            pos: Series::new("LOCAL_POSITION_NED.x,y,z"),
+            vel: Series::new("LOCAL_POSITION_NED.vx,vy,vz"),
+            press: [Series::new("SCALED_PRESSURE.press_abs"), Series::new("SCALED_PRESSURE2.press_abs")],
+            out_t: Vec::new(),
+            out_pwm: Vec::new(),
+            pilot: Series::new("MANUAL_CONTROL.x,y,z,r"),
+            frames: 0,
+            damaged: 0,
+            other: 0,
+            skipped_bytes: 0,
+            out_of_order: 0,
+            autopilot: None,
+            latest: None,
+            torn: None,
+            reboot: None,
+        }
+    }
+
+    /// Walks the whole log (up to a torn frame or a reboot).
+    fn read(&mut self, buf: &[u8]) {
+        for step in (Walk { buf, p: 0 }) {
+            match step {
+                Err(Skip::Byte) => self.skipped_bytes += 1,
+                Err(Skip::Damaged) => {
+                    self.damaged += 1;
+                    self.skipped_bytes += 1;
+                }
+                Err(Skip::Other) => self.other += 1,
+                Err(Skip::Torn(at)) => self.torn = Some(at),
+                Ok(frame) => {
+                    self.frames += 1;
+                    if self.message(frame).is_break() {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The boot time (s) of a message from the autopilot, `None` for one without a time of
+    /// its own; `Err(())` for a message from another system, which is not read.
+    fn boot_time(&self, sys: u8, msg: &MavMessage) -> Result<Option<f64>, ()> {
         let boot_ms = |ms: u32| ms as f64 * 1e-3;
-        let t = match &msg {
+        Ok(match msg {
             MavMessage::MANUAL_CONTROL(_) => None,
-            _ if autopilot.is_some_and(|a| a != sys) => continue,
+            _ if self.autopilot.is_some_and(|a| a != sys) => return Err(()),
             MavMessage::ATTITUDE(m) => Some(boot_ms(m.time_boot_ms)),
             MavMessage::LOCAL_POSITION_NED(m) => Some(boot_ms(m.time_boot_ms)),
             MavMessage::GLOBAL_POSITION_INT(m) => Some(boot_ms(m.time_boot_ms)),
@@ -210,51 +285,51 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
             MavMessage::SCALED_PRESSURE2(m) => Some(boot_ms(m.time_boot_ms)),
             MavMessage::SERVO_OUTPUT_RAW(m) => Some(m.time_usec as f64 * 1e-6),
             _ => None,
-        };
+        })
+    }
+
+    /// One message: timed by the boot clock, appended to its series unless older than the
+    /// series' last sample. A boot time going back by more than [`REBOOT_STEP`] ends the walk.
+    fn message(&mut self, Frame { at, received, sys, msg }: Frame) -> ControlFlow<()> {
+        let Ok(t) = self.boot_time(sys, &msg) else { return ControlFlow::Continue(()) };
         if let Some(t) = t {
-            if let Some((l, _)) = latest
+            if let Some((l, _)) = self.latest
                 && t < l - REBOOT_STEP
             {
-                reboot = Some((q, l, t));
-                break;
+                self.reboot = Some((at, l, t));
+                return ControlFlow::Break(());
             }
-            if latest.is_none_or(|(l, _)| t >= l) {
-                latest = Some((t, received));
+            if self.latest.is_none_or(|(l, _)| t >= l) {
+                self.latest = Some((t, received));
             }
         }
+        let t = t.unwrap_or_default();
         match msg {
             MavMessage::ATTITUDE(m) => {
-                autopilot.get_or_insert(sys);
-                let t = t.unwrap_or_default();
-                if att.t.last().is_some_and(|&l| t < l) {
-                    out_of_order += 1;
-                    continue;
+                self.autopilot.get_or_insert(sys);
+                if self.att.t.last().is_some_and(|&l| t < l) {
+                    self.out_of_order += 1;
+                    return ControlFlow::Continue(());
                 }
-                att.push(t, [m.roll as f64, m.pitch as f64, m.yaw as f64]);
-                rate.push(t, [m.yawspeed as f64]);
+                self.att.push(t, [m.roll as f64, m.pitch as f64, m.yaw as f64]);
+                self.rate.push(t, [m.yawspeed as f64]);
             }
             MavMessage::LOCAL_POSITION_NED(m) => {
-                let t = t.unwrap_or_default();
-                if pos.t.last().is_some_and(|&l| t < l) {
-                    out_of_order += 1;
-                    continue;
+                if self.pos.t.last().is_some_and(|&l| t < l) {
+                    self.out_of_order += 1;
+                    return ControlFlow::Continue(());
                 }
-                pos.push(t, [m.x as f64, m.y as f64, m.z as f64]);
-                vel.push(t, [m.vx as f64, m.vy as f64, m.vz as f64]);
+                self.pos.push(t, [m.x as f64, m.y as f64, m.z as f64]);
+                self.vel.push(t, [m.vx as f64, m.vy as f64, m.vz as f64]);
             }
-            MavMessage::SCALED_PRESSURE(m) => {
-                push(&mut press[0], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
-            }
-            MavMessage::SCALED_PRESSURE2(m) => {
-                push(&mut press[1], t.unwrap_or_default(), m.press_abs as f64 * 100.0, &mut out_of_order)
-            }
+            MavMessage::SCALED_PRESSURE(m) => self.pressure(0, t, m.press_abs),
+            MavMessage::SCALED_PRESSURE2(m) => self.pressure(1, t, m.press_abs),
             MavMessage::SERVO_OUTPUT_RAW(m) => {
-                let t = t.unwrap_or_default();
-                if m.port != 0 || out_t.last().is_some_and(|&l| t < l) {
-                    continue;
+                if m.port != 0 || self.out_t.last().is_some_and(|&l| t < l) {
+                    return ControlFlow::Continue(());
                 }
-                out_t.push(t);
-                out_pwm.push(
+                self.out_t.push(t);
+                self.out_pwm.push(
                     [
                         m.servo1_raw,
                         m.servo2_raw,
@@ -270,73 +345,127 @@ pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, Impo
                 );
             }
             MavMessage::MANUAL_CONTROL(m) => {
-                if let Some((l, r)) = latest {
+                if let Some((l, r)) = self.latest {
                     // In integer µs: the stamps since 1970 have too many digits for an f64 in s.
                     let t = l + received.saturating_sub(r) as f64 * 1e-6;
-                    if pilot.t.last().is_none_or(|&last| t >= last) {
-                        pilot.push(t, [m.x, m.y, m.z, m.r].map(f64::from));
+                    if self.pilot.t.last().is_none_or(|&last| t >= last) {
+                        self.pilot.push(t, [m.x, m.y, m.z, m.r].map(f64::from));
                     }
                 }
             }
             _ => {}
         }
+        ControlFlow::Continue(())
     }
-    if frames == 0 {
+
+    /// A pressure sample (hPa) into series `which` (Pa), unless older than its last one.
+    fn pressure(&mut self, which: usize, t: f64, press_abs: f32) {
+        let s = &mut self.press[which];
+        if s.t.last().is_some_and(|&l| t < l) {
+            self.out_of_order += 1;
+        } else {
+            s.push(t, [press_abs as f64 * 100.0]);
+        }
+    }
+
+    /// The notes on the frames read and skipped, the time base and what ended the walk.
+    fn notes(&self) -> Vec<String> {
+        let (frames, other, damaged, skipped_bytes) = (self.frames, self.other, self.damaged, self.skipped_bytes);
+        let mut notes = vec![format!(
+            "tlog: {frames} frames read, {other} frames of other messages stepped over; time base: the autopilot's boot clock (time_boot_ms, time_usec), not the receive time stamps; frames: ATTITUDE and LOCAL_POSITION_NED are NED / forward-right-down already"
+        )];
+        if damaged > 0 || skipped_bytes > 0 {
+            notes.push(format!(
+                "tlog: {damaged} damaged frames (bad CRC) skipped, {skipped_bytes} bytes skipped in all"
+            ));
+        }
+        if self.out_of_order > 0 {
+            notes.push(format!("tlog: {} samples older than their series' last one dropped", self.out_of_order));
+        }
+        if let Some(at) = self.torn {
+            notes.push(format!("tlog: the file ends inside a frame at byte {at}: dropped"));
+        }
+        if let Some((at, l, t)) = self.reboot {
+            notes.push(format!(
+                "tlog: the autopilot rebooted at byte {at} (boot time {l:.3} s -> {t:.3} s): the series end there"
+            ));
+        }
+        notes
+    }
+
+    /// The series as the shared ArduPilot builder takes them: the depth from the better
+    /// pressure sensor where it has samples, the outputs and the pilot's commands where there
+    /// are any.
+    fn into_decoded(self, opts: &ArdupilotOptions, notes: Vec<String>) -> Decoded {
+        let mut d = Decoded { notes, ..Decoded::default() };
+        d.attitude = Some(self.att);
+        d.yaw_rate = Some(self.rate);
+        d.position = Some(self.pos);
+        d.velocity_ned = Some(self.vel);
+        let [p1, p2] = self.press;
+        if let Some(pr) = [p2, p1].into_iter().find(|s| !s.is_empty()) {
+            d.depth = Some(depth_of(&pr, opts));
+        }
+        if !self.out_t.is_empty() {
+            d.outputs = Some(("SERVO_OUTPUT_RAW.servo1_raw..servo8_raw (PWM us)".into(), self.out_t, self.out_pwm));
+        }
+        if !self.pilot.is_empty() {
+            d.notes.push(
+                "MANUAL_CONTROL: no time of its own; placed at the latest autopilot boot time plus the receive time elapsed since"
+                    .into(),
+            );
+            d.pilot = Some(self.pilot);
+        }
+        d
+    }
+}
+
+/// Depth (m) from absolute pressure (Pa): `(p - surface) / (rho g)`, the surface pressure
+/// given or the first sample's.
+fn depth_of(pr: &Series<1>, opts: &ArdupilotOptions) -> Series<1> {
+    let surface = opts.surface_pressure.unwrap_or(pr.v[0][0]);
+    let rho = opts.water_density;
+    let mut depth = Series::new(format!(
+        "{} (depth = (p - {surface:.0} Pa) / ({rho} kg/m^3 * {G} m/s^2), surface pressure {})",
+        pr.source,
+        if opts.surface_pressure.is_some() { "given" } else { "the first sample" }
+    ));
+    for (t, v) in pr.t.iter().zip(&pr.v) {
+        depth.push(*t, [(v[0] - surface) / (rho * G)]);
+    }
+    depth
+}
+
+/// Reads a telemetry log into the streams (see the module documentation and
+/// docs/LOGS_ARDUPILOT.md): `ATTITUDE` (attitude, yaw rate), `LOCAL_POSITION_NED` (the EKF's
+/// NED position and velocity), `SCALED_PRESSURE2` or else `SCALED_PRESSURE` (depth, only
+/// where there is no position), `SERVO_OUTPUT_RAW` (thruster outputs), `MANUAL_CONTROL`
+/// (pilot commands), from the system that sends `ATTITUDE`.
+///
+/// The stages: the file read, its frames walked into series (`Scan`), the notes, the series
+/// handed to the builder the .BIN reader shares.
+///
+/// # Errors
+/// The file cannot be read, holds no valid MAVLink frame, or lacks a message the streams need
+/// (`ImportError::Malformed`, naming the file and the message); inputs asked for without a
+/// thruster conversion (`ImportError::Unusable`).
+pub fn read_tlog(path: &Path, opts: &ArdupilotOptions) -> Result<StreamSet, ImportError> {
+    let malformed = |message: String| ImportError::Malformed { path: path.to_path_buf(), message };
+    let buf = std::fs::read(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
+    let mut scan = Scan::new();
+    scan.read(&buf);
+    if scan.frames == 0 {
         return Err(malformed(format!(
             "not a MAVLink telemetry log: no valid frame after an 8-byte time stamp in its {} bytes",
             buf.len()
         )));
     }
-    d.notes.push(format!(
-        "tlog: {frames} frames read, {other} frames of other messages stepped over; time base: the autopilot's boot clock (time_boot_ms, time_usec), not the receive time stamps; frames: ATTITUDE and LOCAL_POSITION_NED are NED / forward-right-down already"
-    ));
-    if damaged > 0 || skipped_bytes > 0 {
-        d.notes.push(format!("tlog: {damaged} damaged frames (bad CRC) skipped, {skipped_bytes} bytes skipped in all"));
-    }
-    if out_of_order > 0 {
-        d.notes.push(format!("tlog: {out_of_order} samples older than their series' last one dropped"));
-    }
-    if let Some(at) = torn {
-        d.notes.push(format!("tlog: the file ends inside a frame at byte {at}: dropped"));
-    }
-    if let Some((at, l, t)) = reboot {
-        d.notes.push(format!(
-            "tlog: the autopilot rebooted at byte {at} (boot time {l:.3} s -> {t:.3} s): the series end there"
-        ));
-    }
-    if att.is_empty() {
-        let what = if torn.is_some() { "truncated before any ATTITUDE message" } else { "no ATTITUDE message" };
+    let notes = scan.notes();
+    if scan.att.is_empty() {
+        let what = if scan.torn.is_some() { "truncated before any ATTITUDE message" } else { "no ATTITUDE message" };
         return Err(malformed(what.into()));
     }
-    d.attitude = Some(att);
-    d.yaw_rate = Some(rate);
-    d.position = Some(pos);
-    d.velocity_ned = Some(vel);
-    let [p1, p2] = press;
-    if let Some(pr) = [p2, p1].into_iter().find(|s| !s.is_empty()) {
-        let surface = opts.surface_pressure.unwrap_or(pr.v[0][0]);
-        let rho = opts.water_density;
-        let mut depth = Series::new(format!(
-            "{} (depth = (p - {surface:.0} Pa) / ({rho} kg/m^3 * {G} m/s^2), surface pressure {})",
-            pr.source,
-            if opts.surface_pressure.is_some() { "given" } else { "the first sample" }
-        ));
-        for (t, v) in pr.t.iter().zip(&pr.v) {
-            depth.push(*t, [(v[0] - surface) / (rho * G)]);
-        }
-        d.depth = Some(depth);
-    }
-    if !out_t.is_empty() {
-        d.outputs = Some(("SERVO_OUTPUT_RAW.servo1_raw..servo8_raw (PWM us)".into(), out_t, out_pwm));
-    }
-    if !pilot.is_empty() {
-        d.notes.push(
-            "MANUAL_CONTROL: no time of its own; placed at the latest autopilot boot time plus the receive time elapsed since"
-                .into(),
-        );
-        d.pilot = Some(pilot);
-    }
-    build(path, d, opts, true)
+    build(path, scan.into_decoded(opts, notes), opts, true)
 }
 
 /// The MAVLink messages a `pinc vehicle record` / `excite` MCAP holds (`/mavlink/<NAME>`,
