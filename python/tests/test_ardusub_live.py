@@ -20,6 +20,7 @@ $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it 
 
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -64,9 +65,20 @@ def log_lines(summary):
 
 
 @pytest.fixture(scope="module")
-def pinc_stock(tmp_path_factory):
+def stock_flights(tmp_path_factory):
+    """Three flights of the stock vehicle at once, each on its own simulator (CI time: one
+    flight's): pinc's MPC on the shipped model (default solver), the same on Clarabel, and
+    ArduSub's own ALT_HOLD; pinc the first client of each."""
+    runs = {"pinc": (), "clarabel": ("--qp", "clarabel"), "althold": ("--autopilot-hold", "althold")}
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = {who: pool.submit(fly, tmp_path_factory.mktemp(f"stock_{who}"), *extra) for who, extra in runs.items()}
+        return {who: f.result() for who, f in futures.items()}
+
+
+@pytest.fixture(scope="module")
+def pinc_stock(stock_flights):
     """pinc's MPC on the shipped model, the stock vehicle, pinc the first client."""
-    return fly(tmp_path_factory.mktemp("pinc_stock"))
+    return stock_flights["pinc"]
 
 
 def test_per_thruster_commands_are_refused_on_the_stock_outputs_and_status_says_the_ways(tmp_path):
@@ -132,12 +144,12 @@ def test_the_shipped_model_holds_a_stock_vehicle_on_its_defaults(pinc_stock):
     assert live["truth_rms"]["depth_m"] <= 0.20 and s["rms_heading_deg"] <= 6.0
 
 
-def test_the_default_riccati_solver_flies_the_stock_vehicle_as_clarabel_does(tmp_path, pinc_stock):
+def test_the_default_riccati_solver_flies_the_stock_vehicle_as_clarabel_does(stock_flights):
     # The live session's default solver (Riccati) tracks as Clarabel on the firmware (measured
     # before the switch: truth depth RMS 0.1250 against 0.1252 m, heading 4.23 against 4.25 deg,
     # solve median 0.10 against 0.51 ms), every cycle solved.
-    _, riccati = pinc_stock
-    r, s = fly(tmp_path, "--qp", "clarabel")
+    _, riccati = stock_flights["pinc"]
+    r, s = stock_flights["clarabel"]
     assert s["stopped"] is None and r.returncode == 0, r.stderr
     assert riccati["samples"] >= 740 and riccati["fallbacks"] == 0, riccati
     for key in ("depth_m", "heading_deg"):
@@ -148,8 +160,8 @@ def test_the_default_riccati_solver_flies_the_stock_vehicle_as_clarabel_does(tmp
     assert solvers == {"default": "riccati", "asked": "clarabel"}
 
 
-def test_ardusubs_own_althold_flies_the_same_references_beside_pinc(tmp_path, pinc_stock):
-    r, s = fly(tmp_path, "--autopilot-hold", "althold")
+def test_ardusubs_own_althold_flies_the_same_references_beside_pinc(stock_flights, pinc_stock):
+    r, s = stock_flights["althold"]
     live = s["live"]
     assert s["stopped"] is None and r.returncode == 0, r.stderr
     assert live["flown_by"] == "althold" and live["hold_mode_entered_s"] is not None
