@@ -152,7 +152,13 @@ impl Watcher {
                 stopping = None;
             }
             let due = match stopping {
-                None => self.view.lock().expect("view").stop.is_some_and(|s| s.sent.is_none()),
+                // A STOP asked while there was no link expires: no disarm minutes later.
+                None => self
+                    .view
+                    .lock()
+                    .expect("view")
+                    .stop
+                    .is_some_and(|s| s.sent.is_none() && s.asked.elapsed() < STOP_REPEAT),
                 Some((first, last)) => first.elapsed() < STOP_REPEAT && last.elapsed() >= STOP_EVERY,
             };
             if due {
