@@ -253,7 +253,7 @@ impl Drive {
             Err(e) => return Err(d.refuse(Trigger::Link(e.to_string()))),
         }
         for r in &early {
-            if d.is_autopilot(r) {
+            if d.autopilot.sent(r) {
                 d.read(r);
             }
             let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
@@ -428,10 +428,6 @@ impl Drive {
         self.assembler.autopilot_time(Instant::now()).unwrap_or(0.0)
     }
 
-    fn is_autopilot(&self, r: &Received) -> bool {
-        r.header.system_id as u8 == self.autopilot.system_id && r.header.component_id == self.autopilot.component_id
-    }
-
     /// Reads one message of the autopilot, once: the raw state, the observations for the
     /// estimator, the sensor watch; counts a message older than the newest of its type.
     fn read(&mut self, r: &Received) -> Option<RawState> {
@@ -465,7 +461,7 @@ impl Drive {
         let r = self.link.recv_timeout(wait).map_err(|e: LinkError| Trigger::Link(e.to_string()))?;
         let mut fresh = None;
         if let Some(r) = r {
-            let from_autopilot = self.is_autopilot(&r);
+            let from_autopilot = self.autopilot.sent(&r);
             let state = if from_autopilot { self.read(&r) } else { None };
             let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(&r, t);
@@ -618,7 +614,7 @@ impl Drive {
         while Instant::now() < until {
             match self.link.recv_timeout(POLL) {
                 Ok(Some(r)) => {
-                    if self.is_autopilot(&r) {
+                    if self.autopilot.sent(&r) {
                         self.read(&r);
                     }
                     let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);

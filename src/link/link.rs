@@ -115,6 +115,11 @@ pub struct Autopilot {
 }
 
 impl Autopilot {
+    /// Whether this autopilot (its system and component) sent `r`.
+    pub fn sent(&self, r: &Received) -> bool {
+        r.header.system_id as u8 == self.system_id && r.header.component_id == self.component_id
+    }
+
     /// Whether the heartbeat says armed.
     pub fn armed(heartbeat: &HEARTBEAT_DATA) -> bool {
         heartbeat.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED)

@@ -186,7 +186,7 @@ impl Watcher {
                 }
                 Err(e) => return e.to_string(),
             };
-            if r.header.system_id as u8 != autopilot.system_id || r.header.component_id != autopilot.component_id {
+            if !autopilot.sent(&r) {
                 continue;
             }
             let fresh = assembler.update(&r, |_| {});

@@ -7,7 +7,6 @@
 //! the file, the summary).
 
 #[cfg(feature = "train")]
-use super::from_autopilot;
 use super::writer::{Writer, recording_estimator};
 use super::{ExciteArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
 use pinc::closed_loop::Level;
@@ -258,7 +257,7 @@ fn end_excite(
 /// thread (it needs the fit, so the `train` feature).
 #[cfg(feature = "train")]
 mod watch {
-    use super::{ExciteArgs, Recording, from_autopilot};
+    use super::{ExciteArgs, Recording};
     use pinc::closed_loop::Level;
     use pinc::fit::FitSettings;
     use pinc::link::{Autopilot, Received};
@@ -271,7 +270,7 @@ mod watch {
 
     impl Watch {
         pub(super) fn message(&mut self, r: &Received, t: f64) {
-            if from_autopilot(r, &self.autopilot) {
+            if self.autopilot.sent(r) {
                 self.inner.message(t, self.autopilot.system_id, &r.message);
             }
         }

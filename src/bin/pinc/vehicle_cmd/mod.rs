@@ -10,7 +10,7 @@ mod status;
 mod writer;
 
 use pinc::link::cli::{DriveArgs, LinkArgs};
-use pinc::link::{Autopilot, Received};
+use pinc::link::Autopilot;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -134,10 +134,6 @@ pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
         VehicleAction::Excite(a) => excite::run_excite(*a),
         VehicleAction::SetupSigning(a) => signing::run_setup_signing(a),
     }
-}
-
-fn from_autopilot(r: &Received, ap: &Autopilot) -> bool {
-    r.header.system_id as u8 == ap.system_id && r.header.component_id == ap.component_id
 }
 
 /// The session metadata every recording starts with.

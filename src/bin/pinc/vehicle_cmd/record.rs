@@ -1,7 +1,7 @@
 //! `pinc vehicle record`: listen and record.
 
 use super::writer::{Writer, recording_estimator};
-use super::{RecordArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, from_autopilot, session_metadata};
+use super::{RecordArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
 use pinc::closed_loop::Level;
 use pinc::link::cli::{open, positive};
 use pinc::link::{InputsFromOutputs, Received, Recorder};
@@ -44,7 +44,7 @@ pub(super) fn run_record(a: RecordArgs) -> Result<(), String> {
             Ok(None) => continue,
             Err(e) => break Err(e.to_string()),
         };
-        let state = if from_autopilot(&r, &autopilot) { assembler.update(&r, |o| observed.push(o)) } else { None };
+        let state = if autopilot.sent(&r) { assembler.update(&r, |o| observed.push(o)) } else { None };
         let t = assembler.autopilot_time(r.at).unwrap_or(0.0);
         w.message(&r, t)?;
         w.observed(t, observed.drain(..))?;

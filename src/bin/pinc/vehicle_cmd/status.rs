@@ -1,6 +1,6 @@
 //! `pinc vehicle status`: what the autopilot is and sends.
 
-use super::{StatusArgs, from_autopilot};
+use super::StatusArgs;
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, MavMessage};
 use pinc::link::cli::{open, positive};
 use pinc::link::drive::{AUTOPILOT_ESTIMATE_RATE_HZ, read_autopilot_config};
@@ -82,7 +82,7 @@ fn listen(
             asked_again = true;
         }
         let Some(r) = link.recv_timeout(Duration::from_millis(50)).map_err(|e| e.to_string())? else { continue };
-        if !from_autopilot(&r, autopilot) {
+        if !autopilot.sent(&r) {
             continue;
         }
         heard.arrivals.entry(mavlink::Message::message_name(&r.message)).or_default().add(r.at);

@@ -1,7 +1,6 @@
 //! A session's recording: every message, the state samples with their inputs, the estimate
 //! and the `/log` lines, for `record` and `excite`.
 
-use super::from_autopilot;
 use mavlink::dialects::ardupilotmega::{HEARTBEAT_DATA, MavMessage};
 use pinc::closed_loop::Level;
 use pinc::estimation::mavlink::Observation;
@@ -45,7 +44,7 @@ impl Writer {
     /// One message received, at autopilot time `t` (meaningless until a stamped message came).
     pub(super) fn message(&mut self, r: &Received, t: f64) -> Result<(), String> {
         if self.clock.is_none() {
-            if message_time(&r.message).is_none() || !from_autopilot(r, &self.autopilot) {
+            if message_time(&r.message).is_none() || !self.autopilot.sent(r) {
                 self.pending.push(r.clone());
                 return Ok(());
             }
@@ -202,7 +201,7 @@ fn write_one(
     r: &Received,
 ) -> Result<(), String> {
     rec.mavlink(t, r).map_err(|e| e.to_string())?;
-    if from_autopilot(r, autopilot) {
+    if autopilot.sent(r) {
         match &r.message {
             MavMessage::SERVO_OUTPUT_RAW(o) => rec.outputs(t, o).map_err(|e| e.to_string())?,
             MavMessage::HEARTBEAT(h) => session.note_heartbeat(t, h),
