@@ -85,8 +85,7 @@ impl DataFolder {
 
     /// A name `PREFIX-YYYYmmdd-HHMMSS` (UTC) not yet taken in `kind` (with `-2`, `-3`... if it is).
     pub fn new_name(&self, kind: &str, prefix: &str, extension: &str) -> Result<String, DataError> {
-        let now = std::time::SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
-        let base = format!("{prefix}-{}", utc_stamp(now));
+        let base = format!("{prefix}-{}", chrono::Utc::now().format("%Y%m%d-%H%M%S"));
         let dir = self.dir(kind)?;
         let taken = |n: &str| {
             dir.join(format!("{n}{extension}")).exists() || dir.join(format!("{n}{extension}.partial")).exists()
@@ -153,22 +152,6 @@ impl DataFolder {
     }
 }
 
-/// `YYYYmmdd-HHMMSS` of seconds since 1970 (UTC), by the civil-from-days algorithm.
-fn utc_stamp(secs: u64) -> String {
-    let days = (secs / 86_400) as i64;
-    let rem = secs % 86_400;
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}{month:02}{day:02}-{:02}{:02}{:02}", rem / 3600, rem % 3600 / 60, rem % 60)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -204,10 +187,16 @@ mod tests {
     }
 
     #[test]
-    fn stamps_are_utc_calendar_times() {
-        assert_eq!(utc_stamp(0), "19700101-000000");
-        // 2026-11-27 02:40:05 UTC.
-        assert_eq!(utc_stamp(1_795_747_205), "20261127-024005");
-        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+    fn new_names_carry_the_utc_time_and_never_take_an_existing_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = DataFolder::open(dir.path()).unwrap();
+        let before = chrono::Utc::now().format("%Y%m%d-%H%M%S").to_string();
+        let name = data.new_name("recordings", "excite", ".mcap").unwrap();
+        let stamp = &name["excite-".len()..name.len() - ".mcap".len()];
+        assert!(stamp.len() == 15 && stamp >= before.as_str(), "{name}");
+        // Taken (also as a run still writing): the next free suffix.
+        std::fs::write(dir.path().join("recordings").join(format!("{name}.partial")), b"x").unwrap();
+        let second = data.new_name("recordings", "excite", ".mcap").unwrap();
+        assert!(second == format!("excite-{stamp}-2.mcap") || second > name, "{second}");
     }
 }

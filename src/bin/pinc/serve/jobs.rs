@@ -244,6 +244,7 @@ fn signal(pid: u32, sig: libc::c_int) {
 }
 
 /// A running job's view of itself.
+#[derive(Clone)]
 pub struct Handle {
     jobs: Jobs,
     id: u64,
@@ -281,9 +282,8 @@ impl Handle {
         self.update(|j| j.child = Some(child.id()));
         let stderr = child.stderr.take().expect("piped");
         let stdout = child.stdout.take().expect("piped");
-        let me = || Handle { jobs: self.jobs.clone(), id: self.id, interrupt: self.interrupt.clone() };
         let errors = {
-            let me = me();
+            let me = self.clone();
             std::thread::spawn(move || {
                 for line in BufReader::new(stderr).lines().map_while(Result::ok) {
                     me.update(|j| {
@@ -297,7 +297,7 @@ impl Handle {
         };
         // Read on a thread too: the wait below must see a STOP while the child still writes.
         let output = {
-            let me = me();
+            let me = self.clone();
             std::thread::spawn(move || {
                 let mut rest = String::new();
                 for line in BufReader::new(stdout).lines().map_while(Result::ok) {

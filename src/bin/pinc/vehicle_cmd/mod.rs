@@ -9,8 +9,8 @@ mod signing;
 mod status;
 mod writer;
 
-use pinc::link::cli::{DriveArgs, LinkArgs};
 use pinc::link::Autopilot;
+use pinc::link::cli::{DriveArgs, LinkArgs};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
