@@ -4,7 +4,8 @@
 //! ([`estimator`]), what its innovations say of the model ([`health`]: the adaptation of its
 //! process noise, the live stop on a lost vehicle), ArduSub's MAVLink messages turned into
 //! measurements ([`mavlink`]), a smoother for recorded logs ([`smoother`]) and a recorded log
-//! replayed through the filter ([`replay`]).
+//! replayed through the filter ([`replay`]), and a recorded dataset's windows started from
+//! the filter's state rather than the recorded one ([`window_starts`]).
 //!
 //! A stock BlueROV2 measures depth (pressure), heading and yaw rate, and knows the thrust it
 //! commands; with the model that is enough to estimate its body velocities, which the MPC
@@ -19,8 +20,10 @@ pub mod measurement;
 #[cfg(feature = "tools")]
 pub mod replay;
 pub mod smoother;
+#[cfg(feature = "tools")]
+pub mod window_starts;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
 pub use estimator::{Estimator, HORIZONTAL_FRESH_S};
 pub use health::{Health, Lost, Sensor};
-pub use measurement::{Measurement, NoiseSettings};
+pub use measurement::{Measurement, NoiseSettings, white_noise_std};

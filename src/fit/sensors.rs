@@ -3,6 +3,7 @@
 //! heave equation (docs/FIT.md).
 
 use crate::estimation::Measurement;
+pub use crate::estimation::white_noise_std;
 use crate::model::SensorModel;
 
 /// Smallest standard deviations a fit gives (m, rad, rad/s): below them the filter would
@@ -164,38 +165,6 @@ fn least_squares<const N: usize>(rows: &[([f64; N], f64)]) -> Option<nalgebra::S
 fn least_squares_residual(rows: &[([f64; 4], f64)]) -> f64 {
     let Some(c) = least_squares(rows) else { return f64::NAN };
     rows.iter().map(|(x, y)| (y - nalgebra::Vector4::from(*x).dot(&c)).powi(2)).sum()
-}
-
-/// The white noise of a sampled signal: each sample against the straight line through its
-/// two neighbours (in time), scaled to one sample's deviation, as a robust spread (1.4826
-/// times the median absolute value: a few jumps or manoeuvres do not inflate it). The
-/// signal's own curvature over two sample periods is left in; at 10 Hz and more it is far
-/// below the noise of a depth sensor. `wrap` treats the values as angles. `None` for fewer
-/// than 10 usable samples.
-pub fn white_noise_std(samples: &[(f64, f64)], wrap: bool) -> Option<f64> {
-    let diff = |a: f64, b: f64| if wrap { crate::vehicle::wrap_angle(a - b) } else { a - b };
-    let mut d: Vec<f64> = samples
-        .windows(3)
-        .filter_map(|w| {
-            let ((t0, y0), (t1, y1), (t2, y2)) = (w[0], w[1], w[2]);
-            let (h0, h1) = (t1 - t0, t2 - t1);
-            if !(h0 > 0.0 && h1 > 0.0) {
-                return None;
-            }
-            // y1 against the line through its neighbours: y0 + (y2 - y0) h0 / (h0 + h1).
-            let (a, b) = (h1 / (h0 + h1), h0 / (h0 + h1));
-            let line = y0 + b * diff(y2, y0);
-            let r = diff(y1, line);
-            Some((r / (1.0 + a * a + b * b).sqrt()).abs())
-        })
-        .filter(|r| r.is_finite())
-        .collect();
-    if d.len() < 10 {
-        return None;
-    }
-    let mid = d.len() / 2;
-    let (_, median, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(1.4826 * *median)
 }
 
 /// The readings of each kind, in order: depth `(t, z)`, heading `(t, psi)`, yaw rate `(t, r)`.

@@ -6,6 +6,7 @@ mod common;
 
 mod ardupilot_logs;
 mod dataset;
+mod estimated_start;
 mod eval_rollouts;
 mod identify;
 mod import;

@@ -47,6 +47,29 @@ pub struct EvalArgs {
     /// has `dev_eval` and the VPT sets instead of a test split).
     #[arg(long, default_value = "test", requires = "data")]
     pub set: String,
+    /// With --data: where each window's rollouts start. `recorded`: its first recorded
+    /// state. `estimated`: the state pinc's estimator gives after running over the samples
+    /// before the window in its run (their positions, depth, heading, yaw rate and inputs;
+    /// never the recorded velocities, nothing of the window), on the --vehicle file's
+    /// analytic model (else the first model's vehicle), so every row starts from the same
+    /// states. `both`: the two, and the recorded start on the estimated windows alone.
+    #[arg(long, value_enum, default_value = "recorded", requires = "data")]
+    pub start: StartFrom,
+    /// With --start estimated|both: seconds of samples the estimator runs over before each
+    /// window (windows with fewer before them are left out, and counted).
+    #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S, requires = "data")]
+    pub start_history: f64,
+}
+
+/// Where `pinc eval --data` starts each window's rollouts.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StartFrom {
+    /// The recorded first state.
+    Recorded,
+    /// The estimator's state after the samples before the window.
+    Estimated,
+    /// Both, and the recorded start on the estimated windows alone.
+    Both,
 }
 
 /// Generates the sets with a progress bar.
@@ -129,11 +152,53 @@ pub fn run_eval(a: EvalArgs) -> Result<(), String> {
     Ok(())
 }
 
-/// One row of `pinc eval --data`: a model or the analytic vehicle.
+/// One row of `pinc eval --data`: a model or the analytic vehicle, from one kind of start.
 struct Row {
     kind: &'static str,
     path: PathBuf,
+    start: &'static str,
     metrics: pinc::eval::SetMetrics,
+}
+
+/// The sets a `--start` asks for, each with its label: the recorded starts of every window,
+/// the recorded starts of the windows that have an estimate, their estimated starts.
+fn start_sets(
+    a: &EvalArgs,
+    data: &pinc::dataset::Dataset,
+    test: &TrajectorySet,
+    estimator: pinc::vehicle::VehicleParams,
+) -> Result<Vec<(&'static str, TrajectorySet)>, String> {
+    use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, estimate_starts};
+    if a.start == StartFrom::Recorded {
+        return Ok(vec![("recorded", test.clone())]);
+    }
+    if !(a.start_history.is_finite() && a.start_history > 0.0) {
+        return Err(format!("--start-history must be a positive number of seconds, got {}", a.start_history));
+    }
+    check_positions(data, &a.set).map_err(|e| e.to_string())?;
+    let settings = StartSettings::from_set(test, a.start_history);
+    let model = pinc::vehicle::Rk4Vehicle { params: estimator, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
+    let starts = estimate_starts(&model, test, &settings).map_err(|e| format!("the estimator: {e}"))?;
+    if starts.without_history == test.count {
+        return Err(StartError::NoHistory { windows: test.count, history_s: a.start_history }.to_string());
+    }
+    let n = &settings.noise;
+    eprintln!(
+        "estimated starts: {} of {} windows ({} without {} s of samples before them); the estimator assumed \
+         position noise {:.4} m, depth {:.4} m, heading {:.4} rad (measured from the set), no depth lag",
+        test.count - starts.without_history,
+        test.count,
+        starts.without_history,
+        a.start_history,
+        n.position_std,
+        n.depth_std,
+        n.heading_std
+    );
+    let (recorded_same, estimated) = starts.split_sets(test);
+    Ok(match a.start {
+        StartFrom::Estimated => vec![("estimated", estimated)],
+        _ => vec![("recorded", test.clone()), ("recorded, estimated windows", recorded_same), ("estimated", estimated)],
+    })
 }
 
 /// [`pinc::eval::SetMetrics`] of each model, and of the `--vehicle` file's analytic model, on
@@ -148,25 +213,30 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
         other => format!("{}: the dataset has no set {other:?} (or it is empty)", dir.display()),
     })?;
     let vehicle = a.vehicle.as_deref().map(|p| load_vehicle(Some(p))).transpose()?;
+    let models = a.model.iter().map(|p| load_model(p).map(|m| (p, m))).collect::<Result<Vec<_>, _>>()?;
+    let estimator = vehicle.or_else(|| models.first().map(|(_, m)| m.vehicle)).unwrap_or_default();
+    let sets = start_sets(a, &data, test, estimator)?;
     let mut rows = Vec::new();
-    let mut first_model = None;
-    for path in &a.model {
-        let model = load_model(path)?;
+    for (path, model) in &models {
         if (test.dt - model.dt).abs() > 1e-12 {
             eprintln!("warning: the data's sample period is {} s, {}'s {} s", test.dt, path.display(), model.dt);
         }
-        let physics = vehicle.unwrap_or(model.vehicle);
-        let m = pinc::eval::evaluate_set(&model, test, &physics)
-            .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
-        rows.push(Row { kind: "model", path: path.clone(), metrics: m });
-        first_model.get_or_insert((path.clone(), model));
     }
-    if let (Some(params), Some(path)) = (vehicle, &a.vehicle) {
-        let analytic = pinc::vehicle::Rk4Vehicle { params, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
-        let m = pinc::eval::evaluate_set_discrete(&analytic, test)
-            .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
-        rows.push(Row { kind: "vehicle", path: path.clone(), metrics: m });
+    for (start, set) in &sets {
+        for (path, model) in &models {
+            let physics = vehicle.unwrap_or(model.vehicle);
+            let m = pinc::eval::evaluate_set(model, set, &physics)
+                .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
+            rows.push(Row { kind: "model", path: (*path).clone(), start, metrics: m });
+        }
+        if let (Some(params), Some(path)) = (vehicle, &a.vehicle) {
+            let analytic = pinc::vehicle::Rk4Vehicle { params, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
+            let m = pinc::eval::evaluate_set_discrete(&analytic, set)
+                .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
+            rows.push(Row { kind: "vehicle", path: path.clone(), start, metrics: m });
+        }
     }
+    let first_model = models.first().map(|(p, m)| ((*p).clone(), m.clone()));
     let plot = first_model
         .as_ref()
         .filter(|_| !a.no_plot)
@@ -183,13 +253,18 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
             obj.insert(r.kind.into(), r.path.display().to_string().into());
             obj.insert("data".into(), dir.display().to_string().into());
             obj.insert("vpt_threshold_m".into(), VPT_THRESHOLD_M.into());
+            obj.insert("start".into(), r.start.into());
             if let (Some(p), "model") = (&plot, r.kind) {
                 obj.insert("plot".into(), p.display().to_string().into());
             }
             out.push(v);
         }
         // One model alone prints its object, as before rows were added; otherwise an array.
-        let v = if out.len() == 1 && a.vehicle.is_none() { out.remove(0) } else { serde_json::Value::Array(out) };
+        let v = if out.len() == 1 && a.vehicle.is_none() && a.start == StartFrom::Recorded {
+            out.remove(0)
+        } else {
+            serde_json::Value::Array(out)
+        };
         println!("{}", serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?);
     } else {
         println!(
@@ -211,15 +286,19 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
 /// Prints [`pinc::eval::SetMetrics`] rows as one table (the physics residual is n/a for the
 /// analytic vehicle).
 fn print_set_rows(rows: &[Row]) {
-    println!("{:<32} {:>12} {:>12} {:>12} {:>8} {:>10}", "", "one-step", "10-step", "physics", "VPT s", "median s");
+    println!(
+        "{:<48} {:>12} {:>12} {:>12} {:>8} {:>10} {:>8}",
+        "", "one-step", "10-step", "physics", "VPT s", "median s", "windows"
+    );
     for r in rows {
         let m = &r.metrics;
         let name = r.path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let label = if r.kind == "vehicle" { format!("{name} (analytic)") } else { name };
+        let label = if r.start == "recorded" { label } else { format!("{label} [{}]", r.start) };
         let physics = if m.physics_mse.is_nan() { "n/a".to_string() } else { format!("{:.3e}", m.physics_mse) };
         println!(
-            "{:<32} {:>12.3e} {:>12.3e} {:>12} {:>8.2} {:>10.2}",
-            label, m.one_step_mse, m.rollout10_mse, physics, m.vpt_s, m.vpt_median_s
+            "{:<48} {:>12.3e} {:>12.3e} {:>12} {:>8.2} {:>10.2} {:>8}",
+            label, m.one_step_mse, m.rollout10_mse, physics, m.vpt_s, m.vpt_median_s, m.windows
         );
     }
 }
