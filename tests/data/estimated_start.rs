@@ -4,7 +4,7 @@
 //! few millimetres, imported as any recording is.
 
 use pinc::dataset::import::{ImportOptions, Recording, import};
-use pinc::estimation::window_starts::{StartSettings, estimate_starts};
+use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, estimate_starts};
 use pinc::eval::evaluate_set_discrete;
 use pinc::vehicle::{Rk4Vehicle, to_simulator};
 use pinc::{Input, SimState};
@@ -167,4 +167,17 @@ fn a_start_uses_nothing_of_its_own_window() {
     let after = estimate_starts(&model, &changed, &settings).unwrap();
     assert_eq!(before.starts[10], after.starts[10]);
     assert_ne!(before.starts[11], after.starts[11]);
+}
+
+#[test]
+fn a_recording_without_positions_is_refused_by_name() {
+    let (_, rec) = recorded_run(5);
+    let mut data = import(&[rec], &["0".repeat(64)], &options()).unwrap();
+    check_positions(&data, "test").unwrap();
+    // What a log without a position source imports as: x, y integrated from its velocities.
+    let source = data.source.as_mut().unwrap();
+    source.files[0].report.streams.retain(|s| s.name != "position");
+    let e = check_positions(&data, "test").unwrap_err();
+    assert_eq!(e, StartError::NoPositions { file: "tank_like.csv".into() });
+    assert!(e.to_string().contains("tank_like.csv has no position stream"), "{e}");
 }

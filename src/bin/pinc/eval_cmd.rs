@@ -287,7 +287,7 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
 /// analytic vehicle).
 fn print_set_rows(rows: &[Row]) {
     println!(
-        "{:<48} {:>12} {:>12} {:>12} {:>8} {:>10} {:>8}",
+        "{:<58} {:>12} {:>12} {:>12} {:>8} {:>10} {:>8}",
         "", "one-step", "10-step", "physics", "VPT s", "median s", "windows"
     );
     for r in rows {
@@ -297,7 +297,7 @@ fn print_set_rows(rows: &[Row]) {
         let label = if r.start == "recorded" { label } else { format!("{label} [{}]", r.start) };
         let physics = if m.physics_mse.is_nan() { "n/a".to_string() } else { format!("{:.3e}", m.physics_mse) };
         println!(
-            "{:<48} {:>12.3e} {:>12.3e} {:>12} {:>8.2} {:>10.2} {:>8}",
+            "{:<58} {:>12.3e} {:>12.3e} {:>12} {:>8.2} {:>10.2} {:>8}",
             label, m.one_step_mse, m.rollout10_mse, physics, m.vpt_s, m.vpt_median_s, m.windows
         );
     }
