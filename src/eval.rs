@@ -148,7 +148,8 @@ pub fn one_step_mse<T: crate::runtime::Real>(p: &Predictor<T>, set: &TrajectoryS
     rollout_mse(p, set, 1)
 }
 
-/// `steps`-step rollout MSE from every point that leaves room for `steps` more.
+/// `steps`-step rollout MSE from every point that leaves room for `steps` more (each started
+/// at [`TrajectorySet::start`], scored against the recorded states).
 ///
 /// # Errors
 /// A non-finite state or input in the set.
@@ -184,9 +185,9 @@ fn rollout_mse_by(
     let mut x0 = Vec::with_capacity(set.count * starts);
     let mut inputs = Vec::with_capacity(set.count * starts * steps);
     for i in 0..set.count {
-        let (xs, us) = set.trajectory(i);
+        let (_, us) = set.trajectory(i);
         for k in 0..starts {
-            x0.push(xs[k]);
+            x0.push(set.start(i, k));
             inputs.extend_from_slice(&us[k..k + steps]);
         }
     }
@@ -252,7 +253,7 @@ pub fn evaluate_set_discrete<M: DiscreteModel>(m: &M, set: &TrajectorySet) -> Re
         return Err(RuntimeError::BadTimeStep(m.dt()));
     }
     let roll = |x0: &[State], inputs: &[Input], n: usize| discrete_rollouts(m, x0, inputs, n);
-    let x0: Vec<State> = (0..set.count).map(|i| set.trajectory(i).0[0]).collect();
+    let x0: Vec<State> = (0..set.count).map(|i| set.start(i, 0)).collect();
     let mut v = vpt_of_rollouts(&roll(&x0, &set.inputs, set.points - 1)?, set);
     v.sort_by(f64::total_cmp);
     Ok(SetMetrics {
@@ -323,7 +324,7 @@ pub fn valid_prediction_time(errors: &[f64], dt: f64) -> f64 {
     k as f64 * dt
 }
 
-/// Full rollouts of every trajectory of `set` from its first point.
+/// Full rollouts of every trajectory of `set` from its first point ([`TrajectorySet::start`]).
 ///
 /// # Errors
 /// A non-finite state or input in the set.
@@ -331,7 +332,7 @@ pub fn full_rollouts<T: crate::runtime::Real>(
     p: &Predictor<T>,
     set: &TrajectorySet,
 ) -> Result<Vec<State>, RuntimeError> {
-    let x0: Vec<State> = (0..set.count).map(|i| set.trajectory(i).0[0]).collect();
+    let x0: Vec<State> = (0..set.count).map(|i| set.start(i, 0)).collect();
     rollouts(p, set.dt, &x0, &set.inputs, set.points - 1)
 }
 

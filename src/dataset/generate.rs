@@ -26,6 +26,11 @@ pub struct TrajectorySet {
     pub inputs: Vec<Input>,
     /// `count * (points - 1) * collocation_points` times in `[0, dt]`.
     pub collocation: Vec<f64>,
+    /// Empty, or per point (indexed as `states`) the state a model's predictions start
+    /// from there instead of the recorded one: what an estimator knew at that time
+    /// (`pinc::estimation::window_starts`). Evaluation rolls out from it and training feeds
+    /// it to the network; the targets stay `states`. Not stored with the set.
+    pub starts: Vec<State>,
 }
 
 impl TrajectorySet {
@@ -36,6 +41,17 @@ impl TrajectorySet {
     pub fn trajectory(&self, i: usize) -> (&[State], &[Input]) {
         let n = self.points - 1;
         (&self.states[i * self.points..(i + 1) * self.points], &self.inputs[i * n..(i + 1) * n])
+    }
+
+    /// Where a prediction from point `k` of trajectory `i` starts: [`TrajectorySet::starts`]'
+    /// state there where the set has starts, else the recorded state.
+    ///
+    /// # Panics
+    /// If `i >= count` or `k >= points`.
+    pub fn start(&self, i: usize, k: usize) -> State {
+        assert!(i < self.count && k < self.points, "point {k} of trajectory {i} of {}x{}", self.count, self.points);
+        let at = i * self.points + k;
+        if self.starts.is_empty() { self.states[at] } else { self.starts[at] }
     }
 }
 
@@ -79,6 +95,7 @@ pub fn generate_set(
         states: Vec::with_capacity(spec.count * spec.points),
         inputs: Vec::with_capacity(spec.count * n),
         collocation: Vec::with_capacity(spec.count * n * spec.collocation_points),
+        starts: Vec::new(),
     };
     for _ in 0..spec.count {
         let mut s0 = SimState::zeros();

@@ -336,6 +336,7 @@ pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
             states,
             inputs: inputs.chunks_exact(NU).map(Input::from_column_slice).collect(),
             collocation,
+            starts: Vec::new(),
         });
     }
     Ok(Dataset { preset: manifest.preset, seed: manifest.seed, sets, source: manifest.source })

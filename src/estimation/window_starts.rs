@@ -69,29 +69,39 @@ impl StartSettings {
     }
 }
 
-/// Each window's estimated start, and what could not be estimated.
+/// A set's windows that the estimator could start, twice: as recorded, and with every point's
+/// estimate as its start ([`TrajectorySet::starts`]).
 #[derive(Debug, Clone)]
-pub struct WindowStarts {
-    /// Per window: the estimated start (network form), or `None` where the run had fewer
-    /// than [`StartSettings::history_s`] of samples before it.
-    pub starts: Vec<Option<State>>,
-    /// Windows with too little history before them.
+pub struct EstimatedStarts {
+    /// The windows with an estimate at every point, as recorded.
+    pub recorded: TrajectorySet,
+    /// The same windows, each point's estimate in `starts`.
+    pub estimated: TrajectorySet,
+    /// Windows left out: less than [`StartSettings::history_s`] of their run before them.
     pub without_history: usize,
 }
 
-impl WindowStarts {
-    /// The windows that have an estimate, as two sets over the same windows: their recorded
-    /// starts as they are, and the same windows started from the estimates.
-    pub fn split_sets(&self, set: &TrajectorySet) -> (TrajectorySet, TrajectorySet) {
-        let keep: Vec<usize> = (0..set.count).filter(|&i| self.starts[i].is_some()).collect();
-        let recorded = subset(set, &keep);
-        let mut estimated = recorded.clone();
-        for (j, &i) in keep.iter().enumerate() {
-            estimated.states[j * set.points] = self.starts[i].expect("kept windows have an estimate");
-        }
-        estimated.name = format!("{} (estimated starts)", set.name);
-        (recorded, estimated)
-    }
+/// `set`'s windows started from the estimator's state at every point
+/// ([`estimate_point_starts`]), beside the same windows as recorded.
+///
+/// # Errors
+/// The model failed on the estimate (non-finite values).
+pub fn with_estimated_starts<M: DiscreteModel + Clone>(
+    model: &M,
+    set: &TrajectorySet,
+    settings: &StartSettings,
+) -> Result<EstimatedStarts, RuntimeError> {
+    let points = estimate_point_starts(model, set, settings)?;
+    // A window's first point has the least history: where it has an estimate, all do.
+    let keep: Vec<usize> = (0..set.count).filter(|&i| points[i * set.points].is_some()).collect();
+    let recorded = subset(set, &keep);
+    let mut estimated = recorded.clone();
+    estimated.starts = keep
+        .iter()
+        .flat_map(|&i| &points[i * set.points..(i + 1) * set.points])
+        .map(|s| s.expect("every point after a window's first has more history"))
+        .collect();
+    Ok(EstimatedStarts { recorded, estimated, without_history: set.count - keep.len() })
 }
 
 /// The windows of `set` chosen by `keep`, in that order.
@@ -106,6 +116,7 @@ fn subset(set: &TrajectorySet, keep: &[usize]) -> TrajectorySet {
         states: Vec::with_capacity(keep.len() * set.points),
         inputs: Vec::with_capacity(keep.len() * n),
         collocation: Vec::with_capacity(keep.len() * n * c),
+        starts: Vec::new(),
     };
     for &i in keep {
         let (s, u) = set.trajectory(i);
@@ -152,65 +163,57 @@ fn measured_noise(set: &TrajectorySet) -> [Option<f64>; 3] {
     [horizontal, std(2, false), std(3, true)]
 }
 
-/// The estimated start of every window of `set` on `model`: a fresh filter per window, fed
-/// the `history_s` of samples before it (its position, depth, heading and yaw rate at each
-/// sample's time, the held input over each interval), then predicted to the window's first
-/// time without its measurements.
+/// What the estimator knows at every point of every window of `set` before that point's own
+/// measurements, as a controller's filter runs: one filter per run (its windows in order),
+/// fed each sample's position, depth, heading and yaw rate at its time and the input held
+/// over each interval, and read at each sample's time just before that sample is fused (its
+/// prediction from everything earlier). `None` for the points with less than
+/// [`StartSettings::history_s`] of the run before them. Indexed as `set.states`.
 ///
 /// # Errors
 /// The model failed on the estimate (non-finite values).
-pub fn estimate_starts<M: DiscreteModel + Clone>(
+pub fn estimate_point_starts<M: DiscreteModel + Clone>(
     model: &M,
     set: &TrajectorySet,
     settings: &StartSettings,
-) -> Result<WindowStarts, RuntimeError> {
+) -> Result<Vec<Option<State>>, RuntimeError> {
     let dt = set.dt;
-    let needed = (settings.history_s / dt).ceil().max(1.0) as usize;
-    let intervals = set.points - 1;
-    let mut starts = Vec::with_capacity(set.count);
-    // Samples of the current run before window i: (state, input held after it), oldest first.
-    let mut history: Vec<(State, crate::types::Input)> = Vec::new();
+    let needed = (settings.history_s / dt - 1e-9).ceil().max(1.0) as usize;
+    let mut out = vec![None; set.states.len()];
+    let mut filter: Option<Estimator<M>> = None;
+    // Samples fused in the current run; the run's time is `fused dt`.
+    let mut fused = 0usize;
     for i in 0..set.count {
         if !continues(set, i) {
-            history.clear();
+            filter = Some(Estimator::new(model.clone(), settings.noise.clone()));
+            fused = 0;
         }
-        if history.len() < needed {
-            starts.push(None);
-        } else {
-            let recent = &history[history.len() - needed..];
-            starts.push(Some(run_filter(model, recent, dt, &settings.noise)?));
+        let f = filter.as_mut().expect("the first window starts a run");
+        let (xs, us) = set.trajectory(i);
+        // A window that continues the one before begins with that one's last sample, which
+        // the filter has not fused yet (each window fuses its points but the last).
+        for k in 0..xs.len() {
+            let t = fused as f64 * dt;
+            let before = f.advance(t)?;
+            if fused >= needed {
+                out[i * set.points + k] = before.map(|e| to_network(&e.sim));
+            }
+            if k + 1 == xs.len() {
+                break;
+            }
+            let s = to_simulator(&xs[k]);
+            f.measure(Measurement::Position { t, x: s[0], y: s[1], z: f64::NAN });
+            f.measure(Measurement::Depth { t, z: s[2] });
+            f.measure(Measurement::Heading { t, psi: s[3] });
+            f.measure(Measurement::YawRate { t, r: s[7] });
+            f.advance(t)?;
+            // Reported halfway through the interval it is held over: the step to the next
+            // sample averages exactly this input.
+            f.applied(t + 0.5 * dt, us[k]);
+            fused += 1;
         }
-        let (s, u) = set.trajectory(i);
-        history.extend((0..intervals).map(|k| (s[k], u[k])));
     }
-    let without_history = starts.iter().filter(|s| s.is_none()).count();
-    Ok(WindowStarts { starts, without_history })
-}
-
-/// The filter over `samples` (sample `k` at `k dt`, its input held to the next), predicted
-/// to the time after the last one.
-fn run_filter<M: DiscreteModel + Clone>(
-    model: &M,
-    samples: &[(State, crate::types::Input)],
-    dt: f64,
-    noise: &NoiseSettings,
-) -> Result<State, RuntimeError> {
-    let mut filter = Estimator::new(model.clone(), noise.clone());
-    for (k, (x, u)) in samples.iter().enumerate() {
-        let t = k as f64 * dt;
-        let s = to_simulator(x);
-        filter.measure(Measurement::Position { t, x: s[0], y: s[1], z: f64::NAN });
-        filter.measure(Measurement::Depth { t, z: s[2] });
-        filter.measure(Measurement::Heading { t, psi: s[3] });
-        filter.measure(Measurement::YawRate { t, r: s[7] });
-        filter.advance(t)?;
-        // Reported halfway through the interval it is held over: the step to the next
-        // sample averages exactly this input.
-        filter.applied(t + 0.5 * dt, *u);
-    }
-    let end = samples.len() as f64 * dt;
-    let estimate = filter.advance(end)?.expect("the filter started on the first sample's heading, yaw rate and depth");
-    Ok(to_network(&estimate.sim))
+    Ok(out)
 }
 
 /// Why a dataset's windows cannot start from estimates.

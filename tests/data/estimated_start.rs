@@ -4,7 +4,9 @@
 //! few millimetres, imported as any recording is.
 
 use pinc::dataset::import::{ImportOptions, Recording, import};
-use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, estimate_starts};
+use pinc::estimation::window_starts::{
+    StartError, StartSettings, check_positions, estimate_point_starts, with_estimated_starts,
+};
 use pinc::eval::evaluate_set_discrete;
 use pinc::vehicle::{Rk4Vehicle, to_simulator};
 use pinc::{Input, SimState};
@@ -103,70 +105,81 @@ fn the_estimated_start_is_closer_to_the_truth_than_the_recorded_one_and_predicts
     ] {
         assert!(got > 0.00225 && got < most, "{name} noise {got}");
     }
-    let starts = estimate_starts(&model, set, &settings).unwrap();
-    // The first window has nothing before it; every other has 6.5 s.
-    assert_eq!(starts.without_history, 1);
-    assert!(starts.starts[0].is_none() && starts.starts[1..].iter().all(Option::is_some));
+    let points = estimate_point_starts(&model, set, &settings).unwrap();
+    // The first 4 s of the run have no estimate (the first window's first 40 points); every
+    // later point has one.
+    let first_estimated = points.iter().position(Option::is_some).unwrap();
+    assert_eq!(first_estimated, 40);
+    assert!(points[first_estimated..].iter().all(Option::is_some));
 
-    // Window i starts at row 65 i.
-    let (mut recorded_err, mut estimated_err) = (0.0, 0.0);
+    // Point k of window i is row 65 i + k; the first and the last point of consecutive
+    // windows are the same row, and have the same estimate.
+    let (mut recorded_err, mut estimated_err, mut n) = (0.0, 0.0, 0.0);
     for i in 1..set.count {
-        let true_start = truth[i * (WINDOW - 1)];
-        let recorded = to_simulator(&set.trajectory(i).0[0]);
-        let estimated = to_simulator(&starts.starts[i].unwrap());
-        for k in 4..6 {
-            recorded_err += (recorded[k] - true_start[k]).powi(2);
-            estimated_err += (estimated[k] - true_start[k]).powi(2);
+        for k in 0..WINDOW {
+            let truth = truth[i * (WINDOW - 1) + k];
+            let recorded = to_simulator(&set.trajectory(i).0[k]);
+            let estimated = to_simulator(&points[i * WINDOW + k].unwrap());
+            for c in 4..6 {
+                recorded_err += (recorded[c] - truth[c]).powi(2);
+                estimated_err += (estimated[c] - truth[c]).powi(2);
+            }
+            n += 2.0;
         }
+        assert_eq!(points[i * WINDOW], points[i * WINDOW - 1]);
     }
-    let n = 2.0 * (set.count - 1) as f64;
     let (recorded_err, estimated_err) = ((recorded_err / n).sqrt(), (estimated_err / n).sqrt());
-    assert!(
-        estimated_err < 0.4 * recorded_err,
-        "u, v start error: estimated {estimated_err} m/s, recorded {recorded_err}"
-    );
+    eprintln!("u, v error RMS: estimated {estimated_err:.4} m/s, recorded {recorded_err:.4}");
+    assert!(estimated_err < 0.4 * recorded_err, "u, v error: estimated {estimated_err} m/s, recorded {recorded_err}");
 
     // The model that made the run predicts longer from there (VPT on positions).
-    let (recorded_set, estimated_set) = starts.split_sets(set);
+    let starts = with_estimated_starts(&model, set, &settings).unwrap();
+    assert_eq!(starts.without_history, 1);
+    let (recorded_set, estimated_set) = (&starts.recorded, &starts.estimated);
     assert_eq!((recorded_set.count, estimated_set.count), (29, 29));
-    let from_recorded = evaluate_set_discrete(&model, &recorded_set).unwrap();
-    let from_estimated = evaluate_set_discrete(&model, &estimated_set).unwrap();
-    eprintln!("VPT {:.2} s from estimates, {:.2} s from the record", from_estimated.vpt_s, from_recorded.vpt_s);
+    let from_recorded = evaluate_set_discrete(&model, recorded_set).unwrap();
+    let from_estimated = evaluate_set_discrete(&model, estimated_set).unwrap();
+    eprintln!(
+        "VPT {:.2} s from estimates, {:.2} s from the record; one-step MSE {:.2e} against {:.2e}",
+        from_estimated.vpt_s, from_recorded.vpt_s, from_estimated.one_step_mse, from_recorded.one_step_mse
+    );
     assert!(
         from_estimated.vpt_s > 1.3 * from_recorded.vpt_s,
         "VPT {} s from estimates, {} s from the record",
         from_estimated.vpt_s,
         from_recorded.vpt_s
     );
-    // The windows themselves are untouched but for their first state.
-    assert_eq!(estimated_set.states[1..WINDOW], recorded_set.states[1..WINDOW]);
-    assert_eq!(estimated_set.inputs, recorded_set.inputs);
+    // Not asserted: the one-step MSE against the record rises (measured 3.56e-3 against
+    // 2.21e-3), since a recorded velocity's error persists into the next recorded sample: the
+    // record agrees with itself, and the estimate does not share its error.
+    // The targets are the recording's, untouched.
+    assert_eq!((&estimated_set.states, &estimated_set.inputs), (&recorded_set.states, &recorded_set.inputs));
+    assert_eq!(estimated_set.starts.len(), estimated_set.states.len());
 }
 
 #[test]
-fn a_start_uses_nothing_of_its_own_window() {
+fn an_estimate_uses_nothing_of_its_own_point_or_after() {
     let (_, rec) = recorded_run(3);
     let data = import(&[rec], &["0".repeat(64)], &options()).unwrap();
     let set = data.set("test").unwrap().clone();
     let model = Rk4Vehicle::with_dt(DT);
     let settings = StartSettings::from_set(&set, 4.0);
-    let before = estimate_starts(&model, &set, &settings).unwrap();
-    // Change everything of window 10 but its first state (the last of window 9, which the
-    // filter does not see either): its own start is the same; the next window's changes.
+    let before = estimate_point_starts(&model, &set, &settings).unwrap();
+    // Change window 10 from its point 5 on (the states, and the inputs held from there).
     let mut changed = set.clone();
-    let points = set.points;
-    for x in &mut changed.states[10 * points + 1..11 * points] {
+    let p = set.points;
+    for x in &mut changed.states[10 * p + 5..11 * p] {
         x[5] += 0.5;
         x[0] += 1.0;
     }
     // Window 11's first state is window 10's last: keep them shared.
-    changed.states[11 * points] = changed.states[11 * points - 1];
-    for u in &mut changed.inputs[10 * (points - 1)..11 * (points - 1)] {
+    changed.states[11 * p] = changed.states[11 * p - 1];
+    for u in &mut changed.inputs[10 * (p - 1) + 5..11 * (p - 1)] {
         u[0] += 10.0;
     }
-    let after = estimate_starts(&model, &changed, &settings).unwrap();
-    assert_eq!(before.starts[10], after.starts[10]);
-    assert_ne!(before.starts[11], after.starts[11]);
+    let after = estimate_point_starts(&model, &changed, &settings).unwrap();
+    assert_eq!(before[..10 * p + 6], after[..10 * p + 6], "up to point 5 of window 10");
+    assert_ne!(before[10 * p + 6], after[10 * p + 6]);
 }
 
 #[test]

@@ -40,6 +40,7 @@ fn a_diverging_trajectory_is_infinite_from_its_first_non_finite_prediction() {
         states: [x0(0.0), x0(-1e6)].iter().flat_map(|&x| vec![x; points]).collect(),
         inputs: [inputs.clone(), inputs.clone()].concat(),
         collocation: Vec::new(),
+        starts: Vec::new(),
     };
     let p = Predictor::reference(&model);
     let mut ws = p.workspace();
@@ -74,6 +75,7 @@ fn a_non_finite_sample_in_a_set_is_an_error_at_that_sample() {
         states: vec![State::from([0.0, 0.0, 0.5, 1.0, 0.0, 0.1, 0.0, 0.0, 0.0]); 2 * points],
         inputs: vec![Input::new(1.0, 0.0, 2.0, 0.0); 2 * (points - 1)],
         collocation: Vec::new(),
+        starts: Vec::new(),
     };
     let p = Predictor::reference(&model);
     let params = pinc::vehicle::VehicleParams::default();

@@ -47,12 +47,13 @@ pub struct EvalArgs {
     /// has `dev_eval` and the VPT sets instead of a test split).
     #[arg(long, default_value = "test", requires = "data")]
     pub set: String,
-    /// With --data: where each window's rollouts start. `recorded`: its first recorded
-    /// state. `estimated`: the state pinc's estimator gives after running over the samples
-    /// before the window in its run (their positions, depth, heading, yaw rate and inputs;
-    /// never the recorded velocities, nothing of the window), on the --vehicle file's
-    /// analytic model (else the first model's vehicle), so every row starts from the same
-    /// states. `both`: the two, and the recorded start on the estimated windows alone.
+    /// With --data: where predictions start. `recorded`: at the recorded states. `estimated`:
+    /// at the state pinc's estimator gives at each point from the samples before it in its
+    /// run (their positions, depth, heading, yaw rate and inputs; never the recorded
+    /// velocities, nothing of the point itself), on the --vehicle file's analytic model (else
+    /// the first model's vehicle), so every row starts from the same states; scored against
+    /// the recorded states as ever. `both`: the two, and the recorded start on the estimated
+    /// windows alone.
     #[arg(long, value_enum, default_value = "recorded", requires = "data")]
     pub start: StartFrom,
     /// With --start estimated|both: seconds of samples the estimator runs over before each
@@ -168,7 +169,7 @@ fn start_sets(
     test: &TrajectorySet,
     estimator: pinc::vehicle::VehicleParams,
 ) -> Result<Vec<(&'static str, TrajectorySet)>, String> {
-    use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, estimate_starts};
+    use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, with_estimated_starts};
     if a.start == StartFrom::Recorded {
         return Ok(vec![("recorded", test.clone())]);
     }
@@ -178,7 +179,7 @@ fn start_sets(
     check_positions(data, &a.set).map_err(|e| e.to_string())?;
     let settings = StartSettings::from_set(test, a.start_history);
     let model = pinc::vehicle::Rk4Vehicle { params: estimator, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
-    let starts = estimate_starts(&model, test, &settings).map_err(|e| format!("the estimator: {e}"))?;
+    let starts = with_estimated_starts(&model, test, &settings).map_err(|e| format!("the estimator: {e}"))?;
     if starts.without_history == test.count {
         return Err(StartError::NoHistory { windows: test.count, history_s: a.start_history }.to_string());
     }
@@ -194,10 +195,13 @@ fn start_sets(
         n.depth_std,
         n.heading_std
     );
-    let (recorded_same, estimated) = starts.split_sets(test);
     Ok(match a.start {
-        StartFrom::Estimated => vec![("estimated", estimated)],
-        _ => vec![("recorded", test.clone()), ("recorded, estimated windows", recorded_same), ("estimated", estimated)],
+        StartFrom::Estimated => vec![("estimated", starts.estimated)],
+        _ => vec![
+            ("recorded", test.clone()),
+            ("recorded, estimated windows", starts.recorded),
+            ("estimated", starts.estimated),
+        ],
     })
 }
 

@@ -206,6 +206,7 @@ pub fn import_logs(logs: &[LogFile], options: &ImportOptions) -> Result<Dataset,
             states: Vec::with_capacity(ws.len() * options.window),
             inputs: Vec::with_capacity(ws.len() * (options.window - 1)),
             collocation: Vec::new(),
+            starts: Vec::new(),
         };
         for w in ws {
             set.states.extend(w.states.iter().map(crate::vehicle::to_network));
