@@ -118,6 +118,16 @@ impl Identification {
     }
 }
 
+/// Whether any coefficient of [`ESTIMATED`] differs between `a` and `b` by more than
+/// `tolerance` of the larger (an identification that feeds its own estimate has converged
+/// when none does).
+pub fn any_moved(a: &VehicleParams, b: &VehicleParams, tolerance: f64) -> bool {
+    ESTIMATED.iter().any(|k| {
+        let (x, y) = (get(a, k), get(b, k));
+        (x - y).abs() > tolerance * x.abs().max(y.abs()).max(1e-9)
+    })
+}
+
 fn get(p: &VehicleParams, key: &str) -> f64 {
     p.named().into_iter().find(|(k, _)| *k == key).map(|(_, v)| v).expect("ESTIMATED names are fields")
 }
@@ -285,17 +295,20 @@ impl Problem<'_> {
 }
 
 /// Back-to-back stretches of [`HORIZON`] periods of `sets` (network-form states: the
-/// velocities are components 5..9); stretches do not overlap, so their residuals are
-/// independent.
+/// velocities are components 5..9; [`TrajectorySet::start`], the recorded states unless the
+/// set carries estimated ones); stretches do not overlap, so their residuals are independent.
 fn intervals(sets: &[&TrajectorySet]) -> Vec<Interval> {
     let v = |x: &crate::State| Velocities::new(x[5], x[6], x[7], x[8]);
     let mut out = Vec::new();
     for set in sets {
         for i in 0..set.count {
-            let (states, inputs) = set.trajectory(i);
+            let (_, inputs) = set.trajectory(i);
             for k in (0..inputs.len() / HORIZON).map(|c| c * HORIZON) {
                 let inputs = std::array::from_fn(|j| inputs[k + j]);
-                out.push(Interval { v0: v(&states[k]), inputs, v1: v(&states[k + HORIZON]), dt: set.dt });
+                // Both ends from the set's starts where it has them (the estimator's states):
+                // the velocity change on one footing.
+                let (v0, v1) = (v(&set.start(i, k)), v(&set.start(i, k + HORIZON)));
+                out.push(Interval { v0, inputs, v1, dt: set.dt });
             }
         }
     }

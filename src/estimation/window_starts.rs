@@ -217,7 +217,7 @@ pub fn estimate_point_starts<M: DiscreteModel + Clone>(
 }
 
 /// Why a dataset's windows cannot start from estimates.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 pub enum StartError {
     /// A file behind the set recorded no position: its `x, y` were dead-reckoned from the
     /// very velocities an estimated start is meant to replace.
@@ -229,6 +229,12 @@ pub enum StartError {
         /// The file, as imported.
         file: String,
     },
+    /// The estimator's model failed on the estimate.
+    #[error("the estimator: {0}")]
+    Estimator(#[from] RuntimeError),
+    /// A history that is not a positive number of seconds.
+    #[error("the history before each window must be a positive number of seconds, got {0}")]
+    BadHistory(f64),
     /// No window has enough samples before it.
     #[error(
         "none of the {windows} windows has {history_s} s of samples before it in its run (windows of generated \
@@ -256,4 +262,49 @@ pub fn check_positions(data: &crate::dataset::Dataset, set_name: &str) -> Result
         }
     }
     Ok(())
+}
+
+/// The set `set_name` of `data` started from the estimator on the analytic model of
+/// `vehicle` ([`with_estimated_starts`]), with the settings measured from it: what `pinc eval`,
+/// `pinc train` and `pinc identify` run for `--start estimated`.
+///
+/// # Errors
+/// Recordings without positions, a bad history, no window with enough history, or the
+/// estimator's failure.
+pub fn estimated_set(
+    data: &crate::dataset::Dataset,
+    set: &TrajectorySet,
+    vehicle: &crate::vehicle::VehicleParams,
+    history_s: f64,
+) -> Result<(EstimatedStarts, StartSettings), StartError> {
+    if !(history_s.is_finite() && history_s > 0.0) {
+        return Err(StartError::BadHistory(history_s));
+    }
+    check_positions(data, &set.name)?;
+    let settings = StartSettings::from_set(set, history_s);
+    let model = crate::vehicle::Rk4Vehicle { params: *vehicle, ..crate::vehicle::Rk4Vehicle::with_dt(set.dt) };
+    let starts = with_estimated_starts(&model, set, &settings)?;
+    if starts.without_history == set.count {
+        return Err(StartError::NoHistory { windows: set.count, history_s });
+    }
+    Ok((starts, settings))
+}
+
+impl StartSettings {
+    /// One line of what the estimator assumed, and what of `set` it could start.
+    pub fn describe(&self, starts: &EstimatedStarts) -> String {
+        let n = &self.noise;
+        format!(
+            "estimated starts on {}: {} of {} windows ({} without {} s of samples before them); the estimator \
+             assumed position noise {:.4} m, depth {:.4} m, heading {:.4} rad (measured from the set), no depth lag",
+            starts.recorded.name,
+            starts.recorded.count,
+            starts.recorded.count + starts.without_history,
+            starts.without_history,
+            self.history_s,
+            n.position_std,
+            n.depth_std,
+            n.heading_std
+        )
+    }
 }

@@ -57,7 +57,10 @@ impl Batch {
         for &i in traj {
             let (xs, us) = set.trajectory(i);
             for k in 0..intervals {
-                let xk: Vec<f32> = xs[k].iter().map(|&v| jitter(v)).collect();
+                // The network's input: the estimator's state where the set has one (what a
+                // controller gives it), else the recorded one; the target is always recorded.
+                let start = set.start(i, k);
+                let xk: Vec<f32> = start.iter().map(|&v| jitter(v)).collect();
                 let uk: Vec<f32> = us[k].iter().map(|&v| jitter(v)).collect();
                 for c in 0..p {
                     cx.extend_from_slice(&xk);
@@ -72,7 +75,7 @@ impl Batch {
                 x.extend(xk);
                 u.extend(uk);
                 next.extend(xs[k + 1].iter().map(|&v| v as f32));
-                clean.extend(xs[k].iter().map(|&v| v as f32));
+                clean.extend(start.iter().map(|&v| v as f32));
             }
         }
         let m = traj.len() * intervals;
@@ -110,7 +113,7 @@ fn rollout_windows(
     for &i in traj {
         let (xs, us) = set.trajectory(i);
         for &k in &starts {
-            start.extend(xs[k].iter().map(|&v| v as f32));
+            start.extend(set.start(i, k).iter().map(|&v| v as f32));
             for j in 0..steps {
                 inputs[j].extend(us[k + j].iter().map(|&v| v as f32));
                 targets[j].extend(xs[k + j + 1].iter().map(|&v| v as f32));

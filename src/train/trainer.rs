@@ -123,7 +123,8 @@ pub fn envelope_of(set: &TrajectorySet) -> Envelope {
         input_min: [f64::INFINITY; NU],
         input_max: [f64::NEG_INFINITY; NU],
     };
-    for x in &set.states {
+    // The network sees the starts where the set has them, and is scored on the states.
+    for x in set.states.iter().chain(&set.starts) {
         for k in 0..NX {
             e.state_min[k] = e.state_min[k].min(x[k]);
             e.state_max[k] = e.state_max[k].max(x[k]);

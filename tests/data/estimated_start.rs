@@ -191,6 +191,6 @@ fn a_recording_without_positions_is_refused_by_name() {
     let source = data.source.as_mut().unwrap();
     source.files[0].report.streams.retain(|s| s.name != "position");
     let e = check_positions(&data, "test").unwrap_err();
-    assert_eq!(e, StartError::NoPositions { file: "tank_like.csv".into() });
+    assert!(matches!(&e, StartError::NoPositions { file } if file == "tank_like.csv"), "{e}");
     assert!(e.to_string().contains("tank_like.csv has no position stream"), "{e}");
 }

@@ -169,32 +169,12 @@ fn start_sets(
     test: &TrajectorySet,
     estimator: pinc::vehicle::VehicleParams,
 ) -> Result<Vec<(&'static str, TrajectorySet)>, String> {
-    use pinc::estimation::window_starts::{StartError, StartSettings, check_positions, with_estimated_starts};
     if a.start == StartFrom::Recorded {
         return Ok(vec![("recorded", test.clone())]);
     }
-    if !(a.start_history.is_finite() && a.start_history > 0.0) {
-        return Err(format!("--start-history must be a positive number of seconds, got {}", a.start_history));
-    }
-    check_positions(data, &a.set).map_err(|e| e.to_string())?;
-    let settings = StartSettings::from_set(test, a.start_history);
-    let model = pinc::vehicle::Rk4Vehicle { params: estimator, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
-    let starts = with_estimated_starts(&model, test, &settings).map_err(|e| format!("the estimator: {e}"))?;
-    if starts.without_history == test.count {
-        return Err(StartError::NoHistory { windows: test.count, history_s: a.start_history }.to_string());
-    }
-    let n = &settings.noise;
-    eprintln!(
-        "estimated starts: {} of {} windows ({} without {} s of samples before them); the estimator assumed \
-         position noise {:.4} m, depth {:.4} m, heading {:.4} rad (measured from the set), no depth lag",
-        test.count - starts.without_history,
-        test.count,
-        starts.without_history,
-        a.start_history,
-        n.position_std,
-        n.depth_std,
-        n.heading_std
-    );
+    let (starts, settings) = pinc::estimation::window_starts::estimated_set(data, test, &estimator, a.start_history)
+        .map_err(|e| e.to_string())?;
+    eprintln!("{}", settings.describe(&starts));
     Ok(match a.start {
         StartFrom::Estimated => vec![("estimated", starts.estimated)],
         _ => vec![

@@ -21,6 +21,62 @@ pub struct IdentifyArgs {
     /// Print JSON: the coefficients by name, `std_err` and `rms_residual`.
     #[arg(long)]
     pub json: bool,
+    /// The velocities identified from: `recorded`, or `estimated`: the states pinc's
+    /// estimator gives from the samples before each point (the footing `pinc train --start
+    /// estimated` and `pinc eval --start estimated` use), on the --vehicle file's model first,
+    /// then on each pass's identified vehicle until no coefficient moves by 1 % (at most 6).
+    #[arg(long, value_enum, default_value = "recorded")]
+    pub start: crate::Start,
+    /// With --start estimated: seconds of samples the estimator runs over before a point.
+    #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S)]
+    pub start_history: f64,
+}
+
+/// Passes of estimate-then-identify at most, and the relative change of every coefficient
+/// under which they stop (as `pinc fit` iterates).
+const MAX_PASSES: usize = 6;
+const PASS_TOLERANCE: f64 = 0.01;
+
+/// The identification from the estimator's states, the estimator run on the vehicle the pass
+/// before identified (the base first) until no coefficient moves by 1 %.
+fn identify_on_estimates(
+    a: &IdentifyArgs,
+    folders: &[pinc::dataset::Dataset],
+    base: &pinc::vehicle::VehicleParams,
+) -> Result<pinc::identify::Identification, String> {
+    let mut vehicle = *base;
+    let mut pass = 0;
+    loop {
+        pass += 1;
+        let mut trains = Vec::new();
+        for (data, dir) in folders.iter().zip(&a.data) {
+            let train = data.set("train").expect("checked by the caller");
+            let (starts, settings) =
+                pinc::estimation::window_starts::estimated_set(data, train, &vehicle, a.start_history)
+                    .map_err(|e| format!("{}: {e}", dir.display()))?;
+            if !a.json && pass == 1 {
+                eprintln!("{}", settings.describe(&starts));
+            }
+            trains.push(starts.estimated);
+        }
+        let id = identify(&trains.iter().collect::<Vec<_>>(), &vehicle).map_err(|e| e.to_string())?;
+        let moved = pinc::identify::any_moved(&vehicle, &id.vehicle, PASS_TOLERANCE);
+        if !a.json {
+            let r = id.rms_residual;
+            eprintln!(
+                "pass {pass}: RMS residual u {:.3e} m/s, v {:.3e}, w {:.3e}, r {:.3e} rad/s{}",
+                r[0],
+                r[1],
+                r[2],
+                r[3],
+                if moved { "" } else { "; no coefficient moved by 1 %" }
+            );
+        }
+        vehicle = id.vehicle;
+        if !moved || pass == MAX_PASSES {
+            return Ok(id);
+        }
+    }
 }
 
 pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
@@ -36,10 +92,13 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
         }
         folders.push(data);
     }
-    let trains: Vec<&pinc::dataset::TrajectorySet> = folders.iter().filter_map(|d| d.set("train")).collect();
     let shown: Vec<String> = a.data.iter().map(|d| d.display().to_string()).collect();
     let shown = shown.join(", ");
-    let id = identify(&trains, &base).map_err(|e| format!("{shown}: {e}"))?;
+    let recorded: Vec<&pinc::dataset::TrajectorySet> = folders.iter().filter_map(|d| d.set("train")).collect();
+    let id = match a.start {
+        crate::Start::Recorded => identify(&recorded, &base).map_err(|e| format!("{shown}: {e}"))?,
+        crate::Start::Estimated => identify_on_estimates(&a, &folders, &base).map_err(|e| format!("{shown}: {e}"))?,
+    };
     if let Some(out) = &a.out {
         let header = format!(
             "# Identified by `pinc identify` from {} ({} sample periods of its train split).\n\

@@ -227,6 +227,15 @@ enum ActivationName {
     Tanh,
 }
 
+/// Where `pinc train --data` and `pinc identify --data` start each prediction.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum Start {
+    /// The recorded state.
+    Recorded,
+    /// The estimator's state from the samples before it (`pinc::estimation::window_starts`).
+    Estimated,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 pub(crate) enum PresetName {
     Paper,

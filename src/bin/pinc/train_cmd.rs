@@ -30,6 +30,17 @@ pub struct TrainArgs {
     /// splits, and the final metrics on its test split, instead of a generated preset.
     #[arg(long, conflicts_with = "preset")]
     pub data: Option<PathBuf>,
+    /// With --data: what the network is fed at each point, and where rollouts start.
+    /// `estimated`: the state pinc's estimator gives there from the samples before it in its
+    /// run, on the --vehicle file's analytic model (docs/LOGS_CSV.md), so the correction
+    /// learns what a controller will give it; the targets stay recorded. Windows with less
+    /// than --start-history before them are left out; dev selection and the test figures
+    /// start from the same estimates.
+    #[arg(long, value_enum, default_value = "recorded", requires = "data")]
+    pub start: crate::Start,
+    /// With --start estimated: seconds of samples the estimator runs over before a point.
+    #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S, requires = "data")]
+    pub start_history: f64,
     /// Vehicle file: the physics losses use it (the model records it), a preset's data are
     /// simulated with it unless --plant says otherwise, and a --hybrid corrects it
     /// [default: the BlueROV2].
@@ -254,7 +265,7 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let preset = a.preset.preset_for(plant);
     let folder = a.data.as_deref().map(|d| pinc::dataset::load(d).map_err(|e| e.to_string())).transpose()?;
     let (train_set, dev) = match &folder {
-        Some(data) => folder_sets(&a, data)?,
+        Some(data) => folder_sets(&a, data, &cfg.vehicle)?,
         None => training_sets(&a, &preset)?,
     };
     if a.hybrid {
@@ -273,7 +284,8 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
     let source = match &a.data {
         Some(d) => format!("pinc train --data {}", d.display()),
         None => format!("pinc train --preset {}", preset.name),
-    } + if a.hybrid { " --hybrid" } else { "" };
+    } + if a.hybrid { " --hybrid" } else { "" }
+        + if a.start == crate::Start::Estimated { " --start estimated" } else { "" };
     let all = train_with_progress(&a, &cfg, &train_set, &dev, &source, &interrupt, &csv_path)?;
     let outcome = all.best();
     report_stop(outcome);
@@ -292,7 +304,9 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         Some(data) => FinalMetrics::Test(
             data.set("test")
                 .filter(|s| s.count > 0)
-                .map(|t| pinc::eval::evaluate_set(&outcome.model, t, &outcome.model.vehicle))
+                .map(|t| start_set(&a, data, t, &cfg.vehicle))
+                .transpose()?
+                .map(|t| pinc::eval::evaluate_set(&outcome.model, &t, &outcome.model.vehicle))
                 .transpose()
                 .map_err(|e| format!("final evaluation failed: {e}"))?,
         ),
@@ -444,16 +458,44 @@ fn training_sets(a: &TrainArgs, preset: &DatasetPreset) -> Result<(TrajectorySet
     Ok((generate_set(&train_spec, v, a.seed, || {}), generate_set(&spec("dev", a.dev_count), v, a.seed, || {})))
 }
 
-/// The train and dev splits of a dataset folder, cut to the counts the arguments give.
-fn folder_sets(a: &TrainArgs, data: &pinc::dataset::Dataset) -> Result<(TrajectorySet, TrajectorySet), String> {
+/// `set` as `--start` asks: as recorded, or its windows with the estimator's states as starts.
+fn start_set(
+    a: &TrainArgs,
+    data: &pinc::dataset::Dataset,
+    set: &TrajectorySet,
+    vehicle: &pinc::vehicle::VehicleParams,
+) -> Result<TrajectorySet, String> {
+    if a.start == crate::Start::Recorded {
+        return Ok(set.clone());
+    }
+    let (starts, settings) = pinc::estimation::window_starts::estimated_set(data, set, vehicle, a.start_history)
+        .map_err(|e| e.to_string())?;
+    if !a.json {
+        eprintln!("{}", settings.describe(&starts));
+    }
+    Ok(starts.estimated)
+}
+
+/// The train and dev splits of a dataset folder (started as `--start` asks, on `vehicle`), cut
+/// to the counts the arguments give.
+fn folder_sets(
+    a: &TrainArgs,
+    data: &pinc::dataset::Dataset,
+    vehicle: &pinc::vehicle::VehicleParams,
+) -> Result<(TrajectorySet, TrajectorySet), String> {
     let dir = a.data.as_deref().expect("called with --data").display();
     let split = |name: &str, count: Option<usize>| -> Result<TrajectorySet, String> {
-        let mut s =
-            data.set(name).filter(|s| s.count > 0).cloned().ok_or_else(|| {
-                format!("{dir}: the {name} split is empty (training fits on train and selects on dev)")
-            })?;
+        let whole = data
+            .set(name)
+            .filter(|s| s.count > 0)
+            .ok_or_else(|| format!("{dir}: the {name} split is empty (training fits on train and selects on dev)"))?;
+        // The estimates before the cut: a window's history is the windows before it.
+        let mut s = start_set(a, data, whole, vehicle)?;
         if let Some(c) = count.filter(|&c| c < s.count) {
             let n = s.points - 1;
+            if !s.starts.is_empty() {
+                s.starts.truncate(c * s.points);
+            }
             s.states.truncate(c * s.points);
             s.inputs.truncate(c * n);
             s.collocation.truncate(c * n * s.collocation_points);
