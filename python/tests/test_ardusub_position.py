@@ -12,13 +12,22 @@ depth, yaw), from where the vehicle truly was when control started.
   heading targets: the firmware's README);
 - survey: 4 legs of 10 m, 2 m apart, 0.3 m/s, 2 m deep, pinc and GUIDED on the same schedule;
 - the position source lost mid-station (SIM_GPS1_ENABLE 0, flown beside the others): the goal
-  dropped within a second, depth and heading held, no stop.
+  dropped within a second, depth and heading held, no stop;
+- the same station and survey with a DVL stand-in as the only position source (GPS off,
+  tests/fixtures/ardusub/dvl_stand_in.parm; python/tests/dvl_stand_in.py sends the EKF the
+  true motion over the ground as VISION_POSITION_DELTA at 10 Hz with 1 cm/s of noise), flown
+  in the same batches as the GPS runs and judged against the truth the stand-in recorded
+  (SIM_STATE), within 1.5x of the GPS figures; and the DVL's messages stopping mid-station.
 
 $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
 """
 
+import bisect
 import json
+import math
+import sys
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import pytest
 
@@ -26,20 +35,32 @@ from test_ardusub_sitl import FIXTURES, JS_GAIN, VEHICLE as SIM_VEHICLE, run_on_
 from test_ardusub_fit import GPS_RECORDING, pinc_fit
 from test_ardusub_live import log_lines
 from test_vehicle_drive import mpc_track_binary
+from test_vehicle_link import read_mcap
 
 CURRENT = FIXTURES / "current_0_3.parm"
 GPS_CURRENT = [JS_GAIN, CURRENT]
 # GPS comes about 20 s after arming (the firmware's README): wait for it, neutral, up to 45 s.
 WAIT = ("--wait-position", "45", "--max-distance", "25")
 COMMON = ("--vehicle", SIM_VEHICLE, *WAIT)
+# The GPS off, the DVL stand-in's velocities into the EKF, the declination set by hand.
+DVL_CURRENT = [JS_GAIN, CURRENT, FIXTURES / "dvl_stand_in.parm"]
+DVL_STAND_IN = Path(__file__).resolve().parent / "dvl_stand_in.py"
+# The DVL's messages stop this long after arming: control starts about 5 s after arming with
+# the DVL (no GPS fix to wait for), so 35 s into the station, after its depth step.
+DVL_LOST_AFTER_S = 40
 
 
-def fly(out_dir, *extra, faults=(), timeout=420, common=COMMON):
+def fly(out_dir, *extra, faults=(), timeout=420, common=COMMON, dvl=None):
     """One flight on its own simulator; its summary (JSON) and the run. A fitted model carries
-    its thrusters: `common=WAIT` leaves the vehicle file out."""
+    its thrusters: `common=WAIT` leaves the vehicle file out. `dvl` (the stand-in's options, a
+    list): the GPS off and the DVL stand-in beside pinc, its record in `out_dir/dvl.jsonl`."""
     client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--arm", "--sim-truth", "--json",
               "--out-dir", out_dir, "--timeout", "30", *common, *extra]
-    r = run_on_firmware(out_dir, GPS_CURRENT, with_faults(client, faults, out_dir / "faults.jsonl"), timeout=timeout)
+    parms = GPS_CURRENT
+    if dvl is not None:
+        client = [sys.executable, DVL_STAND_IN, "--record", out_dir / "dvl.jsonl", *dvl, "--", *client]
+        parms = DVL_CURRENT
+    r = run_on_firmware(out_dir, parms, with_faults(client, faults, out_dir / "faults.jsonl"), timeout=timeout)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
     s = json.loads(r.stdout)
     return r, s
@@ -51,9 +72,11 @@ def side_by_side(runs):
         return {who: f.result() for who, f in futures.items()}
 
 
-def row(who, r, s):
+def row(who, r, s, truth=None):
+    """A run's figures; `truth`: the horizontal ones against the truth from elsewhere (the DVL
+    stand-in's record) instead of pinc's own."""
     live = s["live"]
-    h, src = live["truth_horizontal"], live["horizontal_against_position_source"]
+    h, src = truth or live["truth_horizontal"], live["horizontal_against_position_source"]
     assert s["stopped"] is None and r.returncode == 0, (who, r.stderr[-3000:])
     assert h is not None and src is not None, (who, "no horizontal figures")
     out = {"horizontal_rms_m": h["rms_m"], "horizontal_max_m": h["max_m"], "finished_s": h["finished_s"],
@@ -65,10 +88,113 @@ def row(who, r, s):
     return out
 
 
+# The horizontal figures against the truth the DVL stand-in recorded, as pinc's live summary
+# computes `truth_horizontal` from its own (src/link/session/summary.rs, closed_loop's
+# horizontal_figures): the true position at each sample, in metres from where the vehicle truly
+# was when control started (a plan from the start: its zero is there), against the plan: from
+# the point held after the first 10 s (station), or across the nearest leg from the first to
+# the last waypoint (survey); done when first within 0.25 m of the last waypoint after reaching
+# the one before it.
+METRES_PER_E7_DEG = 0.011131884502145034  # ArduPilot's spherical earth, as pinc's
+STATION_SETTLE_S = 10.0
+PATH_FINISHED_WITHIN_M = 0.25
+STATION_PLAN = {"station": True, "waypoints": [(0.0, 0.0, 0.0)]}
+
+
+def survey_plan(legs=4, length=10.0, spacing=2.0, speed=0.3, lead=10.0):
+    """`--scenario survey`'s waypoints `(t, north, east)`: legs northwards and back from the
+    start, `spacing` apart eastwards, at `speed`, after `lead` s holding the start."""
+    points = [(0.0, 0.0)]
+    for leg in range(legs):
+        east = leg * spacing
+        start, end = (0.0, length) if leg % 2 == 0 else (length, 0.0)
+        if leg > 0:
+            points.append((start, east))
+        points.append((end, east))
+    t, waypoints = lead, [(lead, 0.0, 0.0)]
+    for (n0, e0), (n1, e1) in zip(points, points[1:]):
+        t += math.hypot(n1 - n0, e1 - e0) / speed
+        waypoints.append((t, n1, e1))
+    return {"station": False, "waypoints": waypoints}
+
+
+def cross_track(plan, north, east):
+    w = plan["waypoints"]
+    if len(w) == 1:
+        return math.hypot(north - w[0][1], east - w[0][2])
+    best = math.inf
+    for (_, an, ae), (_, bn, be) in zip(w, w[1:]):
+        dn, de = bn - an, be - ae
+        f = min(max(((north - an) * dn + (east - ae) * de) / (dn * dn + de * de), 0.0), 1.0)
+        best = min(best, math.hypot(north - an - f * dn, east - ae - f * de))
+    return best
+
+
+def read_record(path):
+    lines = [json.loads(line) for line in Path(path).read_text().splitlines()]
+    return [x for x in lines if "event" not in x], [x for x in lines if "event" in x]
+
+
+def truth_position_at(states, times, t):
+    """The recorded true position (1e-7 deg) at autopilot time `t`, between two records at most
+    0.2 s apart."""
+    k = bisect.bisect_right(times, t)
+    if k == 0 or k == len(states):
+        return None
+    a, b = states[k - 1], states[k]
+    if not 0 < b["t"] - a["t"] <= 0.2:
+        return None
+    f = (t - a["t"]) / (b["t"] - a["t"])
+    return a["lat_e7"] + f * (b["lat_e7"] - a["lat_e7"]), a["lon_e7"] + f * (b["lon_e7"] - a["lon_e7"])
+
+
+def start_time(topics):
+    """The autopilot time of the scenario's time 0 (the first estimate's, less its log time)."""
+    log_ns, first = topics["/estimate"][0]
+    return first["t_autopilot_s"] - log_ns * 1e-9
+
+
+def recorded_truth_figures(s, record, plan):
+    """The horizontal figures of run `s` against the truth in the stand-in's `record`."""
+    states, _ = read_record(record)
+    times = [x["t"] for x in states]
+    topics = read_mcap(Path(s["log"]))
+    t0 = start_time(topics)
+    origin = truth_position_at(states, times, t0)
+    assert origin is not None, "no recorded truth where control started"
+    scale = math.cos(math.radians(origin[0] * 1e-7))
+    references = topics["/mpc/reference"]
+    first_goal = references[0][1]
+    positions = []
+    for log_ns, ref in references:
+        t = log_ns * 1e-9
+        # The plan mirrored here is the one pinc flew: its goals, from the first, lie on it.
+        goal = (ref["north_m"] - first_goal["north_m"], ref["east_m"] - first_goal["east_m"])
+        assert cross_track(plan, *goal) < 1e-6, (t, goal)
+        p = truth_position_at(states, times, t0 + t)
+        if p is not None:
+            positions.append((t, (p[0] - origin[0]) * METRES_PER_E7_DEG,
+                              (p[1] - origin[1]) * METRES_PER_E7_DEG * scale))
+    w = plan["waypoints"]
+    if plan["station"]:
+        judged = [p for p in positions if p[0] >= STATION_SETTLE_S]
+        finished = None
+    else:
+        judged = [p for p in positions if w[0][0] - 1e-9 <= p[0] <= w[-1][0] + 1e-9]
+        last, before = w[-1], w[-2]
+        finished = next((p[0] for p in positions
+                         if p[0] >= before[0] and math.hypot(p[1] - last[1], p[2] - last[2]) <= PATH_FINISHED_WITHIN_M),
+                        None)
+    d = [cross_track(plan, n, e) for _, n, e in judged]
+    return {"rms_m": math.sqrt(sum(x * x for x in d) / len(d)), "max_m": max(d), "samples": len(d),
+            "schedule_end_s": None if plan["station"] else w[-1][0], "finished_s": finished}
+
+
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    """The station flown four times at once: pinc, GUIDED, POSHOLD, and pinc losing its GPS
-    60 s after arming (control starts when GPS is fused, 20-45 s after arming)."""
+    """The station flown six times at once: pinc, GUIDED, POSHOLD, pinc losing its GPS 60 s
+    after arming (control starts when GPS is fused, 20-45 s after arming), and pinc on the DVL
+    stand-in alone, keeping it and losing it."""
     tmp = tmp_path_factory.mktemp("station")
     pinc = ("--oracle", "--scenario", "station")
     return side_by_side({
@@ -76,11 +202,13 @@ def station(tmp_path_factory):
         "ArduSub GUIDED": ((tmp / "guided", "--autopilot-hold", "guided", "--scenario", "station"), {}),
         "ArduSub POSHOLD": ((tmp / "poshold", "--autopilot-hold", "poshold", "--scenario", "station"), {}),
         "pinc, GPS lost": ((tmp / "lost", *pinc), {"faults": [(60, "SIM_GPS1_ENABLE", 0)]}),
+        "pinc, DVL": ((tmp / "dvl", *pinc), {"dvl": []}),
+        "pinc, DVL lost": ((tmp / "dvl_lost", *pinc), {"dvl": ["--stop-after", str(DVL_LOST_AFTER_S)]}),
     })
 
 
 def test_station_keeping_in_a_current_beside_guided_and_poshold(station):
-    t = {who: row(who, *run) for who, run in station.items() if who != "pinc, GPS lost"}
+    t = {who: row(who, *station[who]) for who in ("pinc (simulator's file)", "ArduSub GUIDED", "ArduSub POSHOLD")}
     pinc, guided, poshold = t["pinc (simulator's file)"], t["ArduSub GUIDED"], t["ArduSub POSHOLD"]
     assert pinc["samples"] >= 740
     # Against the autopilot's own position, which both steer by, pinc holds the point closer
@@ -106,8 +234,8 @@ def fitted(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory, fitted):
-    """The survey flown by pinc (the simulator's file, and the fitted model) and GUIDED, and the
-    fitted model's station, all at once."""
+    """The survey flown by pinc (the simulator's file, and the fitted model) and GUIDED, the
+    fitted model's station, and pinc's survey on the DVL stand-in alone, all at once."""
     tmp = tmp_path_factory.mktemp("survey")
     return side_by_side({
         "pinc (simulator's file)": ((tmp / "pinc", "--oracle", "--scenario", "survey"), {}),
@@ -115,12 +243,12 @@ def survey(tmp_path_factory, fitted):
         "pinc (fitted), survey": ((tmp / "fitted", "--model", fitted, "--scenario", "survey"), {"common": WAIT}),
         "pinc (fitted), station": ((tmp / "fitted_station", "--model", fitted, "--scenario", "station"),
                                    {"common": WAIT}),
+        "pinc, DVL, survey": ((tmp / "dvl", "--oracle", "--scenario", "survey"), {"dvl": []}),
     })
 
 
 def test_a_survey_in_a_current_beside_guided(survey):
-    runs = {who: run for who, run in survey.items() if "fitted" not in who}
-    t = {who: row(who, *run) for who, run in runs.items()}
+    t = {who: row(who, *survey[who]) for who in ("pinc (simulator's file)", "ArduSub GUIDED")}
     pinc, guided = t["pinc (simulator's file)"], t["ArduSub GUIDED"]
     # Cross-track (measured against the truth: RMS 6.2 against 6.8 cm, largest 9.3 against 15.7
     # cm; the depth 0.139 against 0.164 m RMS, the dive from the surface included): pinc keeps
@@ -164,3 +292,98 @@ def test_the_fitted_four_axis_model_flies_the_station_and_survey_like_the_simula
         assert mine["samples"] >= 740
         assert mine["horizontal_rms_m"] <= 1.5 * ref["horizontal_rms_m"], (job, mine, ref)
         assert mine["source_rms_m"] <= 1.5 * ref["source_rms_m"], (job, mine, ref)
+
+
+def dvl_row(who, r, s, plan):
+    """A DVL flight's figures, the horizontal ones against the truth its stand-in recorded."""
+    truth = recorded_truth_figures(s, Path(s["log"]).parent / "dvl.jsonl", plan)
+    own = s["live"]["truth_horizontal"]
+    if own is not None:
+        # pinc's own figure, from SIMSTATE (whose position follows the truth with the GPS off
+        # too, measured), agrees: the mirror above computes what pinc computes.
+        assert abs(own["rms_m"] - truth["rms_m"]) <= 0.002 and abs(own["samples"] - truth["samples"]) <= 10, \
+            (own, truth)
+    return row(who, r, s, truth)
+
+
+def test_the_dvl_alone_flies_the_station_and_survey_within_1_5x_of_the_gps(station, survey):
+    # The issue's target: with the DVL stand-in the only position source (no GPS), within 1.5x
+    # of pinc's GPS figures from the same batch: against the truth, against the position both
+    # steer by (the EKF's), depth, heading against the truth. Measured (RMS / largest, m):
+    #   station  GPS: truth 0.0576 / 0.090, EKF 0.0122 / 0.020, depth 0.105, heading 2.49 deg
+    #            DVL: truth 0.0285 / 0.048, EKF 0.0060 / 0.016, depth 0.092, heading 1.95 deg
+    #   survey   GPS: truth 0.0625 / 0.095, EKF 0.0097 / 0.046, depth 0.140, heading 0.95 deg
+    #            DVL: truth 0.0379 / 0.117, EKF 0.0064 / 0.036, depth 0.122, heading 0.47 deg
+    # (held heading 0.18 and 0.20 deg on the station, 0.73 and 0.58 on the survey; both reach
+    # the survey's last point at 162.64 s, 0.7 s early): the DVL is 0.50x the GPS against the
+    # truth on the station, 0.61x across the survey's legs (its largest 1.24x; a second run:
+    # 0.48x and 0.65x, the survey's largest 0.127 m, 1.37x). The GPS's
+    # position wanders some 5 cm about the truth; the EKF dead-reckoning the DVL's velocities
+    # drifts slowly instead (up to 8 cm east of the truth after the survey's 46 m: its 1 cm/s
+    # noise, and the heading a few tenths of a degree off). The stand-in is an ideal DVL (no
+    # scale error, no misalignment, bottom lock throughout), so this is the best a DVL gives.
+    for job, gps_run, dvl_run, plan, samples in (
+            ("station", station["pinc (simulator's file)"], station["pinc, DVL"], STATION_PLAN, 740),
+            ("survey", survey["pinc (simulator's file)"], survey["pinc, DVL, survey"], survey_plan(), 2080)):
+        gps = row(f"pinc, GPS, {job}", *gps_run)
+        dvl = dvl_row(f"pinc, DVL, {job}", *dvl_run, plan)
+        print(f"{job}: DVL / GPS: truth {dvl['horizontal_rms_m'] / gps['horizontal_rms_m']:.2f}x "
+              f"(largest {dvl['horizontal_max_m'] / gps['horizontal_max_m']:.2f}x), "
+              f"position source {dvl['source_rms_m'] / gps['source_rms_m']:.2f}x, "
+              f"depth {dvl['depth_rms_m'] / gps['depth_rms_m']:.2f}x, "
+              f"heading {dvl['heading_rms_deg'] / gps['heading_rms_deg']:.2f}x")
+        live = dvl_run[1]["live"]
+        assert live["heading_reference"] == "true", live["heading_reference_text"]
+        assert live["horizontal_goal_changes"] == [], live["horizontal_goal_changes"]
+        assert dvl["samples"] >= samples, dvl
+        for k in ("horizontal_rms_m", "source_rms_m", "depth_rms_m", "heading_rms_deg"):
+            assert dvl[k] <= 1.5 * gps[k], (job, k, dvl, gps)
+        if job == "survey":
+            assert dvl["finished_s"] is not None and dvl["finished_s"] <= dvl["schedule_s"] + 0.5, dvl
+
+
+def dvl_loss(station):
+    """The DVL-lost flight: its summary, when the stand-in's deltas stopped, when the autopilot
+    said the DVL was unhealthy (SYS_STATUS) and when pinc dropped the goal (autopilot times)."""
+    r, s = station["pinc, DVL lost"]
+    _, events = read_record(Path(s["log"]).parent / "dvl.jsonl")
+    stop = next(e["t"] for e in events if e["event"] == "deltas_stopped")
+    unhealthy = next((e["t"] for e in events if e["event"] == "vision_healthy" and not e["healthy"] and e["t"] > stop),
+                     None)
+    changes = s["live"]["horizontal_goal_changes"]
+    dropped = start_time(read_mcap(Path(s["log"]))) + changes[0][0] if changes and changes[0][1] else None
+    return r, s, stop, unhealthy, dropped
+
+
+def test_the_dvl_lost_drops_the_goal_and_holds_depth_and_heading(station):
+    # The DVL's messages stop 35 s into the station. ArduSub's EKF goes on without them for 5 s
+    # before it says it stopped aiding ("EKF3 IMU0 stopped aiding", 4.96 s after the last
+    # delta; its position frozen meanwhile while the current carried the vehicle 0.35 m off
+    # the point: measured); pinc drops the goal a second after that (5.96 s after the last
+    # delta), flies depth and heading to the end (depth 0.093 m RMS against the truth, the held
+    # heading within 0.4 deg) and says so. The autopilot's SYS_STATUS says the DVL is unhealthy
+    # 0.24 s after its last message, which pinc does not read yet: see the next test.
+    r, s, stop, unhealthy, dropped = dvl_loss(station)
+    live = s["live"]
+    assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
+    changes = live["horizontal_goal_changes"]
+    assert len(changes) == 1 and changes[0][1] is True and changes[0][0] > 5.0, changes
+    print(f"DVL's last delta at {stop:.2f} s, SYS_STATUS unhealthy at {unhealthy} s, goal dropped at {dropped:.2f} s "
+          f"(autopilot time): {dropped - stop:.2f} s after the last delta")
+    assert 0 < dropped - stop <= 5.0 + 1.0 + 0.5, (stop, dropped)
+    assert unhealthy is not None and unhealthy - stop <= 0.5, (stop, unhealthy)
+    assert "horizontal goal dropped" in r.stderr, r.stderr[-3000:]
+    assert any("horizontal goal dropped" in line for line in log_lines(s))
+    assert live["truth_rms"]["depth_m"] <= 0.2 and s["held_heading_error_max_deg"] <= 2.0, live["truth_rms"]
+    # Until the loss the point was held.
+    src = live["horizontal_against_position_source"]
+    assert src["samples"] > 0 and src["rms_m"] < 0.05, src
+
+
+@pytest.mark.xfail(strict=True, reason="pinc learns of a lost DVL only from EKF_STATUS_REPORT, which ArduSub's EKF "
+                   "changes 5 s after the DVL's last message; SYS_STATUS's visual odometry health bit says so within "
+                   "0.3 s (the previous test), and pinc does not read it yet")
+def test_the_dvl_lost_drops_the_goal_within_a_second_of_its_last_message(station):
+    # The issue's target for the DVL's loss, as for the GPS's (within a second).
+    _, _, stop, _, dropped = dvl_loss(station)
+    assert dropped is not None and dropped - stop <= 1.0, (stop, dropped)

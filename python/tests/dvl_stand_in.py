@@ -1,0 +1,172 @@
+"""A DVL stand-in for ArduSub's simulator: the only position source of a flight with the GPS
+off (tests/fixtures/ardusub/dvl_stand_in.parm). Like sitl_inject.py it runs a client command
+and connects beside it as a second ground station (system 254, the simulator's third port,
+SERIAL2, 5763), so it never shares the client's link. While the client runs it
+
+- sets the EKF's global origin (SET_GPS_GLOBAL_ORIGIN, the site's known position: the home
+  run_in_netns.sh gives the simulator) until the autopilot reports one, as a DVL
+  integration's "set origin" does;
+- streams the simulator's truth (SIM_STATE, 50 Hz in simulated time) and from it sends
+  VISION_POSITION_DELTA at 10 Hz, what the Water Linked DVL integration sends: the body-frame
+  distance moved over the ground in the last 0.1 s (the true NED velocity of each SIM_STATE
+  turned into the body frame by the true attitude, summed over its 20 ms) and the change of
+  roll, pitch and yaw over it. A DVL measures the motion over the bottom, current included,
+  with a velocity noise of about 1 cm/s: each axis gets a seeded Gaussian error of --noise m/s
+  (default 0.01) on the mean velocity of the 0.1 s;
+- records every SIM_STATE to --record as JSON lines: the autopilot time it arrived at
+  (`t`, s: the newest ATTITUDE's `time_boot_ms` plus the host time since it came, as pinc
+  stamps its own truth), `lat_e7`, `lon_e7` (SIM_STATE's integer extension, 1e-7 deg),
+  `depth_m` and `yaw_rad`; and its own events (`{"event": ...}`: origin sent and taken, armed,
+  the first and the last delta sent, and each change of the autopilot's word on the DVL's
+  health: SYS_STATUS's visual odometry bit, `vision_healthy`).
+
+`--stop-after S` stops the deltas S seconds after the autopilot first reports armed (the DVL's
+messages lost: a DVL that lost bottom lock or its cable); the record goes on. The sensor is
+the only place the truth enters: nothing else from the simulator goes to the client.
+
+usage: dvl_stand_in.py --record FILE [--port 5763] [--noise M_S] [--seed N] [--stop-after S]
+                       -- CLIENT [ARGS...]
+Exits with the client's status.
+"""
+
+import argparse
+import json
+import math
+import random
+import subprocess
+import sys
+import time
+
+from pymavlink import mavutil
+
+SIM_STATE = 108
+ATTITUDE = 30
+SYS_STATUS = 1
+GPS_GLOBAL_ORIGIN = 49
+TRUTH_HZ = 50  # SIM_STATE's stream, exact in simulated time (the simulator's README)
+DELTA_EVERY = 5  # SIM_STATEs per VISION_POSITION_DELTA: 10 Hz
+HOME = (33.810313, -118.393867)  # run_in_netns.sh's --home
+
+
+def body_velocity(s):
+    """SIM_STATE's true NED velocity in the body frame (Z-Y-X Euler angles)."""
+    cr, sr = math.cos(s.roll), math.sin(s.roll)
+    cp, sp = math.cos(s.pitch), math.sin(s.pitch)
+    cy, sy = math.cos(s.yaw), math.sin(s.yaw)
+    n, e, d = s.vn, s.ve, s.vd
+    # R (body to NED) = Rz(yaw) Ry(pitch) Rx(roll); the body velocity is R^T v.
+    u = cp * cy * n + cp * sy * e - sp * d
+    v = (sr * sp * cy - cr * sy) * n + (sr * sp * sy + cr * cy) * e + sr * cp * d
+    w = (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d
+    return u, v, w
+
+
+def wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def main() -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("--record", required=True)
+    p.add_argument("--port", type=int, default=5763)
+    p.add_argument("--noise", type=float, default=0.01, help="velocity noise per axis, m/s (1 sigma)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--stop-after", type=float, default=None, help="stop the deltas this long after arming (s)")
+    p.add_argument("client", nargs=argparse.REMAINDER)
+    a = p.parse_args()
+    client = a.client[1:] if a.client and a.client[0] == "--" else a.client
+    proc = subprocess.Popen(client)
+    rng = random.Random(a.seed)
+    record = open(a.record, "w")
+
+    def note(**fields):
+        record.write(json.dumps(fields) + "\n")
+        record.flush()
+
+    m = None
+    for _ in range(150):  # the simulator starts when the client connects to 5760
+        try:
+            m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{a.port}", source_system=254, retries=0)
+            break
+        except OSError:
+            time.sleep(0.2)
+            if proc.poll() is not None:
+                break
+    boot = None  # (autopilot time of the newest ATTITUDE, host time it came)
+    asked_streams = asked_origin = 0.0
+    truth_flowing = False
+    origin_set = False
+    armed_at = None
+    stopped = False
+    acc = [0.0, 0.0, 0.0]
+    n_acc = 0
+    last_att = None  # roll, pitch, yaw at the start of the interval
+    sent = 0
+    vision_healthy = None
+    while proc.poll() is None and m is not None:
+        now = time.monotonic()
+        if not truth_flowing and now - asked_streams > 2.0:  # asked again until SIM_STATE flows
+            asked_streams = now
+            for msg_id, hz in ((SIM_STATE, TRUTH_HZ), (ATTITUDE, TRUTH_HZ), (SYS_STATUS, 10)):
+                m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                        msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+        if not origin_set and boot is not None and now - asked_origin > 1.0:
+            asked_origin = now
+            m.mav.set_gps_global_origin_send(1, int(HOME[0] * 1e7), int(HOME[1] * 1e7), 0,
+                                             int(boot[0] * 1e6))
+            m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                    GPS_GLOBAL_ORIGIN, 0, 0, 0, 0, 0, 0)
+            note(event="origin_sent", t=boot[0])
+        msg = m.recv_match(blocking=True, timeout=0.05)
+        if msg is None:
+            continue
+        kind = msg.get_type()
+        if msg.get_srcSystem() != 1:
+            continue
+        if kind == "ATTITUDE":
+            boot = (msg.time_boot_ms / 1000.0, time.monotonic())
+        elif kind == "SYS_STATUS":
+            healthy = bool(msg.onboard_control_sensors_health & mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
+            if healthy != vision_healthy:
+                vision_healthy = healthy
+                note(event="vision_healthy", healthy=healthy, t=boot[0] if boot else None)
+        elif kind == "GPS_GLOBAL_ORIGIN" and not origin_set:
+            origin_set = True
+            note(event="origin", t=boot[0] if boot else None, lat_e7=msg.latitude, lon_e7=msg.longitude)
+        elif kind == "HEARTBEAT" and armed_at is None and msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            armed_at = time.monotonic()
+            note(event="armed", t=boot[0] if boot else None)
+        elif kind == "SIM_STATE" and boot is not None:
+            truth_flowing = True
+            t = boot[0] + (time.monotonic() - boot[1])
+            note(t=round(t, 4), lat_e7=msg.lat_int, lon_e7=msg.lon_int, depth_m=-msg.alt, yaw_rad=msg.yaw)
+            if stopped:
+                continue
+            if armed_at is not None and a.stop_after is not None and time.monotonic() - armed_at >= a.stop_after:
+                stopped = True
+                note(event="deltas_stopped", t=t, sent=sent, after_arming_s=time.monotonic() - armed_at)
+                continue
+            att = (msg.roll, msg.pitch, msg.yaw)
+            if last_att is None:
+                last_att = att
+                continue
+            for i, vel in enumerate(body_velocity(msg)):
+                acc[i] += vel / TRUTH_HZ
+            n_acc += 1
+            if n_acc < DELTA_EVERY:
+                continue
+            dt = n_acc / TRUTH_HZ
+            delta = [acc[i] + rng.gauss(0.0, a.noise) * dt for i in range(3)]
+            angles = [wrap(att[i] - last_att[i]) for i in range(3)]
+            m.mav.vision_position_delta_send(int(t * 1e6), int(dt * 1e6), angles, delta, 100.0)
+            if sent == 0:
+                note(event="first_delta", t=t)
+            sent += 1
+            acc, n_acc, last_att = [0.0, 0.0, 0.0], 0, att
+    if m is not None and not stopped:
+        note(event="deltas_end", sent=sent)
+    return proc.wait()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
