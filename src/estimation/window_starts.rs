@@ -7,8 +7,9 @@
 //! first sample is the one before's last, docs/LOGS_CSV.md), so the samples before a window
 //! are the windows before it in the same run. The estimator sees of each of them what a
 //! vehicle measures and a recording holds: position, depth, heading and yaw rate, and the
-//! input held over each interval; never the recorded body velocities, and nothing of the
-//! window itself: the start is the filter's prediction to the window's first time.
+//! input held over each interval; never the recorded body velocities. One filter runs along
+//! each run, and a point's estimate is its prediction to that point's time from everything
+//! earlier, before the point's own measurements (docs/MODEL.md 12.1).
 
 use super::{Estimator, Measurement, NoiseSettings, white_noise_std};
 use crate::dataset::TrajectorySet;
@@ -33,10 +34,11 @@ const VELOCITY_PROCESS_STD: [f64; 4] = [0.1, 0.1, 0.1, 0.05];
 /// What the estimated starts were built with, and what the set allowed.
 #[derive(Debug, Clone, Serialize)]
 pub struct StartSettings {
-    /// Seconds of samples run through the filter before each window.
+    /// Seconds of its run the filter must have fused before a point has an estimate.
     pub history_s: f64,
     /// The filter's noise: its position, depth and heading noise estimated from the set
-    /// ([`StartSettings::from_set`]), the rest the live session's defaults.
+    /// ([`StartSettings::from_set`]), its process noise on the velocities raised, the rest
+    /// the live session's defaults.
     pub noise: NoiseSettings,
 }
 

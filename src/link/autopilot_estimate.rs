@@ -100,22 +100,45 @@ impl EkfStatus {
 
 /// `EK3_SRC1_POSXY` of GPS.
 const SOURCE_GPS: f64 = 3.0;
+/// `EK3_SRC1_POSXY` / `EK3_SRC1_VELXY` of external navigation: a DVL's `VISION_POSITION_DELTA`
+/// (Water Linked's integration) or an acoustic system's `VISION_POSITION_ESTIMATE`.
+const SOURCE_EXTERNAL_NAV: f64 = 6.0;
 /// `GPS_RAW_INT.fix_type` of a 3D fix.
 const FIX_3D: u8 = 3;
+/// `MAV_SYS_STATUS_SENSOR_VISION_POSITION`: visual odometry, what ArduPilot reports a DVL as.
+const SENSOR_VISION_POSITION: u32 = 128;
+
+/// A DVL's health from `SYS_STATUS`'s sensor bits: `None` where none is present. ArduPilot
+/// clears the health 0.3 s after the last message (measured on ArduSub's simulator: 0.24 s
+/// after the stand-in's last `VISION_POSITION_DELTA`).
+pub fn vision_health(present: u32, health: u32) -> Option<bool> {
+    (present & SENSOR_VISION_POSITION != 0).then_some(health & SENSOR_VISION_POSITION != 0)
+}
 
 /// Whether the autopilot's position (`LOCAL_POSITION_NED`) is a measurement now: its EKF says
 /// it fuses a position source ([`EkfStatus::position_measured`]; no report at all counts as
-/// yes, for firmware without it), and where that source is GPS (`EK3_SRC1_POSXY` 3) the GPS
-/// still has a 3D fix. The GPS check comes first because ArduSub's EKF goes on reporting a
-/// good position for about 7 s after its GPS is lost, dead-reckoning meanwhile (measured on
-/// its simulator: the fix is gone within 1 s, the flags change 7.2 s later, and
-/// `LOCAL_POSITION_NED` keeps coming for 15 s with its velocity drifting to 0.6 m/s on a still
-/// vehicle).
-pub fn position_measured(status: Option<&EkfStatus>, params: &Params, gps_fix: Option<u8>) -> bool {
+/// yes, for firmware without it), where that source is GPS (`EK3_SRC1_POSXY` 3) the GPS still
+/// has a 3D fix, and where it is external navigation (`EK3_SRC1_POSXY` or `EK3_SRC1_VELXY` 6:
+/// a DVL) the DVL is healthy. The source checks come first because ArduSub's EKF goes on
+/// reporting a good position for seconds after its source is lost, dead-reckoning meanwhile
+/// (measured on its simulator: after the GPS, the fix is gone within 1 s and the flags change
+/// 7.2 s later, `LOCAL_POSITION_NED` keeping on for 15 s with its velocity drifting to 0.6 m/s
+/// on a still vehicle; after a DVL's last message, the health clears in 0.24 s and the EKF
+/// stops aiding 5 s later, its position frozen while a current carries the vehicle 0.35 m).
+pub fn position_measured(
+    status: Option<&EkfStatus>,
+    params: &Params,
+    gps_fix: Option<u8>,
+    vision_healthy: Option<bool>,
+) -> bool {
     let ekf = status.is_none_or(EkfStatus::position_measured);
     let gps_source = params.get("EK3_SRC1_POSXY").is_some_and(|s| s == SOURCE_GPS);
     let gps_lost = gps_source && gps_fix.is_some_and(|f| f < FIX_3D);
-    ekf && !gps_lost
+    let dvl_source = ["EK3_SRC1_POSXY", "EK3_SRC1_VELXY"]
+        .iter()
+        .any(|name| params.get(name).is_some_and(|s| s == SOURCE_EXTERNAL_NAV));
+    let dvl_lost = dvl_source && vision_healthy == Some(false);
+    ekf && !gps_lost && !dvl_lost
 }
 
 /// Which heading the autopilot reports, and so which heading pinc steers by.
@@ -214,14 +237,36 @@ mod tests {
         // The flags ArduSub's EKF reports for 7 s after its GPS is lost (831), and its fix then.
         let gps = status(831, 0.02, 0.008);
         let on_gps = Params::from_pairs([("EK3_SRC1_POSXY", 3.0)]);
-        assert!(position_measured(Some(&gps), &on_gps, Some(6)));
-        assert!(!position_measured(Some(&gps), &on_gps, Some(1)));
+        assert!(position_measured(Some(&gps), &on_gps, Some(6), None));
+        assert!(!position_measured(Some(&gps), &on_gps, Some(1), None));
         // A DVL (external navigation, 6): the GPS's lost fix under water says nothing of it.
         let on_dvl = Params::from_pairs([("EK3_SRC1_POSXY", 6.0)]);
-        assert!(position_measured(Some(&gps), &on_dvl, Some(1)));
+        assert!(position_measured(Some(&gps), &on_dvl, Some(1), None));
         // Stock (167: constant position mode): never a measurement; no report: trusted.
-        assert!(!position_measured(Some(&status(167, 0.0, 0.005)), &on_gps, None));
-        assert!(position_measured(None, &on_gps, None));
+        assert!(!position_measured(Some(&status(167, 0.0, 0.005)), &on_gps, None, None));
+        assert!(position_measured(None, &on_gps, None, None));
+    }
+
+    #[test]
+    fn a_dvl_position_stops_being_a_measurement_when_its_health_clears() {
+        // Water Linked's setting (POSXY 6) and the DVL stand-in's (VELXY 6, no position source).
+        let good = status(831, 0.02, 0.008);
+        for on_dvl in [
+            Params::from_pairs([("EK3_SRC1_POSXY", 6.0)]),
+            Params::from_pairs([("EK3_SRC1_POSXY", 0.0), ("EK3_SRC1_VELXY", 6.0)]),
+        ] {
+            assert!(position_measured(Some(&good), &on_dvl, None, Some(true)));
+            assert!(!position_measured(Some(&good), &on_dvl, None, Some(false)));
+            // No SYS_STATUS yet, or no visual odometry in it: the EKF's word.
+            assert!(position_measured(Some(&good), &on_dvl, None, None));
+        }
+        // A vehicle on GPS is not judged by a DVL it does not use.
+        let on_gps = Params::from_pairs([("EK3_SRC1_POSXY", 3.0), ("EK3_SRC1_VELXY", 3.0)]);
+        assert!(position_measured(Some(&good), &on_gps, Some(6), Some(false)));
+        // SYS_STATUS's bits: present and healthy, present and not, absent.
+        assert_eq!(vision_health(128 | 32, 128), Some(true));
+        assert_eq!(vision_health(128 | 32, 32), Some(false));
+        assert_eq!(vision_health(32, 32), None);
     }
 
     #[test]

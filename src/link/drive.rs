@@ -7,7 +7,8 @@
 use super::autopilot_estimate::EkfStatus;
 use super::command::{Command, CommandWay, Commander};
 use super::link::{
-    Autopilot, EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID, LinkError, Received, SubMode, VehicleLink, is_ground_station,
+    Autopilot, EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID, LinkError, Received, SYS_STATUS_ID, SubMode, VehicleLink,
+    is_ground_station,
 };
 use super::outputs::{OutputFunctions, function_params};
 use super::params::{Params, read_params};
@@ -87,6 +88,8 @@ pub struct Drive {
     mode: u32,
     /// The newest `GPS_RAW_INT` fix type.
     gps_fix: Option<u8>,
+    /// The newest `SYS_STATUS`'s health of a DVL (visual odometry), where one is present.
+    vision_healthy: Option<bool>,
     watch: SensorWatch,
     /// Silence (s) of depth or heading, and how long (s) a live depth reading may stay the same.
     sensor_silence: f64,
@@ -109,7 +112,11 @@ const PARAM_TIMEOUT: Duration = Duration::from_secs(3);
 /// The rate `EKF_STATUS_REPORT` and `GPS_RAW_INT` are asked for.
 pub const AUTOPILOT_ESTIMATE_RATE_HZ: f64 = 2.0;
 /// The parameters every session reads besides the outputs' functions.
-const SESSION_PARAMS: [&str; 4] = ["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC", "EK3_SRC1_POSXY"];
+const SESSION_PARAMS: [&str; 5] =
+    ["JS_GAIN_DEFAULT", "COMPASS_DEC", "COMPASS_AUTODEC", "EK3_SRC1_POSXY", "EK3_SRC1_VELXY"];
+/// The rate `SYS_STATUS` is asked for: a DVL's health flag clears 0.3 s after its last
+/// message (ArduPilot's visual odometry), and the goal should drop within a second of it.
+pub const SYS_STATUS_RATE_HZ: f64 = 5.0;
 
 /// Reads what a session needs of the autopilot's configuration: its outputs' functions, pilot
 /// gain, declination parameters and horizontal position source (a name it does not answer
@@ -241,6 +248,7 @@ impl Drive {
             ekf_status: None,
             mode,
             gps_fix: None,
+            vision_healthy: None,
             watch: SensorWatch::default(),
             sensor_silence: settings.sensor_silence,
             frozen_depth: settings.frozen_depth,
@@ -276,8 +284,12 @@ impl Drive {
                 Err(e) => return Err(d.refuse(Trigger::Refused(format!("the autopilot's JS_GAIN_DEFAULT: {e}")))),
             }
         }
-        for id in [EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID] {
-            if let Err(e) = d.link.set_message_rate(id, AUTOPILOT_ESTIMATE_RATE_HZ) {
+        for (id, hz) in [
+            (EKF_STATUS_REPORT_ID, AUTOPILOT_ESTIMATE_RATE_HZ),
+            (GPS_RAW_INT_ID, AUTOPILOT_ESTIMATE_RATE_HZ),
+            (SYS_STATUS_ID, SYS_STATUS_RATE_HZ),
+        ] {
+            if let Err(e) = d.link.set_message_rate(id, hz) {
                 return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
             }
         }
@@ -394,7 +406,12 @@ impl Drive {
     /// Whether the autopilot's position is a measurement now (not dead-reckoned or held):
     /// [`super::autopilot_estimate::position_measured`].
     pub fn position_measured(&self) -> bool {
-        super::autopilot_estimate::position_measured(self.ekf_status.as_ref(), &self.params, self.gps_fix)
+        super::autopilot_estimate::position_measured(
+            self.ekf_status.as_ref(),
+            &self.params,
+            self.gps_fix,
+            self.vision_healthy,
+        )
     }
 
     /// The flight mode of the autopilot's newest heartbeat (ArduSub's `custom_mode`).
@@ -469,6 +486,12 @@ impl Drive {
                 match &r.message {
                     MavMessage::EKF_STATUS_REPORT(e) => self.ekf_status = Some(EkfStatus::new(t, e)),
                     MavMessage::GPS_RAW_INT(g) => self.gps_fix = Some(g.fix_type as u8),
+                    MavMessage::SYS_STATUS(s) => {
+                        self.vision_healthy = super::autopilot_estimate::vision_health(
+                            s.onboard_control_sensors_present.bits(),
+                            s.onboard_control_sensors_health.bits(),
+                        )
+                    }
                     MavMessage::STATUSTEXT(s) => {
                         let text = statustext(s);
                         if text.starts_with("PreArm") || text.starts_with("Arm") {

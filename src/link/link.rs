@@ -536,6 +536,9 @@ pub const EKF_STATUS_REPORT_ID: u32 = 193;
 /// Id of `GPS_RAW_INT`: its fix says when a GPS position source is lost.
 pub const GPS_RAW_INT_ID: u32 = 24;
 
+/// Id of `SYS_STATUS`: its sensor health says when a DVL (visual odometry) stops.
+pub const SYS_STATUS_ID: u32 = 1;
+
 /// The heartbeat of a ground station.
 fn gcs_heartbeat() -> HEARTBEAT_DATA {
     HEARTBEAT_DATA {

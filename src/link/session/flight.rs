@@ -165,9 +165,17 @@ impl<'l> Flight<'l> {
                 return Err(Trigger::Distance { distance, limit });
             }
         }
-        let dropped = !now.horizontal;
+        // An autopilot that says its source is lost (a GPS without its fix, a DVL unhealthy)
+        // drops the goal at once; a silence drops it after a second without a fused position.
+        let source_lost = self.position_measured_before == Some(false);
+        let dropped = !now.horizontal || source_lost;
         if dropped != self.goal_dropped {
-            let text = if dropped {
+            let text = if dropped && source_lost {
+                format!(
+                    "horizontal goal dropped at {t:.2} s: the autopilot's position source is lost; holding depth and \
+                     heading"
+                )
+            } else if dropped {
                 format!(
                     "horizontal goal dropped at {t:.2} s: no position fused for {} s; holding depth and heading",
                     crate::estimation::HORIZONTAL_FRESH_S
