@@ -295,19 +295,20 @@ impl Problem<'_> {
 }
 
 /// Back-to-back stretches of [`HORIZON`] periods of `sets` (network-form states: the
-/// velocities are components 5..9; [`TrajectorySet::start`], the recorded states unless the
-/// set carries estimated ones); stretches do not overlap, so their residuals are independent.
+/// velocities are components 5..9), each from its [`TrajectorySet::start`] (the recorded
+/// state unless the set carries estimated ones) to the state `HORIZON` periods on; stretches
+/// do not overlap, so their residuals are independent.
 fn intervals(sets: &[&TrajectorySet]) -> Vec<Interval> {
     let v = |x: &crate::State| Velocities::new(x[5], x[6], x[7], x[8]);
     let mut out = Vec::new();
     for set in sets {
         for i in 0..set.count {
-            let (_, inputs) = set.trajectory(i);
+            let (states, inputs) = set.trajectory(i);
             for k in (0..inputs.len() / HORIZON).map(|c| c * HORIZON) {
                 let inputs = std::array::from_fn(|j| inputs[k + j]);
-                // Both ends from the set's starts where it has them (the estimator's states):
-                // the velocity change on one footing.
-                let (v0, v1) = (v(&set.start(i, k)), v(&set.start(i, k + HORIZON)));
+                // From where a prediction starts (the estimator's state where the set has
+                // one) to the state it is scored against, as training does.
+                let (v0, v1) = (v(&set.start(i, k)), v(&states[k + HORIZON]));
                 out.push(Interval { v0, inputs, v1, dt: set.dt });
             }
         }

@@ -93,7 +93,31 @@ pub fn with_estimated_starts<M: DiscreteModel + Clone>(
     set: &TrajectorySet,
     settings: &StartSettings,
 ) -> Result<EstimatedStarts, RuntimeError> {
-    let points = estimate_point_starts(model, set, settings)?;
+    with_estimated_starts_and_targets(model, set, settings, Targets::Recorded)
+}
+
+/// What a training set's states (its targets) are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Targets {
+    /// As recorded.
+    Recorded,
+    /// The body velocities and yaw rate (`u v w r`) replaced by the run's smoothed estimate
+    /// ([`smoothed_points`]), the positions, depth and heading as recorded: velocities that
+    /// agree with the recorded motion.
+    Smoothed,
+}
+
+/// [`with_estimated_starts`], the estimated set's targets as `targets` asks.
+///
+/// # Errors
+/// The model failed on the estimate (non-finite values).
+pub fn with_estimated_starts_and_targets<M: DiscreteModel + Clone>(
+    model: &M,
+    set: &TrajectorySet,
+    settings: &StartSettings,
+    targets: Targets,
+) -> Result<EstimatedStarts, RuntimeError> {
+    let (points, smoothed) = run_filters(model, set, settings, targets == Targets::Smoothed)?;
     // A window's first point has the least history: where it has an estimate, all do.
     let keep: Vec<usize> = (0..set.count).filter(|&i| points[i * set.points].is_some()).collect();
     let recorded = subset(set, &keep);
@@ -103,6 +127,18 @@ pub fn with_estimated_starts<M: DiscreteModel + Clone>(
         .flat_map(|&i| &points[i * set.points..(i + 1) * set.points])
         .map(|s| s.expect("every point after a window's first has more history"))
         .collect();
+    if targets == Targets::Smoothed {
+        let smoothed: Vec<State> = keep
+            .iter()
+            .flat_map(|&i| &smoothed[i * set.points..(i + 1) * set.points])
+            .map(|s| s.expect("a point with a filtered estimate has a smoothed one"))
+            .collect();
+        for (x, s) in estimated.states.iter_mut().zip(&smoothed) {
+            for c in 5..crate::types::NX {
+                x[c] = s[c];
+            }
+        }
+    }
     Ok(EstimatedStarts { recorded, estimated, without_history: set.count - keep.len() })
 }
 
@@ -179,15 +215,50 @@ pub fn estimate_point_starts<M: DiscreteModel + Clone>(
     set: &TrajectorySet,
     settings: &StartSettings,
 ) -> Result<Vec<Option<State>>, RuntimeError> {
+    Ok(run_filters(model, set, settings, false)?.0)
+}
+
+/// The same filters' estimates smoothed backward over each run (its every sample fused, the
+/// later ones included): the velocities that agree with the positions around a point, for a
+/// target rather than a start. Indexed as `set.states`; `None` where
+/// [`estimate_point_starts`] has none.
+///
+/// # Errors
+/// The model failed on the estimate (non-finite values).
+pub fn smoothed_points<M: DiscreteModel + Clone>(
+    model: &M,
+    set: &TrajectorySet,
+    settings: &StartSettings,
+) -> Result<Vec<Option<State>>, RuntimeError> {
+    Ok(run_filters(model, set, settings, true)?.1)
+}
+
+/// One filter per run: each point's prediction before its own measurements, and with
+/// `smooth` the run's smoothed estimate there.
+#[allow(clippy::type_complexity)] // two per-point lists
+fn run_filters<M: DiscreteModel + Clone>(
+    model: &M,
+    set: &TrajectorySet,
+    settings: &StartSettings,
+    smooth: bool,
+) -> Result<(Vec<Option<State>>, Vec<Option<State>>), RuntimeError> {
     let dt = set.dt;
     let needed = (settings.history_s / dt - 1e-9).ceil().max(1.0) as usize;
     let mut out = vec![None; set.states.len()];
+    let mut smoothed = vec![None; if smooth { set.states.len() } else { 0 }];
     let mut filter: Option<Estimator<M>> = None;
+    // The current run's points with their sample index in the run (its time over dt).
+    let mut run_points: Vec<(usize, usize)> = Vec::new();
     // Samples fused in the current run; the run's time is `fused dt`.
     let mut fused = 0usize;
     for i in 0..set.count {
         if !continues(set, i) {
-            filter = Some(Estimator::new(model.clone(), settings.noise.clone()));
+            if let Some(f) = filter.take() {
+                smooth_run(&f, &run_points, dt, &out, &mut smoothed);
+            }
+            let fresh = Estimator::new(model.clone(), settings.noise.clone());
+            filter = Some(if smooth { fresh.keep_history() } else { fresh });
+            run_points.clear();
             fused = 0;
         }
         let f = filter.as_mut().expect("the first window starts a run");
@@ -200,6 +271,7 @@ pub fn estimate_point_starts<M: DiscreteModel + Clone>(
             if fused >= needed {
                 out[i * set.points + k] = before.map(|e| to_network(&e.sim));
             }
+            run_points.push((i * set.points + k, fused));
             if k + 1 == xs.len() {
                 break;
             }
@@ -215,7 +287,37 @@ pub fn estimate_point_starts<M: DiscreteModel + Clone>(
             fused += 1;
         }
     }
-    Ok(out)
+    if let Some(f) = filter.take() {
+        smooth_run(&f, &run_points, dt, &out, &mut smoothed);
+    }
+    Ok((out, smoothed))
+}
+
+/// The smoothed estimate at each of a run's points that has a filtered one (none where the
+/// filter kept no history).
+fn smooth_run<M: DiscreteModel>(
+    f: &Estimator<M>,
+    points: &[(usize, usize)],
+    dt: f64,
+    filtered: &[Option<State>],
+    out: &mut [Option<State>],
+) {
+    if out.is_empty() {
+        return;
+    }
+    // The filter starts at the run's first sample and steps once per sample.
+    let mut by_sample = vec![None; points.last().map_or(0, |p| p.1 + 1)];
+    for s in f.smoothed() {
+        let k = (s.t / dt).round() as usize;
+        if let Some(slot) = by_sample.get_mut(k) {
+            *slot = Some(to_network(&crate::types::SimState::from_fn(|c, _| s.state[c])));
+        }
+    }
+    for &(at, sample) in points {
+        if filtered[at].is_some() {
+            out[at] = by_sample[sample];
+        }
+    }
 }
 
 /// Why a dataset's windows cannot start from estimates.
@@ -278,6 +380,7 @@ pub fn estimated_set(
     set: &TrajectorySet,
     vehicle: &crate::vehicle::VehicleParams,
     history_s: f64,
+    targets: Targets,
 ) -> Result<(EstimatedStarts, StartSettings), StartError> {
     if !(history_s.is_finite() && history_s > 0.0) {
         return Err(StartError::BadHistory(history_s));
@@ -285,7 +388,7 @@ pub fn estimated_set(
     check_positions(data, &set.name)?;
     let settings = StartSettings::from_set(set, history_s);
     let model = crate::vehicle::Rk4Vehicle { params: *vehicle, ..crate::vehicle::Rk4Vehicle::with_dt(set.dt) };
-    let starts = with_estimated_starts(&model, set, &settings)?;
+    let starts = with_estimated_starts_and_targets(&model, set, &settings, targets)?;
     if starts.without_history == set.count {
         return Err(StartError::NoHistory { windows: set.count, history_s });
     }

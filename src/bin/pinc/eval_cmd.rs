@@ -172,8 +172,10 @@ fn start_sets(
     if a.start == StartFrom::Recorded {
         return Ok(vec![("recorded", test.clone())]);
     }
-    let (starts, settings) = pinc::estimation::window_starts::estimated_set(data, test, &estimator, a.start_history)
-        .map_err(|e| e.to_string())?;
+    let recorded = pinc::estimation::window_starts::Targets::Recorded;
+    let (starts, settings) =
+        pinc::estimation::window_starts::estimated_set(data, test, &estimator, a.start_history, recorded)
+            .map_err(|e| e.to_string())?;
     eprintln!("{}", settings.describe(&starts));
     Ok(match a.start {
         StartFrom::Estimated => vec![("estimated", starts.estimated)],

@@ -30,6 +30,11 @@ pub struct IdentifyArgs {
     /// With --start estimated: seconds of samples the estimator runs over before a point.
     #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S)]
     pub start_history: f64,
+    /// The velocities at each interval's end. `smoothed` (the default with --start
+    /// estimated): the estimator's smoothed over the run, which agree with the recorded motion
+    /// (the start stays the filter's, what a controller has); `recorded`: as recorded.
+    #[arg(long, value_enum)]
+    pub targets: Option<crate::Targets>,
 }
 
 /// Passes of estimate-then-identify at most, and the relative change of every coefficient
@@ -51,9 +56,14 @@ fn identify_on_estimates(
         let mut trains = Vec::new();
         for (data, dir) in folders.iter().zip(&a.data) {
             let train = data.set("train").expect("checked by the caller");
-            let (starts, settings) =
-                pinc::estimation::window_starts::estimated_set(data, train, &vehicle, a.start_history)
-                    .map_err(|e| format!("{}: {e}", dir.display()))?;
+            let (starts, settings) = pinc::estimation::window_starts::estimated_set(
+                data,
+                train,
+                &vehicle,
+                a.start_history,
+                crate::targets_for(a.start, a.targets).into(),
+            )
+            .map_err(|e| format!("{}: {e}", dir.display()))?;
             if !a.json && pass == 1 {
                 eprintln!("{}", settings.describe(&starts));
             }
@@ -96,6 +106,9 @@ pub fn run_identify(a: IdentifyArgs) -> Result<(), String> {
     let shown = shown.join(", ");
     let recorded: Vec<&pinc::dataset::TrajectorySet> = folders.iter().filter_map(|d| d.set("train")).collect();
     let id = match a.start {
+        crate::Start::Recorded if a.targets == Some(crate::Targets::Smoothed) => {
+            return Err("--targets smoothed needs --start estimated (the targets come from the same filter)".into());
+        }
         crate::Start::Recorded => identify(&recorded, &base).map_err(|e| format!("{shown}: {e}"))?,
         crate::Start::Estimated => identify_on_estimates(&a, &folders, &base).map_err(|e| format!("{shown}: {e}"))?,
     };

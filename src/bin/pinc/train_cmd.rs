@@ -41,6 +41,12 @@ pub struct TrainArgs {
     /// With --start estimated: seconds of samples the estimator runs over before a point.
     #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S, requires = "data")]
     pub start_history: f64,
+    /// The train split's targets. `smoothed` (the default with --start estimated): its u, v,
+    /// w, r the estimator's, smoothed over each run (velocities that agree with the recorded
+    /// motion, where a recording's own disagree); `recorded`: as recorded. Dev selection and
+    /// the test figures stay on the recorded targets.
+    #[arg(long, value_enum)]
+    pub targets: Option<crate::Targets>,
     /// Vehicle file: the physics losses use it (the model records it), a preset's data are
     /// simulated with it unless --plant says otherwise, and a --hybrid corrects it
     /// [default: the BlueROV2].
@@ -304,7 +310,7 @@ pub fn run_train(a: TrainArgs) -> Result<(), String> {
         Some(data) => FinalMetrics::Test(
             data.set("test")
                 .filter(|s| s.count > 0)
-                .map(|t| start_set(&a, data, t, &cfg.vehicle))
+                .map(|t| start_set(&a, data, t, &cfg.vehicle, crate::Targets::Recorded))
                 .transpose()?
                 .map(|t| pinc::eval::evaluate_set(&outcome.model, &t, &outcome.model.vehicle))
                 .transpose()
@@ -464,12 +470,17 @@ fn start_set(
     data: &pinc::dataset::Dataset,
     set: &TrajectorySet,
     vehicle: &pinc::vehicle::VehicleParams,
+    targets: crate::Targets,
 ) -> Result<TrajectorySet, String> {
     if a.start == crate::Start::Recorded {
+        if targets == crate::Targets::Smoothed {
+            return Err("--targets smoothed needs --start estimated (the targets come from the same filter)".into());
+        }
         return Ok(set.clone());
     }
-    let (starts, settings) = pinc::estimation::window_starts::estimated_set(data, set, vehicle, a.start_history)
-        .map_err(|e| e.to_string())?;
+    let (starts, settings) =
+        pinc::estimation::window_starts::estimated_set(data, set, vehicle, a.start_history, targets.into())
+            .map_err(|e| e.to_string())?;
     if !a.json {
         eprintln!("{}", settings.describe(&starts));
     }
@@ -490,7 +501,8 @@ fn folder_sets(
             .filter(|s| s.count > 0)
             .ok_or_else(|| format!("{dir}: the {name} split is empty (training fits on train and selects on dev)"))?;
         // The estimates before the cut: a window's history is the windows before it.
-        let mut s = start_set(a, data, whole, vehicle)?;
+        let targets = if name == "train" { crate::targets_for(a.start, a.targets) } else { crate::Targets::Recorded };
+        let mut s = start_set(a, data, whole, vehicle, targets)?;
         if let Some(c) = count.filter(|&c| c < s.count) {
             let n = s.points - 1;
             if !s.starts.is_empty() {
