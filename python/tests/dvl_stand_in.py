@@ -37,6 +37,7 @@ import subprocess
 import sys
 import time
 
+from ground_station import connect
 from pymavlink import mavutil
 
 SIM_STATE = 108
@@ -83,15 +84,7 @@ def main() -> int:
         record.write(json.dumps(fields) + "\n")
         record.flush()
 
-    m = None
-    for _ in range(150):  # the simulator starts when the client connects to 5760
-        try:
-            m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{a.port}", source_system=254, retries=0)
-            break
-        except OSError:
-            time.sleep(0.2)
-            if proc.poll() is not None:
-                break
+    m = connect(a.port, proc)
     boot = None  # (autopilot time of the newest ATTITUDE, host time it came)
     asked_streams = asked_origin = 0.0
     truth_flowing = False

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+from ground_station import connect
 from pymavlink import mavutil
 
 
@@ -28,15 +29,7 @@ def main() -> int:
     proc = subprocess.Popen(client)
     faults = sorted((float(s), n, float(v)) for s, n, v in a.at)
     log = open(a.log, "w")
-    m = None
-    for _ in range(150):  # the simulator starts when the client connects to 5760
-        try:
-            m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{a.port}", source_system=254, retries=0)
-            break
-        except OSError:
-            time.sleep(0.2)
-            if proc.poll() is not None:
-                break
+    m = connect(a.port, proc)
     armed_at = None
     boot_s = None
     while proc.poll() is None and m is not None:

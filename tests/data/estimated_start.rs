@@ -76,17 +76,7 @@ fn recorded_run(seed: u64) -> (Vec<SimState>, Recording) {
 }
 
 fn options() -> ImportOptions {
-    ImportOptions {
-        format: "csv".into(),
-        dt: DT,
-        window: WINDOW,
-        split: [0.0, 0.0, 1.0],
-        seed: 1,
-        collocation_points: 1,
-        topics: None,
-        gap_tolerance: None,
-        dt_from_log: false,
-    }
+    crate::resample::options(DT, WINDOW, [0.0, 0.0, 1.0])
 }
 
 #[test]

@@ -40,7 +40,7 @@ fn write_csv(path: &Path, t: &[f64], states: &[SimState], inputs: &[Input]) {
     }
 }
 
-fn options(dt: f64, window: usize, split: [f64; 3]) -> ImportOptions {
+pub(crate) fn options(dt: f64, window: usize, split: [f64; 3]) -> ImportOptions {
     ImportOptions {
         format: "streams".into(),
         dt,

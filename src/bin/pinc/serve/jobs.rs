@@ -280,6 +280,10 @@ impl Handle {
         self.say(format!("$ {}", step.shown()));
         let mut child = spawn(step).map_err(|e| format!("cannot start {}: {e}", step.program.display()))?;
         self.update(|j| j.child = Some(child.id()));
+        // A STOP that came while the child was starting found none to interrupt.
+        if self.interrupt.load(Ordering::Relaxed) {
+            signal(child.id(), libc::SIGINT);
+        }
         let stderr = child.stderr.take().expect("piped");
         let stdout = child.stdout.take().expect("piped");
         let errors = {
@@ -395,10 +399,18 @@ mod tests {
     fn stop_interrupts_the_child_and_kills_one_that_ignores_it() {
         let jobs = Jobs::default();
         // Traps SIGINT (says so and goes on): only the kill after 5 s ends it.
-        let script = "trap 'echo interrupted >&2' INT; for i in $(seq 100); do sleep 0.1; done";
+        let script = "trap 'echo interrupted >&2' INT; echo trapped >&2; for i in $(seq 100); do sleep 0.1; done";
         let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()] };
         jobs.start(Kind::Excite, "stubborn".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
-        std::thread::sleep(Duration::from_millis(300));
+        // STOP once the trap is set (a loaded machine may take longer than any fixed wait).
+        let said = |what: &str| jobs.to_json(0)["lines"].as_array().is_some_and(|l| l.iter().any(|l| l == what));
+        for _ in 0..400 {
+            if said("trapped") {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(25));
+        }
+        assert!(said("trapped"), "{}", jobs.to_json(0));
         let asked = Instant::now();
         assert!(jobs.stop());
         let j = wait_for_end(&jobs);
