@@ -347,10 +347,19 @@ fn spawn(step: &Step) -> std::io::Result<Child> {
     #[cfg(target_os = "linux")]
     {
         use std::os::unix::process::CommandExt;
-        // SAFETY: between fork and exec only prctl(2), which is async-signal-safe, runs.
+        // SAFETY: between fork and exec only prctl(2) and sigaction(2), which are
+        // async-signal-safe, run; the struct is plain data, zeroed on the stack.
         unsafe {
             command.pre_exec(|| {
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // SIGINT back to its default: a server started in the background by a shell
+                // without job control ignores it, its children would inherit that, and a
+                // shell script cannot trap a signal ignored on entry (STOP's interrupt lost).
+                let mut default: libc::sigaction = std::mem::zeroed();
+                default.sa_sigaction = libc::SIG_DFL;
+                if libc::sigaction(libc::SIGINT, &default, std::ptr::null_mut()) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
