@@ -25,8 +25,8 @@ describes ArduSub's simulator and its logs):
 - PARAM_REQUEST_READ by name, answered by PARAM_VALUE for the parameters pinc reads:
   SERVO1..8_FUNCTION (``--outputs motors``, the default: 33-38, the autopilot's own motors as
   on a stock BlueROV2; ``passthrough``: 51-56, RCIN1-6), JS_GAIN_DEFAULT, COMPASS_DEC (0),
-  COMPASS_AUTODEC (1) and EK3_SRC1_POSXY (3, GPS); other names get no answer, as ArduPilot
-  gives none;
+  COMPASS_AUTODEC (1), EK3_SRC1_POSXY and EK3_SRC1_VELXY (3, GPS); other names, and those
+  given to ``--unanswered``, get no answer, as ArduPilot gives none;
 - EKF_STATUS_REPORT at its requested interval: attitude, velocity and vertical position good,
   and the horizontal position (absolute and relative) while LOCAL_POSITION_NED is sent;
 - the thruster model of ArduSub's simulator: s = (PWM - 1500) / 400, zero within +-25 us of
@@ -273,8 +273,10 @@ class FakeArduSub:
             if 1 <= n <= 6:
                 return float((50 if self.args.outputs == "passthrough" else 32) + n)
             return 0.0
+        if name in self.args.unanswered:
+            return None
         return {"JS_GAIN_DEFAULT": self.args.gain, "COMPASS_DEC": 0.0, "COMPASS_AUTODEC": 1.0,
-                "EK3_SRC1_POSXY": 3.0}.get(name)
+                "EK3_SRC1_POSXY": 3.0, "EK3_SRC1_VELXY": 3.0}.get(name)
 
     # ---- incoming -------------------------------------------------------------------------
     def ack(self, command: int, result: int = mav.MAV_RESULT_ACCEPTED):
@@ -499,6 +501,7 @@ def main(argv=None):
                    help="seconds after arming before LOCAL_POSITION_NED (inf: never, as without a DVL)")
     p.add_argument("--default-rate", type=float, default=4.0, help="stream rate before SET_MESSAGE_INTERVAL (Hz)")
     p.add_argument("--gain", type=float, default=1.0, help="JS_GAIN_DEFAULT")
+    p.add_argument("--unanswered", nargs="*", default=[], help="parameters left unanswered (a firmware without them)")
     p.add_argument("--outputs", choices=["motors", "passthrough"], default="motors",
                    help="SERVO1..6_FUNCTION: the autopilot's motors (33-38) or RC pass-through (51-56)")
     p.add_argument("--gcs-timeout", type=float, default=5.0, help="GCS heartbeat failsafe (s, 0: off)")

@@ -104,6 +104,17 @@ def test_each_fault_stops_with_the_neutral_command_within_one_sample(fake_factor
     assert any(c["kind"] == "DISARM" and c["t"] >= neutral["t"] for c in cmds)
 
 
+def test_an_unanswered_parameter_costs_its_wait_and_no_safety_stop(fake_factory, tmp_path):
+    # A firmware without one of the parameters pinc reads (here EK3_SRC1_VELXY) leaves it
+    # unanswered: pinc waits its 3 s for it, the autopilot's heartbeats meanwhile keep the
+    # watchdog (2.5 s) fed, and the run plays as on any other.
+    fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--unanswered", "EK3_SRC1_VELXY")
+    r, _ = excite(fake, tmp_path, excitation(tmp_path, 6))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "heartbeat" not in r.stderr, r.stderr
+    assert re.search(r"excitation finished: 75 of 75 inputs played", r.stdout), r.stdout
+
+
 def test_dropped_and_reordered_packets_do_not_stop_a_run(fake_factory, tmp_path):
     log = tmp_path / "commands.jsonl"
     fake = fake_factory("--position-delay", "0", "--hold-until-armed", "--commands", str(log),

@@ -263,6 +263,15 @@ impl Drive {
         for r in &early {
             if d.autopilot.sent(r) {
                 d.read(r);
+                // Its heartbeats while it answered (or left unanswered, 3 s) the parameters.
+                if let MavMessage::HEARTBEAT(h) = &r.message
+                    && !is_ground_station(h)
+                {
+                    d.mode = h.custom_mode;
+                    if let Some(trigger) = d.safety.heartbeat(r.at, Autopilot::armed(h)) {
+                        return Err(d.stop_with_trigger(trigger));
+                    }
+                }
             }
             let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(r, t);
