@@ -63,7 +63,8 @@ impl StartSettings {
         // The model under judgement is not trusted to carry the velocities between samples:
         // 2-5 times the live session's process noise on u v w and r, so that the positions
         // set them (on the tank recordings the identified physics' mean VPT from these starts
-        // was 0.58 s at the live session's noise, 0.61 s here, 0.62 s at twice this).
+        // is 0.61 s; with a fresh filter per window it was 0.58 s at the live session's noise
+        // and 0.62 s at twice this).
         for k in 4..8 {
             settings.process_std[k] = VELOCITY_PROCESS_STD[k - 4];
         }
