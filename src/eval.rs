@@ -11,6 +11,10 @@
 //! - VPT: the time of the first sample whose position error exceeds 0.05 m in a full rollout
 //!   from the first point (`N T` if none does), averaged over the set.
 
+mod recorded;
+
+pub use recorded::{Evaluated, RecordedEvalError, RecordedEvaluation, Row, StartFrom, evaluate_recorded};
+
 use crate::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use crate::model::PincModel;
 use crate::runtime::{BatchWorkspace, Predictor, RuntimeError};

@@ -7,8 +7,8 @@
 //!
 //! The embeddable core (`vehicle`, `model`, `runtime`) builds with
 //! `--no-default-features`; `cli` adds vehicle files and plots, `mpc` (the default) the
-//! Clarabel MPC, the closed loop and its MCAP logs, `tools` dataset generation, log import,
-//! evaluation and the `pinc` command line, `train` the burn trainer.
+//! Clarabel MPC, the closed loop and its MCAP logs, `data` dataset generation,
+//! storage and evaluation, `tools` log import and the `pinc` command line, `train` the burn trainer.
 
 #[cfg(feature = "mpc")]
 pub mod closed_loop;
@@ -27,9 +27,9 @@ pub mod vehicle;
 
 #[cfg(feature = "cli")]
 pub mod broken_pipe;
-#[cfg(feature = "tools")]
+#[cfg(feature = "data")]
 pub mod dataset;
-#[cfg(feature = "tools")]
+#[cfg(feature = "data")]
 pub mod eval;
 #[cfg(feature = "tools")]
 pub mod identify;

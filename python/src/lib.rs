@@ -305,10 +305,71 @@ fn params(overrides: &Bound<'_, PyDict>) -> PyResult<VehicleParams> {
     Ok(params)
 }
 
+/// The figures of each model (`.pinc` paths) and of `vehicle`'s analytic model (a vehicle
+/// file) on the set `set` of the dataset folder `data` (`pinc dataset import`), from the starts
+/// `start` asks for: `"recorded"`, `"estimated"` (pinc's estimator run over `start_history`
+/// seconds of samples before each window, never the window itself) or `"both"`. One dict per
+/// row, as `pinc eval --data --json` prints them (a model's `physics_mse` is NaN where the
+/// JSON has null); the estimator's assumptions are in the `estimator` key of every row.
+#[pyfunction]
+#[pyo3(signature = (data, models = Vec::new(), vehicle = None, set = "test", start = "recorded",
+    start_history = pinc::estimation::window_starts::DEFAULT_HISTORY_S))]
+fn evaluate<'py>(
+    py: Python<'py>,
+    data: std::path::PathBuf,
+    models: Vec<std::path::PathBuf>,
+    vehicle: Option<std::path::PathBuf>,
+    set: &str,
+    start: &str,
+    start_history: f64,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let start: pinc::eval::StartFrom = start.parse().map_err(|e| PyValueError::new_err(format!("start: {e}")))?;
+    let dataset = pinc::dataset::load(&data).map_err(|e| PincError::new_err(e.to_string()))?;
+    let loaded = models
+        .iter()
+        .map(|p| PincModel::load(p).map_err(|e| PincError::new_err(format!("{}: {e}", p.display()))))
+        .collect::<PyResult<Vec<_>>>()?;
+    let params = vehicle
+        .as_ref()
+        .map(|p| VehicleParams::load(p).map_err(|e| PincError::new_err(e.to_string())))
+        .transpose()?;
+    let refs: Vec<&PincModel> = loaded.iter().collect();
+    let evaluation = py
+        .detach(|| pinc::eval::evaluate_recorded(&dataset, set, &refs, params.as_ref(), start, start_history))
+        .map_err(|e| match e {
+            pinc::eval::RecordedEvalError::Model { index, source } => {
+                PincError::new_err(format!("{} on {}: {source}", models[index].display(), data.display()))
+            }
+            other => PincError::new_err(format!("{}: {other}", data.display())),
+        })?;
+    let mut rows = Vec::new();
+    for r in &evaluation.rows {
+        let d = PyDict::new(py);
+        match r.evaluated {
+            pinc::eval::Evaluated::Model(i) => d.set_item("model", &models[i])?,
+            pinc::eval::Evaluated::Vehicle => d.set_item("vehicle", &vehicle)?,
+        }
+        let m = &r.metrics;
+        d.set_item("start", r.start)?;
+        d.set_item("one_step_mse", m.one_step_mse)?;
+        d.set_item("rollout10_mse", m.rollout10_mse)?;
+        d.set_item("physics_mse", m.physics_mse)?;
+        d.set_item("vpt_s", m.vpt_s)?;
+        d.set_item("vpt_median_s", m.vpt_median_s)?;
+        d.set_item("windows", m.windows)?;
+        d.set_item("data", &data)?;
+        d.set_item("vpt_threshold_m", pinc::eval::VPT_THRESHOLD_M)?;
+        d.set_item("estimator", &evaluation.estimator)?;
+        rows.push(d);
+    }
+    Ok(rows)
+}
+
 #[pymodule]
 fn _pinc(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Predictor>()?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate, m)?)?;
     m.add_class::<ClosedLoop>()?;
     m.add_function(wrap_pyfunction!(monte_carlo_report, m)?)?;
     m.add("PincError", m.py().get_type::<PincError>())?;

@@ -15,6 +15,7 @@ pub(super) fn set_rng(seed: u64, name: &str) -> ChaCha8Rng {
 
 /// Collocation times for `intervals` recorded intervals of the set `name`, `m` per interval,
 /// from the set's own stream of `seed` (as generation draws them, but without trajectories).
+#[cfg(feature = "tools")]
 pub(super) fn collocation_times(seed: u64, name: &str, intervals: usize, m: usize, dt: f64) -> Vec<f64> {
     let mut rng = set_rng(seed, name);
     let mut out = Vec::with_capacity(intervals * m);

@@ -6,6 +6,7 @@ pub mod design;
 mod error;
 mod excitation;
 mod generate;
+#[cfg(feature = "tools")]
 pub mod import;
 mod preset;
 mod source;

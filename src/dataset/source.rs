@@ -106,7 +106,7 @@ pub struct ImportOptions {
     /// stream, three of its median periods and at least `2 dt`.
     #[serde(default)]
     pub gap_tolerance: Option<f64>,
-    /// True when `dt` was chosen from the logs ([`log_dt`](super::import::log_dt)) rather than given.
+    /// True when `dt` was chosen from the logs (`dataset::import::log_dt`) rather than given.
     #[serde(default)]
     pub dt_from_log: bool,
 }

@@ -20,7 +20,7 @@ pub mod measurement;
 #[cfg(feature = "tools")]
 pub mod replay;
 pub mod smoother;
-#[cfg(feature = "tools")]
+#[cfg(feature = "data")]
 pub mod window_starts;
 
 pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};

@@ -257,10 +257,11 @@ pub fn held_out(
     let (mut sp, mut sh, mut sr, mut n) = ([0.0; 6], [0.0; 6], [0.0; 6], 0usize);
     for i in 0..test.count {
         let (states, inputs) = test.trajectory(i);
-        n += add_errors(&mut sp, &rollout(&physics, &states[0], inputs), states);
-        add_errors(&mut sh, &rollout(&hybrid, &states[0], inputs), states);
+        let x0 = test.start(i, 0);
+        n += add_errors(&mut sp, &rollout(&physics, &x0, inputs), states);
+        add_errors(&mut sh, &rollout(&hybrid, &x0, inputs), states);
         if let Some(other) = &other {
-            add_errors(&mut sr, &rollout(other, &states[0], inputs), states);
+            add_errors(&mut sr, &rollout(other, &x0, inputs), states);
         }
     }
     let rms = |s: [f64; 6]| s.map(|v| (v / n.max(1) as f64).sqrt());
@@ -293,7 +294,8 @@ fn plot(path: &Path, model: &crate::model::PincModel, test: &TrajectorySet) -> R
     for i in 0..shown {
         let (states, inputs) = test.trajectory(i);
         let t0 = i as f64 * (test.points as f64) * test.dt;
-        let runs = [states.to_vec(), rollout(&physics, &states[0], inputs), rollout(&hybrid, &states[0], inputs)];
+        let x0 = test.start(i, 0);
+        let runs = [states.to_vec(), rollout(&physics, &x0, inputs), rollout(&hybrid, &x0, inputs)];
         for (q, line) in lines.iter_mut().enumerate() {
             for (k, run) in runs.iter().enumerate() {
                 line[k].extend(run.iter().enumerate().map(|(j, x)| (t0 + j as f64 * test.dt, quantity(x, q))));
@@ -350,6 +352,7 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
         "recordings": fit.recordings.iter().map(|(p, sha, span)| serde_json::json!({
             "path": p.display().to_string(), "sha256": sha, "estimated_s": span})).collect::<Vec<_>>(),
         "position_source": fit.identified.horizontal,
+        "start": fit.start.key(),
         "passes": fit.identified.passes,
         "heave_gains": fit.identified.heave_gains,
         "coefficients": fit.report.coefficients,
@@ -416,8 +419,9 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
         s.yaw_rate_std
     );
     md += &format!(
-        "\n## Held out ({} windows of {:.1} s, rolled out from each start against the estimate)\n\n| RMS error | {} |\n|---|{}\n",
+        "\n## Held out ({} windows of {:.1} s, rolled out from {} against the smoothed estimate)\n\n| RMS error | {} |\n|---|{}\n",
         held.windows,
+        fit.start.describe(),
         held.window_s,
         QUANTITIES.join(" | "),
         "---|".repeat(QUANTITIES.len())

@@ -3,7 +3,10 @@
 use crate::{PresetName, load_model, load_vehicle};
 use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{DatasetPreset, TrajectorySet};
-use pinc::eval::{EvalSets, Metrics, VPT_THRESHOLD_M, evaluate, full_rollouts, position_errors, vpt_of_rollouts};
+use pinc::eval::{
+    EvalSets, Evaluated, Metrics, StartFrom, VPT_THRESHOLD_M, evaluate, evaluate_recorded, full_rollouts,
+    position_errors, vpt_of_rollouts,
+};
 use pinc::plot::{Panel, Series, figure};
 use pinc::runtime::Predictor;
 use std::path::{Path, PathBuf};
@@ -60,17 +63,6 @@ pub struct EvalArgs {
     /// window (windows with fewer before them are left out, and counted).
     #[arg(long, default_value_t = pinc::estimation::window_starts::DEFAULT_HISTORY_S, requires = "data")]
     pub start_history: f64,
-}
-
-/// Where `pinc eval --data` starts each window's rollouts.
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum StartFrom {
-    /// The recorded first state.
-    Recorded,
-    /// The estimator's state after the samples before the window.
-    Estimated,
-    /// Both, and the recorded start on the estimated windows alone.
-    Both,
 }
 
 /// Generates the sets with a progress bar.
@@ -161,34 +153,8 @@ struct Row {
     metrics: pinc::eval::SetMetrics,
 }
 
-/// The sets a `--start` asks for, each with its label: the recorded starts of every window,
-/// the recorded starts of the windows that have an estimate, their estimated starts.
-fn start_sets(
-    a: &EvalArgs,
-    data: &pinc::dataset::Dataset,
-    test: &TrajectorySet,
-    estimator: pinc::vehicle::VehicleParams,
-) -> Result<Vec<(&'static str, TrajectorySet)>, String> {
-    if a.start == StartFrom::Recorded {
-        return Ok(vec![("recorded", test.clone())]);
-    }
-    let recorded = pinc::estimation::window_starts::Targets::Recorded;
-    let (starts, settings) =
-        pinc::estimation::window_starts::estimated_set(data, test, &estimator, a.start_history, recorded)
-            .map_err(|e| e.to_string())?;
-    eprintln!("{}", settings.describe(&starts));
-    Ok(match a.start {
-        StartFrom::Estimated => vec![("estimated", starts.estimated)],
-        _ => vec![
-            ("recorded", test.clone()),
-            ("recorded, estimated windows", starts.recorded),
-            ("estimated", starts.estimated),
-        ],
-    })
-}
-
-/// [`pinc::eval::SetMetrics`] of each model, and of the `--vehicle` file's analytic model, on
-/// the test split of a dataset folder.
+/// [`pinc::eval::evaluate_recorded`] of each model, and of the `--vehicle` file's analytic
+/// model, on a set of a dataset folder: a table, or `--json`.
 fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
     if a.model.is_empty() && a.vehicle.is_none() {
         return Err("--data needs a --model or a --vehicle to evaluate".into());
@@ -200,28 +166,33 @@ fn eval_on_data(a: &EvalArgs, dir: &Path) -> Result<(), String> {
     })?;
     let vehicle = a.vehicle.as_deref().map(|p| load_vehicle(Some(p))).transpose()?;
     let models = a.model.iter().map(|p| load_model(p).map(|m| (p, m))).collect::<Result<Vec<_>, _>>()?;
-    let estimator = vehicle.or_else(|| models.first().map(|(_, m)| m.vehicle)).unwrap_or_default();
-    let sets = start_sets(a, &data, test, estimator)?;
-    let mut rows = Vec::new();
     for (path, model) in &models {
         if (test.dt - model.dt).abs() > 1e-12 {
             eprintln!("warning: the data's sample period is {} s, {}'s {} s", test.dt, path.display(), model.dt);
         }
     }
-    for (start, set) in &sets {
-        for (path, model) in &models {
-            let physics = vehicle.unwrap_or(model.vehicle);
-            let m = pinc::eval::evaluate_set(model, set, &physics)
-                .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
-            rows.push(Row { kind: "model", path: (*path).clone(), start, metrics: m });
-        }
-        if let (Some(params), Some(path)) = (vehicle, &a.vehicle) {
-            let analytic = pinc::vehicle::Rk4Vehicle { params, ..pinc::vehicle::Rk4Vehicle::with_dt(test.dt) };
-            let m = pinc::eval::evaluate_set_discrete(&analytic, set)
-                .map_err(|e| format!("{} on {}: {e}", path.display(), dir.display()))?;
-            rows.push(Row { kind: "vehicle", path: path.clone(), start, metrics: m });
-        }
+    let refs: Vec<&pinc::model::PincModel> = models.iter().map(|(_, m)| m).collect();
+    let evaluation =
+        evaluate_recorded(&data, &a.set, &refs, vehicle.as_ref(), a.start, a.start_history).map_err(|e| match e {
+            pinc::eval::RecordedEvalError::Model { index, source } => {
+                format!("{} on {}: {source}", models[index].0.display(), dir.display())
+            }
+            other => format!("{}: {other}", dir.display()),
+        })?;
+    if let Some(line) = &evaluation.estimator {
+        eprintln!("{line}");
     }
+    let rows: Vec<Row> = evaluation
+        .rows
+        .iter()
+        .map(|r| {
+            let (kind, path) = match r.evaluated {
+                Evaluated::Model(i) => ("model", models[i].0.clone()),
+                Evaluated::Vehicle => ("vehicle", a.vehicle.clone().unwrap_or_default()),
+            };
+            Row { kind, path, start: r.start, metrics: r.metrics }
+        })
+        .collect();
     let first_model = models.first().map(|(p, m)| ((*p).clone(), m.clone()));
     let plot = first_model
         .as_ref()

@@ -51,6 +51,11 @@ pub struct FitArgs {
     /// file, an earlier fit), for comparison only: nothing of it enters the fit.
     #[arg(long, value_name = "FILE")]
     pub reference: Option<PathBuf>,
+    /// Where each prediction starts, for the identification, the training and the held-out
+    /// figures: `smoothed` (the smoothed estimate, the targets' own states) or `estimated`
+    /// (the filter's estimate as it was at that point: what a controller starts from).
+    #[arg(long, value_enum, default_value = "smoothed")]
+    pub start: pinc::fit::FitStart,
     /// Fit nothing: replay `pinc vehicle excite`'s watch over the recording (one, `.tlog` or
     /// MCAP) with a look every this many seconds of it (the first at twice that): when the
     /// fit's report would have passed, and since when each coefficient was determined.
@@ -85,6 +90,7 @@ pub fn run_fit(a: FitArgs) -> Result<(), String> {
     settings.surface_pressure = a.surface_pressure;
     settings.water_density = a.water_density;
     settings.reference = a.reference.clone();
+    settings.start = a.start;
     if let Some(every) = a.watch_every {
         return run_watch_replay(&settings, every, a.json);
     }
