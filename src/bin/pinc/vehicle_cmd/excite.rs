@@ -6,7 +6,6 @@
 //! fresh state, the band's heave, the watch's looks), the end (neutral, the last outputs into
 //! the file, the summary).
 
-#[cfg(feature = "train")]
 use super::writer::{Writer, recording_estimator};
 use super::{ExciteArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
 use pinc::closed_loop::Level;
