@@ -41,7 +41,8 @@ pub struct Replay {
     pub late: u64,
     /// The filter's innovations per sensor (since its last restart).
     pub health: Health,
-    /// Every depth, heading, yaw-rate and vertical-velocity measurement, in log order.
+    /// Every depth, heading, yaw-rate, vertical-velocity, position and NED-velocity
+    /// measurement, in log order.
     pub measurements: Vec<Measurement>,
     /// Every input the vehicle reported applying (its thruster outputs), with its time.
     pub applied: Vec<(f64, crate::types::Input)>,
@@ -223,6 +224,8 @@ impl<'a, M: DiscreteModel> Feeder<'a, M> {
                 | Measurement::Heading { .. }
                 | Measurement::YawRate { .. }
                 | Measurement::VerticalVelocity { .. }
+                | Measurement::Position { .. }
+                | Measurement::VelocityNed { .. }
         ) {
             self.measurements.push(m);
         }

@@ -10,6 +10,52 @@ use crate::model::SensorModel;
 /// trust a reading more than its resolution and the autopilot's own filtering justify.
 pub const NOISE_FLOOR: [f64; 3] = [0.005, 0.002, 0.001];
 
+/// Smallest standard deviations a fit gives the horizontal position (m) and NED velocity
+/// (m/s), as [`NOISE_FLOOR`] does the others.
+pub const HORIZONTAL_NOISE_FLOOR: [f64; 2] = [0.01, 0.01];
+
+/// The noise of the horizontal readings a position source gives (what the estimator is told
+/// for them in a fit's replays).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HorizontalNoise {
+    /// Position, north and east (m).
+    pub position_std: f64,
+    /// NED velocity, north and east (m/s).
+    pub velocity_std: f64,
+}
+
+/// The white noise of the position's and the NED velocity's north and east readings (the
+/// larger of the two axes), at least [`HORIZONTAL_NOISE_FLOOR`]; `None` for a kind with too
+/// few readings (no position source, or too short a recording).
+pub fn horizontal_noise(measurements: &[Measurement]) -> [Option<f64>; 2] {
+    let mut series: [Vec<(f64, f64)>; 4] = Default::default();
+    for m in measurements {
+        match *m {
+            Measurement::Position { t, x, y, .. } => {
+                series[0].push((t, x));
+                series[1].push((t, y));
+            }
+            Measurement::VelocityNed { t, vn, ve, .. } => {
+                series[2].push((t, vn));
+                series[3].push((t, ve));
+            }
+            _ => {}
+        }
+    }
+    for s in &mut series {
+        // A repeated reading is the source read faster than it updates, as in `readings`.
+        s.dedup_by(|b, a| b.1 == a.1);
+    }
+    let noise = |a: &[(f64, f64)], b: &[(f64, f64)], floor: f64| {
+        let (a, b) = (white_noise_std(a, false)?, white_noise_std(b, false)?);
+        Some(a.max(b).max(floor))
+    };
+    [
+        noise(&series[0], &series[1], HORIZONTAL_NOISE_FLOOR[0]),
+        noise(&series[2], &series[3], HORIZONTAL_NOISE_FLOOR[1]),
+    ]
+}
+
 /// Depth lags the fit tries (s): 0 to 0.3 in steps of 0.02.
 pub fn lag_candidates() -> Vec<f64> {
     (0..=15).map(|i| f64::from(i) * 0.02).collect()
@@ -225,6 +271,35 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
+
+    /// A position source's readings: a turning track with 4 cm of noise on the position (each
+    /// reading sent twice, as a source read faster than it updates does) and 3 cm/s on the
+    /// velocity comes back within 10 %; a quieter one at the floor; none without readings.
+    #[test]
+    fn the_position_sources_noise_is_measured_from_its_readings() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let track = |t: f64| (2.0 * (0.1 * t).sin(), 0.3 * t + (0.05 * t).cos());
+        let readings = |position: f64, velocity: f64, rng: &mut rand_chacha::ChaCha8Rng| {
+            let (p, v) = (Normal::new(0.0, position).unwrap(), Normal::new(0.0, velocity).unwrap());
+            let mut out = Vec::new();
+            for i in 0..3000 {
+                let t = f64::from(i) * 0.2;
+                let (x, y) = track(t);
+                let reading = Measurement::Position { t, x: x + p.sample(rng), y: y + p.sample(rng), z: f64::NAN };
+                out.extend([reading, reading]);
+                let (vn, ve) = (0.2 * (0.1 * t).cos(), 0.3 - 0.05 * (0.05 * t).sin());
+                out.push(Measurement::VelocityNed { t, vn: vn + v.sample(rng), ve: ve + v.sample(rng), vd: 0.0 });
+            }
+            out
+        };
+        let [position, velocity] = horizontal_noise(&readings(0.04, 0.03, &mut rng));
+        let (position, velocity) = (position.unwrap(), velocity.unwrap());
+        assert!((position / 0.04 - 1.0).abs() < 0.1, "{position}");
+        assert!((velocity / 0.03 - 1.0).abs() < 0.1, "{velocity}");
+        assert_eq!(horizontal_noise(&readings(1e-4, 1e-4, &mut rng)), [Some(0.01), Some(0.01)]);
+        let depth_only = [Measurement::Depth { t: 0.0, z: 1.0 }, Measurement::Depth { t: 0.1, z: 1.1 }];
+        assert_eq!(horizontal_noise(&depth_only), [None, None]);
+    }
 
     /// A smooth manoeuvre plus white noise of a known spread, at uneven stamps: the estimate
     /// comes back within 5 %.
