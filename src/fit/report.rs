@@ -279,7 +279,8 @@ pub fn held_out_axes(vehicle: &VehicleParams, test: &TrajectorySet, horizontal: 
                 rms_velocity,
                 gain_error,
                 judged,
-                biased: judged && !(gain_error.abs() <= MAX_GAIN_ERROR),
+                // A NaN gain (no finite velocity) is a bias too.
+                biased: judged && (gain_error.abs() > MAX_GAIN_ERROR || gain_error.is_nan()),
             }
         })
         .collect()
