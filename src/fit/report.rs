@@ -271,7 +271,8 @@ pub fn held_out_axes(vehicle: &VehicleParams, test: &TrajectorySet, horizontal: 
         .enumerate()
         .map(|(c, &(axis, _))| {
             let (rms_error, rms_velocity) = (rms(err[c]), rms(vel[c]));
-            let gain_error = cross[c] / vel[c].max(1e-300);
+            // An axis that never moved has no gain to speak of.
+            let gain_error = if rms_velocity > 1e-9 { cross[c] / vel[c] } else { 0.0 };
             let judged = (horizontal || c >= 2) && rms_velocity >= MIN_HELD_OUT_SPEED;
             AxisHeldOut {
                 axis,
