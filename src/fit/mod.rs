@@ -34,8 +34,8 @@ use crate::identify::{Identification, identify};
 use crate::model::{FittedVehicle, HybridPhysics, PincModel, SensorModel};
 use crate::train::{Backend, LossKind, LrSchedule, StopReason, TrainConfig, TrainOutcome, train};
 use crate::types::{Input, SimState};
-use sensors::HorizontalNoise;
 use crate::vehicle::{Rk4Vehicle, Thrusters, VehicleParams};
+use sensors::HorizontalNoise;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 

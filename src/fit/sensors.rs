@@ -50,10 +50,7 @@ pub fn horizontal_noise(measurements: &[Measurement]) -> [Option<f64>; 2] {
         let (a, b) = (white_noise_std(a, false)?, white_noise_std(b, false)?);
         Some(a.max(b).max(floor))
     };
-    [
-        noise(&series[0], &series[1], HORIZONTAL_NOISE_FLOOR[0]),
-        noise(&series[2], &series[3], HORIZONTAL_NOISE_FLOOR[1]),
-    ]
+    [noise(&series[0], &series[1], HORIZONTAL_NOISE_FLOOR[0]), noise(&series[2], &series[3], HORIZONTAL_NOISE_FLOOR[1])]
 }
 
 /// Depth lags the fit tries (s): 0 to 0.3 in steps of 0.02.
