@@ -221,7 +221,7 @@ pub const QUANTITIES: [&str; 6] = ["depth", "heading", "u", "v", "w", "r"];
 
 /// The largest gain error ([`AxisHeldOut::gain_error`]) of the identified physics on the
 /// held-out windows before the report calls the axis biased. Measured on the firmware's
-/// recordings (four with the GPS, one stock): the fits 0.0-0.07 on every axis (heave the
+/// recordings (three with the GPS, one stock): the fits 0.0-0.07 on every axis (heave the
 /// largest); the simulator's own file 0.0-0.04 against them; a file with the surge and sway drag
 /// of the hidden-seed fit (2.7x and 1.6x at 0.2 m/s) -0.17 and -0.13.
 pub const MAX_GAIN_ERROR: f64 = 0.1;
