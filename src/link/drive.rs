@@ -264,13 +264,8 @@ impl Drive {
             if d.autopilot.sent(r) {
                 d.read(r);
                 // Its heartbeats while it answered (or left unanswered, 3 s) the parameters.
-                if let MavMessage::HEARTBEAT(h) = &r.message
-                    && !is_ground_station(h)
-                {
-                    d.mode = h.custom_mode;
-                    if let Some(trigger) = d.safety.heartbeat(r.at, Autopilot::armed(h)) {
-                        return Err(d.stop_with_trigger(trigger));
-                    }
+                if let Some(trigger) = d.heard(r) {
+                    return Err(d.stop_with_trigger(trigger));
                 }
             }
             let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
@@ -454,6 +449,17 @@ impl Drive {
         self.assembler.autopilot_time(Instant::now()).unwrap_or(0.0)
     }
 
+    /// The autopilot's heartbeat in `r` (not a ground station's), if it is one: its mode, and
+    /// the watchdog fed; the trigger when the heartbeat says the vehicle is lost.
+    fn heard(&mut self, r: &Received) -> Option<Trigger> {
+        let MavMessage::HEARTBEAT(h) = &r.message else { return None };
+        if is_ground_station(h) {
+            return None;
+        }
+        self.mode = h.custom_mode;
+        self.safety.heartbeat(r.at, Autopilot::armed(h))
+    }
+
     /// Reads one message of the autopilot, once: the raw state, the observations for the
     /// estimator, the sensor watch; counts a message older than the newest of its type.
     fn read(&mut self, r: &Received) -> Option<RawState> {
@@ -519,13 +525,8 @@ impl Drive {
                     }
                     _ => {}
                 }
-                if let MavMessage::HEARTBEAT(h) = &r.message
-                    && !is_ground_station(h)
-                {
-                    self.mode = h.custom_mode;
-                    if let Some(trigger) = self.safety.heartbeat(r.at, Autopilot::armed(h)) {
-                        return Err(trigger);
-                    }
+                if let Some(trigger) = self.heard(&r) {
+                    return Err(trigger);
                 }
                 if let Some(s) = state {
                     if let Some(trigger) = self.safety.state(r.at, s.sim[2], s.sim[7]) {
