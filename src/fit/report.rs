@@ -254,37 +254,12 @@ pub struct AxisHeldOut {
 /// [`AxisHeldOut`] of `vehicle`'s RK4 step on `test`, per axis.
 pub fn held_out_axes(vehicle: &VehicleParams, test: &TrajectorySet, horizontal: bool) -> Vec<AxisHeldOut> {
     let physics = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(test.dt) };
-    let (mut err, mut vel, mut cross, mut n) = ([0.0; 4], [0.0; 4], [0.0; 4], 0usize);
+    let mut sums = ErrorSums::default();
     for i in 0..test.count {
         let (states, inputs) = test.trajectory(i);
-        for (p, t) in rollout(&physics, &test.start(i, 0), inputs).iter().zip(states) {
-            for c in 0..4 {
-                err[c] += (p[5 + c] - t[5 + c]).powi(2);
-                vel[c] += t[5 + c].powi(2);
-                cross[c] += (p[5 + c] - t[5 + c]) * t[5 + c];
-            }
-            n += 1;
-        }
+        sums.add(&rollout(&physics, &test.start(i, 0), inputs), states);
     }
-    let rms = |v: f64| (v / n.max(1) as f64).sqrt();
-    AXES.iter()
-        .enumerate()
-        .map(|(c, &(axis, _))| {
-            let (rms_error, rms_velocity) = (rms(err[c]), rms(vel[c]));
-            // An axis that never moved has no gain to speak of.
-            let gain_error = if rms_velocity > 1e-9 { cross[c] / vel[c] } else { 0.0 };
-            let judged = (horizontal || c >= 2) && rms_velocity >= MIN_HELD_OUT_SPEED;
-            AxisHeldOut {
-                axis,
-                rms_error,
-                rms_velocity,
-                gain_error,
-                judged,
-                // A NaN gain (no finite velocity) is a bias too.
-                biased: judged && (gain_error.abs() > MAX_GAIN_ERROR || gain_error.is_nan()),
-            }
-        })
-        .collect()
+    sums.axes(horizontal)
 }
 
 /// The report's warning for each biased axis of `axes`.
@@ -326,16 +301,61 @@ fn heading(x: &State) -> f64 {
     x[4].atan2(x[3])
 }
 
-/// Squared errors per quantity of `pred` against `truth` (network-form states).
-fn add_errors(sums: &mut [f64; 6], pred: &[State], truth: &[State]) -> usize {
-    for (p, t) in pred.iter().zip(truth) {
-        let dpsi = crate::vehicle::wrap_angle(heading(p) - heading(t));
-        let e = [p[2] - t[2], dpsi, p[5] - t[5], p[6] - t[6], p[7] - t[7], p[8] - t[8]];
-        for (s, e) in sums.iter_mut().zip(e) {
-            *s += e * e;
+/// A model's rollouts against the held-out estimate, summed: squared errors per quantity of
+/// [`QUANTITIES`], and per velocity its square and its product with the error (for the gain).
+#[derive(Default)]
+struct ErrorSums {
+    squared: [f64; 6],
+    velocity: [f64; 4],
+    cross: [f64; 4],
+    points: usize,
+}
+
+impl ErrorSums {
+    /// Adds `pred` against `truth` (network-form states).
+    fn add(&mut self, pred: &[State], truth: &[State]) {
+        for (p, t) in pred.iter().zip(truth) {
+            let dpsi = crate::vehicle::wrap_angle(heading(p) - heading(t));
+            let e = [p[2] - t[2], dpsi, p[5] - t[5], p[6] - t[6], p[7] - t[7], p[8] - t[8]];
+            for (s, e) in self.squared.iter_mut().zip(e) {
+                *s += e * e;
+            }
+            for c in 0..4 {
+                self.velocity[c] += t[5 + c] * t[5 + c];
+                self.cross[c] += e[2 + c] * t[5 + c];
+            }
+            self.points += 1;
         }
     }
-    pred.len().min(truth.len())
+
+    /// RMS error per quantity, over `points` (those of the physics' rollouts, for every model
+    /// of a report).
+    fn rms(&self, points: usize) -> [f64; 6] {
+        self.squared.map(|v| (v / points.max(1) as f64).sqrt())
+    }
+
+    /// [`AxisHeldOut`] per axis; surge and sway judged only where `horizontal`.
+    fn axes(&self, horizontal: bool) -> Vec<AxisHeldOut> {
+        let rms = |v: f64| (v / self.points.max(1) as f64).sqrt();
+        AXES.iter()
+            .enumerate()
+            .map(|(c, &(axis, _))| {
+                let (rms_error, rms_velocity) = (rms(self.squared[2 + c]), rms(self.velocity[c]));
+                // An axis that never moved has no gain to speak of.
+                let gain_error = if rms_velocity > 1e-9 { self.cross[c] / self.velocity[c] } else { 0.0 };
+                let judged = (horizontal || c >= 2) && rms_velocity >= MIN_HELD_OUT_SPEED;
+                AxisHeldOut {
+                    axis,
+                    rms_error,
+                    rms_velocity,
+                    gain_error,
+                    judged,
+                    // A NaN gain (no finite velocity) is a bias too.
+                    biased: judged && (gain_error.abs() > MAX_GAIN_ERROR || gain_error.is_nan()),
+                }
+            })
+            .collect()
+    }
 }
 
 /// [`HeldOut`] of `model` (and its physics, and a reference vehicle's) on `test`; `horizontal`:
@@ -349,32 +369,32 @@ pub fn held_out(
     let physics = Rk4Vehicle { params: model.vehicle, ..Rk4Vehicle::with_dt(test.dt) };
     let hybrid = Predictor::<f64>::reference(model);
     let other = reference.map(|(_, p)| Rk4Vehicle { params: *p, ..Rk4Vehicle::with_dt(test.dt) });
-    let (mut sp, mut sh, mut sr, mut n) = ([0.0; 6], [0.0; 6], [0.0; 6], 0usize);
+    let (mut sp, mut sh, mut sr) = (ErrorSums::default(), ErrorSums::default(), ErrorSums::default());
     for i in 0..test.count {
         let (states, inputs) = test.trajectory(i);
         let x0 = test.start(i, 0);
-        n += add_errors(&mut sp, &rollout(&physics, &x0, inputs), states);
-        add_errors(&mut sh, &rollout(&hybrid, &x0, inputs), states);
+        sp.add(&rollout(&physics, &x0, inputs), states);
+        sh.add(&rollout(&hybrid, &x0, inputs), states);
         if let Some(other) = &other {
-            add_errors(&mut sr, &rollout(other, &x0, inputs), states);
+            sr.add(&rollout(other, &x0, inputs), states);
         }
     }
-    let rms = |s: [f64; 6]| s.map(|v| (v / n.max(1) as f64).sqrt());
+    let n = sp.points;
     let vpt_p = crate::eval::evaluate_set_discrete(&physics, test).map_or(f64::NAN, |m| m.vpt_s);
     let vpt_h = crate::eval::evaluate_set(model, test, &model.vehicle).map_or(f64::NAN, |m| m.vpt_s);
     HeldOut {
         windows: test.count,
         window_s: (test.points - 1) as f64 * test.dt,
-        physics_rms: rms(sp),
-        hybrid_rms: rms(sh),
+        physics_rms: sp.rms(n),
+        hybrid_rms: sh.rms(n),
         physics_vpt_s: vpt_p,
         hybrid_vpt_s: vpt_h,
-        reference: reference.map(|(file, params)| ReferenceScore {
+        reference: reference.map(|(file, _)| ReferenceScore {
             file: file.clone(),
-            rms: rms(sr),
-            axes: held_out_axes(params, test, horizontal),
+            rms: sr.rms(n),
+            axes: sr.axes(horizontal),
         }),
-        axes: held_out_axes(&model.vehicle, test, horizontal),
+        axes: sp.axes(horizontal),
     }
 }
 
@@ -528,11 +548,25 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
             super::sensors::HORIZONTAL_NOISE_FLOOR[1]
         );
     }
+    md += &held_out_markdown(fit, held);
+    md += &format!(
+        "\n## Training\n\n{} epochs run (best on dev: {}), {:.0} s.\n",
+        fit.training.history.len(),
+        fit.training.best_epoch,
+        fit.training.seconds
+    );
+    md
+}
+
+/// The report's held-out section: RMS errors per quantity, the valid prediction times, and
+/// the gain error per axis.
+fn held_out_markdown(fit: &Fit, held: &HeldOut) -> String {
+    let mut md = String::new();
     md += &format!(
         "\n## Held out ({} windows of {:.1} s, rolled out from {} against the smoothed estimate)\n\n| RMS error | {} |\n|---|{}\n",
         held.windows,
-        fit.start.describe(),
         held.window_s,
+        fit.start.describe(),
         QUANTITIES.join(" | "),
         "---|".repeat(QUANTITIES.len())
     );
@@ -569,12 +603,6 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
             100.0 * a.gain_error
         );
     }
-    md += &format!(
-        "\n## Training\n\n{} epochs run (best on dev: {}), {:.0} s.\n",
-        fit.training.history.len(),
-        fit.training.best_epoch,
-        fit.training.seconds
-    );
     md
 }
 

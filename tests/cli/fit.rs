@@ -73,6 +73,9 @@ fn a_stock_recording_fits_the_same_model_twice_and_says_what_it_determined() {
     for name in ["report.md", "report.png", "training.csv"] {
         assert!(a.join(name).metadata().unwrap().len() > 100, "{name}");
     }
+    let md = std::fs::read_to_string(a.join("report.md")).unwrap();
+    assert!(md.contains("windows of 2.0 s, rolled out from each window's smoothed first state"), "{md}");
+    assert!(md.contains("| heave | ") && md.contains("| yaw | "), "{md}");
     // The model carries what flies it: the thrusters (inline, parsed), the sensor model, the
     // report's warnings; its correction is anchored at rest.
     let model = PincModel::load(a.join("model.pinc")).unwrap();
