@@ -2,6 +2,8 @@
 //! `tests/fixtures/random_4x32.safetensors` (the paper's architecture, PyTorch layout):
 //!
 //! - `step`: one prediction; `rollout_65`: 65 autoregressive steps (one paper trajectory);
+//!   `step_shipped`: one prediction of the shipped controller model (`models/mpc_pinc_thrust.pinc`)
+//!   at the state and input `python/examples/overhead.py` times Python's `step_into` at;
 //! - `linearise_h20`: a 20-step horizon with every exact A_k, B_k;
 //! - `batch_rollout_1000x65`: 1000 trajectories of 65 steps, one thread;
 //! - unsuffixed IDs use the default `f32` predictor with the AVX2 + FMA kernels (where the
@@ -24,7 +26,7 @@ use criterion::{Criterion, criterion_group};
 
 #[path = "common/mod.rs"]
 mod common;
-use pinc::model::{Activation, import_state_dict};
+use pinc::model::{Activation, PincModel, import_state_dict};
 use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor, Real};
 use pinc::vehicle::{Rk4Vehicle, to_network};
 use pinc::{Input, SimState, State};
@@ -47,6 +49,15 @@ fn network(c: &mut Criterion) {
     bench_predictor(c, "", predictor::<f32>());
     bench_predictor(c, "_f64", predictor::<f64>());
     bench_predictor(c, "_portable", predictor::<f32>().with_portable_kernels());
+    // The shipped controller model at `python/examples/overhead.py`'s state and input: the
+    // Rust call that Python's `step_into` is measured against.
+    let model = PincModel::load(concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc_thrust.pinc")).unwrap();
+    let p = Predictor::new(&model);
+    let mut ws = p.workspace();
+    let x = State::from([0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.0, 0.05, 0.0]);
+    let u = Input::new(2.0, 0.1, 5.0, 0.05);
+    let mut out = State::zeros();
+    c.bench_function("step_shipped", |b| b.iter(|| p.step(&mut ws, black_box(&x), black_box(&u), &mut out).unwrap()));
 }
 
 fn bench_predictor<T: Real>(c: &mut Criterion, suffix: &str, p: Predictor<T>) {

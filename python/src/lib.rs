@@ -6,9 +6,10 @@
 //! (a `ValueError`).
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayViewD, Dimension};
-use numpy::npyffi::NPY_ARRAY_WRITEABLE;
+use numpy::npyffi::{NPY_ARRAY_WRITEABLE, NPY_TYPES};
 use numpy::{
-    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods,
+    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDescrMethods, PyArrayLikeDyn, PyArrayMethods,
+    PyUntypedArray, PyUntypedArrayMethods,
 };
 use pinc::closed_loop::campaign::{Campaign, Controller, Settings, histogram, table};
 use pinc::closed_loop::monte_carlo::{Outcome, robustness};
@@ -17,9 +18,10 @@ use pinc::runtime::{BatchWorkspace, HorizonLinearisation, Predictor as RustPredi
 use pinc::vehicle::{Rk4Vehicle, VehicleParams};
 use pinc::{INPUT_NAMES, Input, NS, NU, NX, STATE_NAMES, SimState, State};
 use pyo3::create_exception;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
+use std::ffi::c_int;
 use std::sync::Mutex;
 
 create_exception!(
@@ -59,6 +61,20 @@ fn vector<'a, const N: usize>(arg: &str, v: &'a [f64]) -> PyResult<&'a [f64]> {
         return Err(PyValueError::new_err(format!("{arg}[{i}] = {x} is not finite")));
     }
     Ok(v)
+}
+
+/// `obj` as a 1-D numpy array of native-order float64, checked by the descriptor's type number
+/// and byte order: extracting a `PyArray1<f64>` builds a float64 descriptor and asks numpy
+/// whether the two are equivalent, a tenth of a `step_into` call here.
+fn float64_vector<'a, 'py>(arg: &str, obj: &'a Bound<'py, PyAny>) -> PyResult<&'a Bound<'py, PyArray1<f64>>> {
+    let refused = || PyTypeError::new_err(format!("{arg}: expected a 1-D numpy array of float64"));
+    let a = obj.cast::<PyUntypedArray>().map_err(|_| refused())?;
+    let d = a.dtype();
+    if a.ndim() != 1 || d.num() != NPY_TYPES::NPY_DOUBLE as c_int || d.is_native_byteorder() != Some(true) {
+        return Err(refused());
+    }
+    // SAFETY: a 1-D array whose elements are native float64, checked above.
+    Ok(unsafe { a.cast_unchecked::<PyArray1<f64>>() })
 }
 
 fn state(arg: &str, a: &Array<'_>) -> PyResult<State> {
@@ -169,11 +185,12 @@ impl Predictor {
     #[pyo3(signature = (x, u, out, dt = None))]
     fn step_into(
         &self,
-        x: &Bound<'_, PyArray1<f64>>,
-        u: &Bound<'_, PyArray1<f64>>,
-        out: &Bound<'_, PyArray1<f64>>,
+        x: &Bound<'_, PyAny>,
+        u: &Bound<'_, PyAny>,
+        out: &Bound<'_, PyAny>,
         dt: Option<f64>,
     ) -> PyResult<()> {
+        let (x, u, out) = (float64_vector("x", x)?, float64_vector("u", u)?, float64_vector("out", out)?);
         // The arrays are read and written without numpy's borrow tracking, which cost about as
         // much as the step itself here (three borrows, each a lookup and a release). SAFETY:
         // the GIL is held throughout and no Python code runs while a slice lives, and each

@@ -130,8 +130,12 @@ def test_step_into_refuses_what_it_cannot_write_or_read(p):
         p.step_into(np.array([0, 0, np.nan, 1, 0, 0, 0, 0, 0]), u, np.zeros(9))
     with pytest.raises(TypeError, match="contiguous"):
         p.step_into(x, u, np.zeros(18)[::2])
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="out: expected a 1-D numpy array of float64"):
         p.step_into(x, u, np.zeros(9, dtype=np.float32))
+    with pytest.raises(TypeError, match="x: expected a 1-D numpy array of float64"):
+        p.step_into(x.astype(">f8"), u, np.zeros(9))
+    with pytest.raises(TypeError, match="u: expected a 1-D numpy array of float64"):
+        p.step_into(x, u.reshape(4, 1), np.zeros(9))
     with pytest.raises(TypeError):
         p.step_into(list(x), u, np.zeros(9))
     out = np.zeros(9)
