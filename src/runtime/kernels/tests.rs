@@ -126,9 +126,17 @@ fn activations_equal_their_definitions_across_the_range() {
 /// A 3 x 13 network with input and output scalings, a negative beta and LayerNorm after
 /// every layer (13 units: the last pack is padding, which the statistics must skip).
 fn model() -> PincModel {
-    let mut v = Values(4);
-    let mut arch = Architecture::paper(3, 13);
-    arch.layer_norm = vec![true, false, true];
+    model_with(4, &[true, false, true], 13, &[0, 1, 2, 3, 4, 5, 6, 7, 8])
+}
+
+/// A network of `norms.len()` softplus layers of `width` units, LayerNorm where `norms`
+/// says, seeing the states `seen`, with input and output scalings and betas of either sign.
+fn model_with(seed: u64, norms: &[bool], width: usize, seen: &[u8]) -> PincModel {
+    let mut v = Values(seed);
+    let layers = norms.len();
+    let mut arch = Architecture::paper(layers, width);
+    arch.layer_norm = norms.to_vec();
+    arch.state_inputs = seen.to_vec();
     let n_in = arch.input_size();
     let linear = |v: &mut Values, rows: usize, cols: usize| Linear {
         rows,
@@ -136,18 +144,18 @@ fn model() -> PincModel {
         weight: (0..rows * cols).map(|_| (0.5 * v.next()) as f32).collect(),
         bias: (0..rows).map(|_| (0.1 * v.next()) as f32).collect(),
     };
-    let hidden = (0..3)
+    let hidden = (0..layers)
         .map(|l| HiddenLayer {
-            linear: linear(&mut v, 13, if l == 0 { n_in } else { 13 }),
-            beta: [1.3, -0.8, 0.6][l],
+            linear: linear(&mut v, width, if l == 0 { n_in } else { width }),
+            beta: [1.3, -0.8, 0.6, 2.1][l % 4],
             layer_norm: arch.layer_norm[l].then(|| LayerNormWeights {
-                gain: (0..13).map(|_| (1.0 + 0.2 * v.next()) as f32).collect(),
-                bias: (0..13).map(|_| (0.1 * v.next()) as f32).collect(),
+                gain: (0..width).map(|_| (1.0 + 0.2 * v.next()) as f32).collect(),
+                bias: (0..width).map(|_| (0.1 * v.next()) as f32).collect(),
                 eps: 1e-5,
             }),
         })
         .collect();
-    let output = linear(&mut v, 9, 13);
+    let output = linear(&mut v, 9, width);
     PincModel {
         dt: 0.08,
         input_scaling: Some(Affine {
@@ -213,4 +221,63 @@ fn the_folded_network_computes_the_unfolded_one() {
         let o = net32.forward::<Fused>(Avx2Fma::detect(), &mut ws32, &x, &u, 0.08, false);
         close(o[k], *e, 1e-5, &format!("f32 output {k}"));
     }
+}
+
+/// The register kernel's networks: every width in packs (1 to 4, with and without padding),
+/// one and two input packs, LayerNorm after none, some and every layer.
+fn register_networks() -> Vec<PincModel> {
+    let all: &[u8] = &[0, 1, 2, 3, 4, 5, 6, 7, 8];
+    vec![
+        model_with(11, &[false, true, false, true], 32, &[3, 4, 5, 6, 7, 8]),
+        model_with(12, &[true, true, true, true], 32, all),
+        model_with(13, &[false, false, false], 32, &[5, 6, 7]),
+        model_with(14, &[true, false, true], 13, all),
+        model_with(15, &[true, true], 24, &[7, 8]),
+        model_with(16, &[false, true], 16, all),
+        model_with(17, &[true], 8, &[3, 4, 5]),
+        model_with(18, &[false, true, true, false], 29, all),
+    ]
+}
+
+/// What an `f32` forward pass with `keep` leaves for the reverse pass and returns, as bits
+/// per network and input: the 9 outputs and a hash (FNV-1a) of the kept buffers.
+fn forward_bits() -> String {
+    let mut v = Values(19);
+    let mut text = String::new();
+    for (n, m) in register_networks().iter().enumerate() {
+        let net = Network::<f32>::new(m);
+        let mut ws = NetScratch::new(&net);
+        for _ in 0..6 {
+            let x = State::from_fn(|_, _| 2.0 * v.next());
+            let u = Input::from_fn(|_, _| 8.0 * v.next());
+            let t = 0.08 * (1.0 + v.next());
+            let o = net.forward::<Fused>(Avx2Fma::detect(), &mut ws, &x, &u, t, true);
+            let kept = ws.d.iter().chain(&ws.xhat).flatten().chain(&ws.inv_std);
+            let hash = kept.fold(0xcbf2_9ce4_8422_2325_u64, |h, v| (h ^ u64::from(v.to_bits())).wrapping_mul(0x100_0000_01b3));
+            let outs: Vec<String> = o.iter().map(|v| format!("{:016x}", v.to_bits())).collect();
+            text += &format!("{n} {} {hash:016x}\n", outs.join(" "));
+        }
+    }
+    text
+}
+
+/// The register kernel gives, bit for bit, what it gave before its products were reordered
+/// (`tests/fixtures/register_kernel_bits.txt`, written by the kernel of 01013ca with
+/// `PINC_WRITE_KERNEL_BITS=1`): a faster kernel must not change a prediction. On a CPU
+/// without AVX2 + FMA the generic kernels run, which round differently: nothing to compare.
+#[test]
+fn the_register_kernel_keeps_its_bits() {
+    if Avx2Fma::detect().is_none() {
+        return;
+    }
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/register_kernel_bits.txt");
+    let found = forward_bits();
+    if std::env::var_os("PINC_WRITE_KERNEL_BITS").is_some() {
+        std::fs::write(path, &found).unwrap();
+    }
+    let expected = std::fs::read_to_string(path).unwrap();
+    for (k, (f, e)) in found.lines().zip(expected.lines()).enumerate() {
+        assert_eq!(f, e, "network and input {k}: outputs and kept buffers' hash");
+    }
+    assert_eq!(found.lines().count(), expected.lines().count());
 }
