@@ -253,7 +253,8 @@ fn forward_bits() -> String {
             let t = 0.08 * (1.0 + v.next());
             let o = net.forward::<Fused>(Avx2Fma::detect(), &mut ws, &x, &u, t, true);
             let kept = ws.d.iter().chain(&ws.xhat).flatten().chain(&ws.inv_std);
-            let hash = kept.fold(0xcbf2_9ce4_8422_2325_u64, |h, v| (h ^ u64::from(v.to_bits())).wrapping_mul(0x100_0000_01b3));
+            let hash =
+                kept.fold(0xcbf2_9ce4_8422_2325_u64, |h, v| (h ^ u64::from(v.to_bits())).wrapping_mul(0x100_0000_01b3));
             let outs: Vec<String> = o.iter().map(|v| format!("{:016x}", v.to_bits())).collect();
             text += &format!("{n} {} {hash:016x}\n", outs.join(" "));
         }
