@@ -262,10 +262,10 @@ fn forward_bits() -> String {
     text
 }
 
-/// The register kernel gives, bit for bit, what it gave before its products were reordered
-/// (`tests/fixtures/register_kernel_bits.txt`, written by the kernel of 01013ca with
-/// `PINC_WRITE_KERNEL_BITS=1`): a faster kernel must not change a prediction. On a CPU
-/// without AVX2 + FMA the generic kernels run, which round differently: nothing to compare.
+/// The register kernel gives, bit for bit, what the kernel of 01013ca gave
+/// (`tests/fixtures/register_kernel_bits.txt`, written with `PINC_WRITE_KERNEL_BITS=1`): a
+/// faster schedule of the same arithmetic must not change a prediction. On a CPU without
+/// AVX2 + FMA the generic kernels run, which round differently: nothing to compare.
 #[test]
 fn the_register_kernel_keeps_its_bits() {
     if Avx2Fma::detect().is_none() {
