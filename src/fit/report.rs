@@ -328,19 +328,22 @@ impl ErrorSums {
         }
     }
 
-    /// RMS error per quantity, over `points` (those of the physics' rollouts, for every model
-    /// of a report).
-    fn rms(&self, points: usize) -> [f64; 6] {
-        self.squared.map(|v| (v / points.max(1) as f64).sqrt())
+    /// The root of a sum's mean over the points.
+    fn root_mean(&self, sum: f64) -> f64 {
+        (sum / self.points.max(1) as f64).sqrt()
+    }
+
+    /// RMS error per quantity.
+    fn rms(&self) -> [f64; 6] {
+        self.squared.map(|v| self.root_mean(v))
     }
 
     /// [`AxisHeldOut`] per axis; surge and sway judged only where `horizontal`.
     fn axes(&self, horizontal: bool) -> Vec<AxisHeldOut> {
-        let rms = |v: f64| (v / self.points.max(1) as f64).sqrt();
         AXES.iter()
             .enumerate()
             .map(|(c, &(axis, _))| {
-                let (rms_error, rms_velocity) = (rms(self.squared[2 + c]), rms(self.velocity[c]));
+                let (rms_error, rms_velocity) = (self.root_mean(self.squared[2 + c]), self.root_mean(self.velocity[c]));
                 // An axis that never moved has no gain to speak of.
                 let gain_error = if rms_velocity > 1e-9 { self.cross[c] / self.velocity[c] } else { 0.0 };
                 let judged = (horizontal || c >= 2) && rms_velocity >= MIN_HELD_OUT_SPEED;
@@ -379,19 +382,18 @@ pub fn held_out(
             sr.add(&rollout(other, &x0, inputs), states);
         }
     }
-    let n = sp.points;
     let vpt_p = crate::eval::evaluate_set_discrete(&physics, test).map_or(f64::NAN, |m| m.vpt_s);
     let vpt_h = crate::eval::evaluate_set(model, test, &model.vehicle).map_or(f64::NAN, |m| m.vpt_s);
     HeldOut {
         windows: test.count,
         window_s: (test.points - 1) as f64 * test.dt,
-        physics_rms: sp.rms(n),
-        hybrid_rms: sh.rms(n),
+        physics_rms: sp.rms(),
+        hybrid_rms: sh.rms(),
         physics_vpt_s: vpt_p,
         hybrid_vpt_s: vpt_h,
         reference: reference.map(|(file, _)| ReferenceScore {
             file: file.clone(),
-            rms: sr.rms(n),
+            rms: sr.rms(),
             axes: sr.axes(horizontal),
         }),
         axes: sp.axes(horizontal),
