@@ -47,7 +47,7 @@ def fly(out_dir, *extra, vehicle=OWNER_VEHICLE, parms=STOCK):
     s = json.loads(r.stdout)
     live = s["live"]
     print(json.dumps({k: s[k] for k in ("samples", "rms_depth_m", "rms_heading_deg", "held_heading_error_max_deg",
-                                        "stopped")}))
+                                        "steady_heading_error_deg", "stopped")}))
     print(json.dumps({k: live.get(k) for k in ("flown_by", "truth_rms", "estimate_rms_error", "raw_depth_rms_error",
                                                "heading_reference", "autopilot_not_ready", "model_misfits",
                                                "process_noise_scale", "fused", "rejected", "stop_trigger")}))
