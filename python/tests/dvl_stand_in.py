@@ -21,11 +21,13 @@ SERIAL2, 5763), so it never shares the client's link. While the client runs it
   health: SYS_STATUS's visual odometry bit, `vision_healthy`).
 
 `--stop-after S` stops the deltas S seconds after the autopilot first reports armed (the DVL's
-messages lost: a DVL that lost bottom lock or its cable); the record goes on. The sensor is
+messages lost: a DVL that lost bottom lock or its cable); the record goes on. With
+`--resume-after R` (R > S) they come back R seconds after arming (bottom lock regained), the
+first delta over a fresh interval. The sensor is
 the only place the truth enters: nothing else from the simulator goes to the client.
 
 usage: dvl_stand_in.py --record FILE [--port 5763] [--noise M_S] [--seed N] [--stop-after S]
-                       -- CLIENT [ARGS...]
+                       [--resume-after R] -- CLIENT [ARGS...]
 Exits with the client's status.
 """
 
@@ -73,6 +75,7 @@ def main() -> int:
     p.add_argument("--noise", type=float, default=0.01, help="velocity noise per axis, m/s (1 sigma)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--stop-after", type=float, default=None, help="stop the deltas this long after arming (s)")
+    p.add_argument("--resume-after", type=float, default=None, help="send the deltas again this long after arming (s)")
     p.add_argument("client", nargs=argparse.REMAINDER)
     a = p.parse_args()
     client = a.client[1:] if a.client and a.client[0] == "--" else a.client
@@ -133,11 +136,17 @@ def main() -> int:
             truth_flowing = True
             t = boot[0] + (time.monotonic() - boot[1])
             note(t=round(t, 4), lat_e7=msg.lat_int, lon_e7=msg.lon_int, depth_m=-msg.alt, yaw_rad=msg.yaw)
+            since_arming = None if armed_at is None else time.monotonic() - armed_at
             if stopped:
-                continue
-            if armed_at is not None and a.stop_after is not None and time.monotonic() - armed_at >= a.stop_after:
+                if a.resume_after is None or since_arming < a.resume_after:
+                    continue
+                stopped = False
+                acc, n_acc, last_att = [0.0, 0.0, 0.0], 0, None
+                note(event="deltas_resumed", t=t, sent=sent, after_arming_s=since_arming)
+            elif since_arming is not None and a.stop_after is not None and since_arming >= a.stop_after \
+                    and (a.resume_after is None or since_arming < a.resume_after):
                 stopped = True
-                note(event="deltas_stopped", t=t, sent=sent, after_arming_s=time.monotonic() - armed_at)
+                note(event="deltas_stopped", t=t, sent=sent, after_arming_s=since_arming)
                 continue
             att = (msg.roll, msg.pitch, msg.yaw)
             if last_att is None:

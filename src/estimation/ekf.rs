@@ -88,13 +88,27 @@ pub struct Ekf<M: DiscreteModel> {
     rejected_run: [u32; NS],
     /// The transition matrix of the last prediction (for a smoother).
     last_f: FilterCovariance,
-    /// Whether the horizontal disturbance `dX dY` is estimated (only while something observes
-    /// the horizontal motion: otherwise nothing can tell it from a wrong `u v`).
-    horizontal_disturbance: bool,
+    /// What becomes of the horizontal disturbance `dX dY` (estimated only while something
+    /// observes the horizontal motion: otherwise nothing can tell it from a wrong `u v`).
+    horizontal_disturbance: HorizontalDisturbance,
     /// The innovations' figures per sensor.
     health: Health,
     /// Factor on each state's process variance, adapted to the innovations (1: as set).
     q_scale: [f64; NS],
+}
+
+/// What the filter does with the horizontal disturbance `dX dY`, the input-equivalent of a
+/// water current and of what the model misses of the horizontal thrust.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HorizontalDisturbance {
+    /// Estimated: a position or velocity observes the horizontal motion.
+    Estimated,
+    /// Held at its last estimate, without decay, turned against the vehicle's turns (dead
+    /// reckoning: the current is taken to stay as it was over the ground while nothing
+    /// measures it); its variance still grows.
+    Held,
+    /// Held at zero: nothing observes the horizontal motion, and nothing did before.
+    Off,
 }
 
 /// After this many consecutive rejections of one component, the estimate of what it measures
@@ -165,7 +179,7 @@ impl<M: DiscreteModel> Ekf<M> {
             counts: FilterCounts::default(),
             rejected_run: [0; NS],
             last_f: FilterCovariance::identity(),
-            horizontal_disturbance: true,
+            horizontal_disturbance: HorizontalDisturbance::Estimated,
             health: Health::default(),
             q_scale: [1.0; NS],
         }
@@ -220,17 +234,16 @@ impl<M: DiscreteModel> Ekf<M> {
         &self.last_f
     }
 
-    /// Estimates the horizontal disturbance `dX dY` (on) or holds it at zero (off: nothing
-    /// observes the horizontal motion).
-    pub fn set_horizontal_disturbance(&mut self, on: bool) {
-        if on && !self.horizontal_disturbance {
+    /// Estimates, holds or clears the horizontal disturbance `dX dY` from now on.
+    pub fn set_horizontal_disturbance(&mut self, mode: HorizontalDisturbance) {
+        if mode != HorizontalDisturbance::Off && self.horizontal_disturbance == HorizontalDisturbance::Off {
             for i in [NS, NS + 1] {
                 let s = self.noise.disturbance_std[i - NS];
                 self.p[(i, i)] = s * s;
             }
         }
-        self.horizontal_disturbance = on;
-        if !on {
+        self.horizontal_disturbance = mode;
+        if mode == HorizontalDisturbance::Off {
             self.clear_horizontal_disturbance();
         }
     }
@@ -272,7 +285,7 @@ impl<M: DiscreteModel> Ekf<M> {
         self.rejected_run = [0; NS];
         self.health = Health::default();
         self.q_scale = [1.0; NS];
-        if !self.horizontal_disturbance {
+        if self.horizontal_disturbance == HorizontalDisturbance::Off {
             self.clear_horizontal_disturbance();
         }
     }
@@ -331,15 +344,29 @@ impl<M: DiscreteModel> Ekf<M> {
             self.x[sim_i] = next[net_i];
         }
         self.x[3] = sim[3] + wrap_angle(s.atan2(c) - sim[3]);
-        for i in 0..NU {
-            self.x[NS + i] *= self.decay;
-        }
+        // A held horizontal disturbance does not decay: dead reckoning keeps the current.
+        let held = self.horizontal_disturbance == HorizontalDisturbance::Held;
+        let every = self.decay;
+        let decay = |i: usize| if held && i < 2 { 1.0 } else { every };
         let mut f = FilterCovariance::zeros();
+        for i in 0..NU {
+            self.x[NS + i] *= decay(i);
+            f[(NS + i, NS + i)] = decay(i);
+        }
+        if held {
+            // A held current keeps its direction over the ground: its body-frame force turns
+            // against the vehicle's turn (its coupling to the heading's own error left out).
+            let (s, c) = (self.x[3] - sim[3]).sin_cos();
+            let (dx, dy) = (self.x[NS], self.x[NS + 1]);
+            self.x[NS] = c * dx + s * dy;
+            self.x[NS + 1] = -s * dx + c * dy;
+            f[(NS, NS)] = c;
+            f[(NS, NS + 1)] = s;
+            f[(NS + 1, NS)] = -s;
+            f[(NS + 1, NS + 1)] = c;
+        }
         f.fixed_view_mut::<NS, NS>(0, 0).copy_from(&a_sim);
         f.fixed_view_mut::<NS, NU>(0, NS).copy_from(&b_sim);
-        for i in 0..NU {
-            f[(NS + i, NS + i)] = self.decay;
-        }
         // The heave gain acts through the input's heave column, scaled by the applied force.
         f.fixed_view_mut::<NS, 1>(0, HEAVE_GAIN).copy_from(&(b_sim.column(2) * u[2]));
         f[(HEAVE_GAIN, HEAVE_GAIN)] = 1.0;
@@ -350,7 +377,7 @@ impl<M: DiscreteModel> Ekf<M> {
         }
         self.p = f * self.p * f.transpose() + q;
         self.p = (self.p + self.p.transpose()) * 0.5;
-        if !self.horizontal_disturbance {
+        if self.horizontal_disturbance == HorizontalDisturbance::Off {
             self.clear_horizontal_disturbance();
         }
         self.last_f = f;

@@ -4,8 +4,9 @@
 //! mean of the thruster outputs reported in it, else the command sent), and it starts itself
 //! once heading, yaw rate and depth have been seen.
 
-use super::ekf::{Ekf, Estimate, FilterCounts, Update};
+use super::ekf::{Ekf, Estimate, FilterCounts, HorizontalDisturbance, Update};
 use super::measurement::{Measurement, NoiseSettings};
+use super::navigation::{DEFAULT_DEAD_RECKONING_BOUND_M, Navigation, larger_variance};
 use super::smoother::{ForwardStep, Prediction, Smoothed, rts, std_of};
 use crate::runtime::RuntimeError;
 use crate::traits::DiscreteModel;
@@ -17,6 +18,10 @@ pub const MAX_GAP_S: f64 = 2.0;
 /// Horizontal motion counts as observed while a position or velocity was fused this recently
 /// (s).
 pub const HORIZONTAL_FRESH_S: f64 = 1.0;
+/// How late (s) a position fix may come and still be fused at the time it was measured.
+pub const MAX_FIX_LATENCY_S: f64 = 2.0;
+/// Past estimated positions kept for late fixes: [`MAX_FIX_LATENCY_S`] at 12.5 Hz and more.
+const PAST: usize = 32;
 /// Capacity of the queues, enough for several samples' worth of every stream; beyond it the
 /// oldest are fused early rather than allocating.
 const QUEUE: usize = 256;
@@ -35,6 +40,14 @@ pub struct Estimator<M: DiscreteModel> {
     last_reported: Option<Input>,
     commanded_since_report: bool,
     last_horizontal: Option<f64>,
+    /// The larger variance of the horizontal position at the last horizontal fusion.
+    horizontal_variance_then: f64,
+    dead_reckoning_bound: f64,
+    /// The estimated `(t, north, east)` of the last [`PAST`] steps, a ring: where a late fix
+    /// is compared.
+    past: [(f64, f64, f64); PAST],
+    past_next: usize,
+    late_fixes: u64,
     late: u64,
     restarts: u64,
     /// The last depth reading, and how many exact repeats of it were left out.
@@ -56,12 +69,30 @@ impl<M: DiscreteModel> Estimator<M> {
             last_reported: None,
             commanded_since_report: false,
             last_horizontal: None,
+            horizontal_variance_then: 0.0,
+            dead_reckoning_bound: DEFAULT_DEAD_RECKONING_BOUND_M,
+            past: [(f64::NEG_INFINITY, 0.0, 0.0); PAST],
+            past_next: 0,
+            late_fixes: 0,
             late: 0,
             restarts: 0,
             last_depth: None,
             repeated: 0,
             history: None,
         }
+    }
+
+    /// Dead reckoning may add at most `bound` (m, one standard deviation) to the horizontal
+    /// uncertainty before the horizontal estimate counts as lost (0: lost as soon as nothing
+    /// horizontal is measured for [`HORIZONTAL_FRESH_S`]).
+    pub fn with_dead_reckoning_bound(mut self, bound: f64) -> Self {
+        self.dead_reckoning_bound = bound;
+        self
+    }
+
+    /// The dead reckoning bound (m).
+    pub fn dead_reckoning_bound(&self) -> f64 {
+        self.dead_reckoning_bound
     }
 
     /// Keeps every step of the forward pass (a recorded log's replay), for
@@ -174,9 +205,52 @@ impl<M: DiscreteModel> Estimator<M> {
         self.ekf.counts()
     }
 
+    /// Position fixes that came after the step they were measured in and were fused against
+    /// the estimate of their own time.
+    pub fn late_fixes(&self) -> u64 {
+        self.late_fixes
+    }
+
     /// Whether a position or velocity was fused within [`HORIZONTAL_FRESH_S`] of `t`.
     pub fn horizontal_observed(&self, t: f64) -> bool {
         self.last_horizontal.is_some_and(|l| t - l <= HORIZONTAL_FRESH_S)
+    }
+
+    fn horizontal_variance(&self) -> f64 {
+        let p = self.ekf.covariance();
+        larger_variance(p[(0, 0)], p[(0, 1)], p[(1, 1)])
+    }
+
+    /// The horizontal estimate's standing at `t` (see [`Navigation`]).
+    pub fn navigation(&self, t: f64) -> Navigation {
+        match self.last_horizontal {
+            None => Navigation::Lost,
+            Some(_) if self.horizontal_observed(t) => Navigation::Measured,
+            Some(since) => {
+                let std = (self.horizontal_variance() - self.horizontal_variance_then).max(0.0).sqrt();
+                if self.started && std <= self.dead_reckoning_bound {
+                    Navigation::DeadReckoning { since, std }
+                } else {
+                    Navigation::Lost
+                }
+            }
+        }
+    }
+
+    /// The estimated north and east at `t` (the nearest step kept), for a fix measured then.
+    fn position_then(&self, t: f64) -> Option<(f64, f64)> {
+        let dt = self.ekf.model().dt();
+        self.past
+            .iter()
+            .filter(|(tp, ..)| (tp - t).abs() <= 0.5 * dt + 1e-9)
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
+            .map(|&(_, n, e)| (n, e))
+    }
+
+    fn remember_position(&mut self) {
+        let x = self.ekf.state();
+        self.past[self.past_next] = (self.ekf.t(), x[0], x[1]);
+        self.past_next = (self.past_next + 1) % PAST;
     }
 
     /// The applied input over the step ending at `t_end`: the mean of the reported inputs
@@ -230,6 +304,9 @@ impl<M: DiscreteModel> Estimator<M> {
         let std: [f64; NS] = [pos_std, pos_std, noise.depth_std, noise.heading_std, 0.3, 0.3, 0.3, noise.yaw_rate_std];
         self.ekf.reset(t, &sim, &std);
         self.started = true;
+        // Dead reckoning counts from a horizontal measurement of this run.
+        self.last_horizontal = pos.map(|_| t);
+        self.horizontal_variance_then = self.horizontal_variance();
     }
 
     /// Brings the estimate to time `t` (s): whole model steps from the filter's time, then
@@ -249,12 +326,15 @@ impl<M: DiscreteModel> Estimator<M> {
             self.reported.clear();
             if self.started {
                 self.record_start();
+                self.past = [(f64::NEG_INFINITY, 0.0, 0.0); PAST];
+                self.remember_position();
             }
             return Ok(self.started.then(|| self.ekf.estimate()));
         }
         while self.ekf.t() + 0.5 * dt <= t {
             let u = self.step_input(self.ekf.t() + dt);
             self.ekf.predict(&u)?;
+            self.remember_position();
             if let Some(h) = &mut self.history {
                 let (x, p, f) = (*self.ekf.state(), *self.ekf.covariance(), *self.ekf.last_transition());
                 if let Some(last) = h.last_mut() {
@@ -264,15 +344,31 @@ impl<M: DiscreteModel> Estimator<M> {
             }
         }
         let now = self.ekf.t();
-        self.ekf.set_horizontal_disturbance(self.horizontal_observed(now));
+        self.ekf.set_horizontal_disturbance(match self.navigation(now) {
+            Navigation::Measured => HorizontalDisturbance::Estimated,
+            Navigation::DeadReckoning { .. } => HorizontalDisturbance::Held,
+            Navigation::Lost => HorizontalDisturbance::Off,
+        });
         for i in 0..self.pending.len() {
-            let m = self.pending[i];
+            let mut m = self.pending[i];
             if m.t() < now - 1.5 * dt {
-                self.late += 1;
-                continue;
+                // A late fix is compared with the estimate of its own time: moved by how far
+                // the estimate went since, it is a fix of now.
+                match (m, self.position_then(m.t())) {
+                    (Measurement::Position { t, x, y, z }, Some((n, e))) if m.t() >= now - MAX_FIX_LATENCY_S => {
+                        let s = self.ekf.state();
+                        m = Measurement::Position { t, x: x + s[0] - n, y: y + s[1] - e, z };
+                        self.late_fixes += 1;
+                    }
+                    _ => {
+                        self.late += 1;
+                        continue;
+                    }
+                }
             }
             if self.ekf.update(&m) == Update::Fused && m.observes_horizontal() {
                 self.last_horizontal = Some(now);
+                self.horizontal_variance_then = self.horizontal_variance();
             }
         }
         self.pending.clear();
@@ -287,6 +383,7 @@ impl<M: DiscreteModel> Estimator<M> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimation::navigation::Navigation;
     use crate::vehicle::{Rk4Vehicle, to_network, to_simulator};
 
     /// A depth reading repeated exactly (a sensor read faster than it updates) is left out
@@ -299,6 +396,83 @@ mod tests {
         }
         assert_eq!(tr.repeated(), 3);
         assert_eq!(tr.pending.len(), 3);
+    }
+
+    /// Feeds a vehicle drifting at rest in the water with a 0.3 m/s current (its velocity over
+    /// the ground is the current's), a DVL measuring that velocity for `dvl_s` seconds and then
+    /// nothing horizontal until `end_s`; returns the estimator and the truth's north and east
+    /// at the end.
+    fn drift_in_a_current(bound: f64, dvl_s: f64, end_s: f64) -> (Estimator<Rk4Vehicle>, (f64, f64)) {
+        let dt = 0.08;
+        let mut tr = Estimator::new(Rk4Vehicle::with_dt(dt), NoiseSettings::default()).with_dead_reckoning_bound(bound);
+        let (current, psi) = ([0.26, 0.15], 0.4_f64);
+        let (s, c) = psi.sin_cos();
+        let (u, v) = (c * current[0] + s * current[1], -s * current[0] + c * current[1]);
+        let hover = Input::new(0.0, 0.0, -Rk4Vehicle::with_dt(dt).params.net_buoyancy(), 0.0);
+        tr.measure(Measurement::Position { t: 0.0, x: 0.0, y: 0.0, z: f64::NAN });
+        let steps = (end_s / dt).round() as usize;
+        for k in 0..=steps {
+            let t = k as f64 * dt;
+            tr.measure(Measurement::Heading { t, psi });
+            tr.measure(Measurement::YawRate { t, r: 0.0 });
+            tr.measure(Measurement::Depth { t, z: 2.0 + 1e-6 * k as f64 });
+            if t <= dvl_s + 1e-9 {
+                tr.measure(Measurement::VelocityBody { t, u, v, w: 0.0 });
+            }
+            tr.applied(t, hover);
+            tr.advance(t).unwrap();
+        }
+        let t = steps as f64 * dt;
+        (tr, (current[0] * t, current[1] * t))
+    }
+
+    /// Dead reckoning through a 20 s DVL gap: the current estimated while the DVL measured is
+    /// held, so the estimate drifts with the vehicle (within 0.1 m of the truth after 20 s,
+    /// against 6 m of drift), and says it dead reckons within its bound. With a bound of zero
+    /// the estimate counts as lost at once, as before dead reckoning.
+    #[test]
+    fn a_dvl_gap_is_dead_reckoned_with_the_current_estimated_before() {
+        let (tr, (n, e)) = drift_in_a_current(DEFAULT_DEAD_RECKONING_BOUND_M, 30.0, 50.0);
+        let est = tr.ekf().estimate();
+        let miss = (est.sim[0] - n).hypot(est.sim[1] - e);
+        assert!(miss < 0.1, "{miss} m from the truth ({n:.2}, {e:.2}) after 20 s of dead reckoning");
+        let Navigation::DeadReckoning { since, std } = tr.navigation(est.t) else {
+            panic!("{:?}", tr.navigation(est.t))
+        };
+        assert!((since - 30.0).abs() < 0.1 && std > 0.0 && std < DEFAULT_DEAD_RECKONING_BOUND_M, "{since} {std}");
+        let (tr, (n, e)) = drift_in_a_current(0.0, 30.0, 50.0);
+        assert_eq!(tr.navigation(tr.ekf().t()), Navigation::Lost);
+        let est = tr.ekf().estimate();
+        assert!((est.sim[0] - n).hypot(est.sim[1] - e) > 3.0, "without dead reckoning the current is dropped");
+    }
+
+    /// A late position fix is compared with the estimate of the time it was measured: a
+    /// vehicle moving north at 0.3 m/s, fixes of its true position arriving 0.5 s late, ends
+    /// within 2 cm of the truth, where each fix lies 0.144 m behind the vehicle when it arrives.
+    #[test]
+    fn late_fixes_are_fused_at_the_time_they_were_measured() {
+        let dt = 0.08;
+        let mut tr =
+            Estimator::new(Rk4Vehicle::with_dt(dt), NoiseSettings { position_std: 0.05, ..Default::default() });
+        let hover = Input::new(0.0, 0.0, -Rk4Vehicle::with_dt(dt).params.net_buoyancy(), 0.0);
+        let speed = 0.3;
+        for k in 0..=500 {
+            let t = k as f64 * dt;
+            tr.measure(Measurement::Heading { t, psi: 0.0 });
+            tr.measure(Measurement::YawRate { t, r: 0.0 });
+            tr.measure(Measurement::Depth { t, z: 2.0 + 1e-6 * k as f64 });
+            tr.measure(Measurement::VelocityBody { t, u: speed, v: 0.0, w: 0.0 });
+            // A fix every 0.24 s, 0.48 s late (six samples).
+            if k % 3 == 0 && k >= 6 {
+                let tf = t - 0.48;
+                tr.measure(Measurement::Position { t: tf, x: speed * tf + 1.0, y: 0.0, z: f64::NAN });
+            }
+            tr.applied(t, hover);
+            tr.advance(t).unwrap();
+        }
+        let est = tr.ekf().estimate();
+        assert!(tr.late_fixes() > 100, "{}", tr.late_fixes());
+        assert!((est.sim[0] - (speed * est.t + 1.0)).abs() < 0.02, "{} against {}", est.sim[0], speed * est.t + 1.0);
     }
 
     #[test]

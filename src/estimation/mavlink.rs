@@ -10,6 +10,8 @@
 //!   accelerometers and depth sensor without a position too; taken only while the newest
 //!   `EKF_STATUS_REPORT` vouches for it (`EKF_VELOCITY_VERT` set, initialised), and left out
 //!   while `LOCAL_POSITION_NED` comes (its velocity holds the same number);
+//! - `VISION_POSITION_DELTA` (a DVL, forwarded by the autopilot from the DVL's link): the
+//!   body velocity over the ground;
 //! - `SERVO_OUTPUT_RAW` through a vehicle file's thrusters: the input actually applied.
 //!
 //! Messages older than the newest of their kind are dropped (and counted).
@@ -65,8 +67,8 @@ pub struct MavlinkMeasurements {
     water_density: f64,
     thrusters: Option<Thrusters>,
     external_pressure: bool,
-    /// Newest stamp of attitude, pressure, local position, outputs, global position.
-    newest: [f64; 5],
+    /// Newest stamp of attitude, pressure, local position, outputs, global position, DVL.
+    newest: [f64; 6],
     dropped: u64,
     /// The newest EKF_STATUS_REPORT vouches for the vertical velocity.
     vertical_velocity_valid: bool,
@@ -82,7 +84,7 @@ impl MavlinkMeasurements {
             water_density,
             thrusters,
             external_pressure: false,
-            newest: [f64::NEG_INFINITY; 5],
+            newest: [f64::NEG_INFINITY; 6],
             dropped: 0,
             vertical_velocity_valid: false,
             vertical_velocity_left_out: 0,
@@ -96,7 +98,7 @@ impl MavlinkMeasurements {
 
     /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0).
     pub fn restart(&mut self) {
-        self.newest = [f64::NEG_INFINITY; 5];
+        self.newest = [f64::NEG_INFINITY; 6];
         self.external_pressure = false;
         self.vertical_velocity_valid = false;
     }
@@ -176,6 +178,18 @@ impl MavlinkMeasurements {
                         out(Observation::Measured(Measurement::VerticalVelocity { t, vd: f64::from(m.vz) * 0.01 }));
                     }
                     (false, false) => self.vertical_velocity_left_out += 1,
+                }
+            }
+            // A DVL's body-frame distance over the ground in its last interval (forward, right,
+            // down), forwarded by the autopilot from the DVL's own link: its mean velocity,
+            // stamped at the middle of the interval on the autopilot's clock (the message's
+            // own stamp is the sender's clock, which need not be the autopilot's).
+            MavMessage::VISION_POSITION_DELTA(d) if d.time_delta_usec > 0 => {
+                let dt = d.time_delta_usec as f64 * 1e-6;
+                let [u, v, w] = d.position_delta.map(|p| f64::from(p) / dt);
+                let t = now - 0.5 * dt;
+                if [u, v, w].iter().all(|x| x.is_finite()) && self.in_order(5, t) {
+                    out(Observation::Measured(Measurement::VelocityBody { t, u, v, w }));
                 }
             }
             MavMessage::EKF_STATUS_REPORT(e) => {

@@ -124,6 +124,14 @@ pub fn non_negative(name: &str, v: f64) -> Result<Duration, String> {
     }
 }
 
+/// A distance in metres, zero or more (a flag's value).
+fn metres(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("expected a distance in metres, zero or more, got {s:?}")),
+    }
+}
+
 /// A positive number of seconds, or an error naming `name`.
 ///
 /// # Errors
@@ -278,6 +286,11 @@ pub struct EstimatorArgs {
     /// [default: 0.1].
     #[arg(long)]
     pub velocity_ned_std: Option<f64>,
+    /// How much dead reckoning may add to the horizontal uncertainty (m, one standard
+    /// deviation) while no position or velocity is measured (a DVL that lost the bottom, a GPS
+    /// without its fix) before the horizontal goal is dropped; 0 drops it at once.
+    #[arg(long, default_value_t = crate::estimation::DEFAULT_DEAD_RECKONING_BOUND_M, value_parser = metres)]
+    pub dead_reckoning_bound: f64,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]

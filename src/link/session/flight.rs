@@ -9,7 +9,7 @@ use super::truth::Truth;
 use super::{AnyEstimator, AutopilotHold, EKF_STATUS_WAIT, Flyer, SessionOptions, Setup};
 use crate::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
 use crate::estimation::mavlink::Observation;
-use crate::estimation::{Estimate, Measurement};
+use crate::estimation::{Estimate, Measurement, Navigation};
 use crate::link::autopilot_estimate::HeadingReference;
 use crate::link::drive::{Drive, Fresh, Note, Sent, Stopped};
 use crate::link::link::{Autopilot, Received, SubMode};
@@ -43,6 +43,18 @@ pub(super) struct Flight<'l> {
     /// Autopilot time of the first cycle: the scenario's time 0.
     pub(super) t0: Option<f64>,
     horizontal_before: Option<bool>,
+    /// The navigation's standing last cycle (its changes are said).
+    navigation_before: Navigation,
+    /// When a DVL's velocity (`VISION_POSITION_DELTA`) last came: from the first, pinc
+    /// navigates on its own and leaves the autopilot's horizontal position out.
+    pub(super) own_velocity_at: Option<f64>,
+    /// Autopilot positions left out because pinc navigates on its own sources.
+    pub(super) own_navigation_left_out: u64,
+    /// Each navigation change (scenario time s, `measured` / `dead_reckoning` / `lost`, the
+    /// dead reckoning's added uncertainty m).
+    pub(super) navigation_changes: Vec<(f64, &'static str, f64)>,
+    /// The largest dead-reckoning uncertainty reached (m).
+    pub(super) dead_reckoning_max: f64,
     pub(super) ages: Vec<f64>,
     pub(super) latencies: Vec<f64>,
     pub(super) estimates: Vec<Estimate>,
@@ -80,13 +92,16 @@ pub(super) struct Flight<'l> {
     /// When the horizontal goal was dropped and taken up again (scenario time, s).
     pub(super) goal_changes: Vec<(f64, bool)>,
     max_distance: Option<f64>,
+    dead_reckoning_bound: f64,
     stream_samples: bool,
 }
 
 /// The state to control on, or why not yet.
 pub(super) struct Estimated {
     estimate: Option<Estimate>,
+    /// The horizontal estimate can be steered on: measured, or dead reckoned within the bound.
     horizontal: bool,
+    navigation: Navigation,
     state: Option<SimState>,
 }
 
@@ -107,6 +122,11 @@ impl<'l> Flight<'l> {
             waited: Instant::now(),
             t0: None,
             horizontal_before: None,
+            navigation_before: Navigation::Lost,
+            own_velocity_at: None,
+            own_navigation_left_out: 0,
+            navigation_changes: Vec::new(),
+            dead_reckoning_max: 0.0,
             ages: Vec::new(),
             latencies: Vec::new(),
             estimates: Vec::new(),
@@ -131,6 +151,7 @@ impl<'l> Flight<'l> {
             goal_dropped: false,
             goal_changes: Vec::new(),
             max_distance: setup.max_distance,
+            dead_reckoning_bound: setup.dead_reckoning_bound,
             stream_samples: setup.stream_samples,
         }
     }
@@ -165,23 +186,52 @@ impl<'l> Flight<'l> {
                 return Err(Trigger::Distance { distance, limit });
             }
         }
-        // An autopilot that says its source is lost (a GPS without its fix, a DVL unhealthy)
-        // drops the goal at once; a silence drops it after a second without a fused position.
-        let source_lost = self.position_measured_before == Some(false);
-        let dropped = !now.horizontal || source_lost;
+        // The goal is kept while pinc's own estimate is measured or dead reckoned within its
+        // bound (a GPS without its fix, a DVL that lost the bottom: the model and the current
+        // estimated before carry the estimate); past the bound it is dropped.
+        let dropped = !now.navigation.usable();
+        if let Navigation::DeadReckoning { std, .. } = now.navigation {
+            self.dead_reckoning_max = self.dead_reckoning_max.max(std);
+        }
+        if now.navigation.name() != self.navigation_before.name() && self.t0.is_some() {
+            let std = match now.navigation {
+                Navigation::DeadReckoning { std, .. } => std,
+                _ => match self.navigation_before {
+                    Navigation::DeadReckoning { std, .. } => std,
+                    _ => 0.0,
+                },
+            };
+            let text = match (now.navigation, self.navigation_before) {
+                (Navigation::DeadReckoning { since, .. }, _) => format!(
+                    "dead reckoning from {t:.2} s: nothing horizontal measured since {:.2} s; the goal is kept \
+                     while the added uncertainty stays within {:.2} m",
+                    since - self.t0.unwrap_or(0.0),
+                    self.dead_reckoning_bound
+                ),
+                (Navigation::Measured, Navigation::DeadReckoning { .. }) => {
+                    format!("navigation measured again at {t:.2} s after dead reckoning (added uncertainty {std:.2} m)")
+                }
+                (Navigation::Lost, Navigation::DeadReckoning { .. }) => format!(
+                    "dead reckoning past its bound at {t:.2} s ({:.2} m of added uncertainty)",
+                    self.dead_reckoning_bound
+                ),
+                (n, _) => format!("navigation {} at {t:.2} s", n.name()),
+            };
+            eprintln!("{text}");
+            let level = if now.navigation.usable() { Level::Info } else { Level::Warning };
+            self.notes.push(Note { t: at, level, text, from_autopilot: false });
+            self.navigation_changes.push((t, now.navigation.name(), std));
+        }
+        self.navigation_before = now.navigation;
         if dropped != self.goal_dropped {
-            let text = if dropped && source_lost {
+            let text = if dropped {
                 format!(
-                    "horizontal goal dropped at {t:.2} s: the autopilot's position source is lost; holding depth and \
-                     heading"
-                )
-            } else if dropped {
-                format!(
-                    "horizontal goal dropped at {t:.2} s: no position fused for {} s; holding depth and heading",
-                    crate::estimation::HORIZONTAL_FRESH_S
+                    "horizontal goal dropped at {t:.2} s: no position or velocity measured and dead reckoning past its \
+                     bound ({:.2} m); holding depth and heading",
+                    self.dead_reckoning_bound
                 )
             } else {
-                format!("horizontal goal taken up again at {t:.2} s: a position is fused")
+                format!("horizontal goal taken up again at {t:.2} s: a position or velocity is fused")
             };
             eprintln!("{text}");
             let level = if dropped { Level::Warning } else { Level::Info };
@@ -366,9 +416,35 @@ impl<'l> Flight<'l> {
         }
         self.position_measured_before = Some(position_measured);
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
+        let started = each!(&*estimator, tr => tr.started());
         let observations: Vec<Observation> = drive.drain_observations().collect();
         for mut ob in observations {
+            if let Observation::Measured(Measurement::VelocityBody { t, .. }) = ob {
+                if self.own_velocity_at.is_none() {
+                    self.notes.push(Note {
+                        t,
+                        level: Level::Info,
+                        text: "a DVL's velocities (VISION_POSITION_DELTA) reach pinc: it navigates on them, the \
+                               autopilot's horizontal position left out once the estimate has started"
+                            .into(),
+                        from_autopilot: false,
+                    });
+                }
+                self.own_velocity_at = Some(t);
+            }
+            // pinc's own navigation: the autopilot's position integrates the same DVL, and after
+            // a gap it goes on from where its dead reckoning froze (metres off): left out, its
+            // vertical velocity kept.
+            let own = started && self.own_velocity_at.is_some();
             match ob {
+                Observation::Measured(Measurement::VelocityNed { t, vd, .. }) if own => {
+                    self.own_navigation_left_out += 1;
+                    ob = Observation::Measured(Measurement::VerticalVelocity { t, vd });
+                }
+                Observation::Measured(Measurement::Position { .. }) if own => {
+                    self.own_navigation_left_out += 1;
+                    continue;
+                }
                 // A dead-reckoned position's vertical velocity is still the EKF's estimate from
                 // its accelerometers and depth: that part is kept.
                 Observation::Measured(Measurement::VelocityNed { t, vd, .. })
@@ -428,7 +504,9 @@ impl<'l> Flight<'l> {
             each!(&mut *estimator, tr => tr.advance(fresh.state.t))
                 .map_err(|e| Trigger::Error(format!("state estimator: {e}")))?
         };
-        let horizontal = each!(&*estimator, tr => tr.horizontal_observed(fresh.state.t));
+        let observed = each!(&*estimator, tr => tr.horizontal_observed(fresh.state.t));
+        let navigation = each!(&*estimator, tr => tr.navigation(fresh.state.t));
+        let horizontal = observed;
         if self.horizontal_before.is_some_and(|b| b != horizontal) || (horizontal && self.horizontal_before.is_none()) {
             let text = if horizontal {
                 "position source present: position and velocity fused into the estimate"
@@ -439,12 +517,13 @@ impl<'l> Flight<'l> {
             self.notes.push(Note { t: fresh.state.t, level, text: text.into(), from_autopilot: false });
         }
         self.horizontal_before = Some(horizontal);
+        let horizontal = navigation.usable() && !o.estimator.no_estimator || observed;
         let state = match (&estimate, o.estimator.no_estimator) {
             (Some(e), _) if horizontal || self.position_free => Some(e.sim),
             (None, true) if fresh.state.capability == Capability::Full => Some(SimState::from(fresh.state.sim)),
             _ => None,
         };
-        Ok(Estimated { estimate, horizontal, state })
+        Ok(Estimated { estimate, horizontal, navigation, state })
     }
 
     /// Before the first cycle: neutral while the autopilot's estimate is not usable, the state
@@ -665,7 +744,7 @@ impl<'l> Flight<'l> {
             let m = json!({
                 "t_autopilot_s": e.t, "estimate": e.sim.as_slice(), "std": e.std,
                 "disturbance": e.disturbance.as_slice(), "disturbance_std": e.disturbance_std, "raw": raw,
-                "position_source": now.horizontal, "process_noise_scale": scale, "heave_gain": e.heave_gain.0,
+                "position_source": now.horizontal, "navigation": now.navigation, "process_noise_scale": scale, "heave_gain": e.heave_gain.0,
             });
             if self.log_error.is_none() {
                 self.log_error = self.log.live("/estimate", "pinc.Estimate", t, m).err();

@@ -185,14 +185,18 @@ pub fn run<M: DiscreteModel + Clone>(
         _ => {}
     };
     let stop = ctrl_c_flag()?;
-    let Setup { commander, settings, estimator_model, noise, .. } = setup;
+    let Setup { commander, settings, estimator_model, noise, dead_reckoning_bound, .. } = setup;
     let mut drive = match Drive::start(link, autopilot, assembler, commander, settings, stop, seen) {
         Ok(d) => d,
         Err(stopped) => return Ok(flight.refused(stopped)),
     };
     let mut estimator = match estimator_model {
-        EstimatorModel::Controller(m) => AnyEstimator::Controller(Estimator::new(m, noise)),
-        EstimatorModel::Vehicle(v) => AnyEstimator::<M>::Vehicle(Estimator::new(v, noise)),
+        EstimatorModel::Controller(m) => {
+            AnyEstimator::Controller(Estimator::new(m, noise).with_dead_reckoning_bound(dead_reckoning_bound))
+        }
+        EstimatorModel::Vehicle(v) => {
+            AnyEstimator::<M>::Vehicle(Estimator::new(v, noise).with_dead_reckoning_bound(dead_reckoning_bound))
+        }
     };
     let outcome = flight.fly(&mut drive, &mut estimator, &mut flyer, scenario, o, &truths, seen);
     Ok(summary::end(flight, drive, outcome, &estimator, o))
@@ -213,6 +217,8 @@ struct Setup<M> {
     dt: f64,
     position_free: bool,
     max_distance: Option<f64>,
+    /// The dead reckoning's bound (m): `--dead-reckoning-bound`.
+    dead_reckoning_bound: f64,
     stream_samples: bool,
 }
 
@@ -285,6 +291,7 @@ impl<M: DiscreteModel + Clone> Setup<M> {
             dt,
             position_free,
             max_distance: o.max_distance,
+            dead_reckoning_bound: o.estimator.dead_reckoning_bound,
             stream_samples: o.stream_samples,
         })
     }

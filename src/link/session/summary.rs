@@ -98,6 +98,42 @@ fn delivered_ratios(f: &mut Flight, t_end: f64) -> serde_json::Map<String, Value
     ratios
 }
 
+/// pinc's own navigation: what it navigated on, its dead reckoning, and (with the simulator's
+/// truth) its horizontal position's error beside the autopilot's, each measured from where it
+/// put the vehicle when control started.
+fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>) -> Value {
+    let late_fixes = each!(estimator, tr => tr.late_fixes());
+    let bound = each!(estimator, tr => tr.dead_reckoning_bound());
+    let error = |from: &mut dyn Iterator<Item = (f64, f64, f64)>| -> Option<Value> {
+        let start = f.t0?;
+        let t0 = position_at(&f.truth_positions, start)?;
+        let mut origin = None;
+        let mut errors = Vec::new();
+        for (t, n, e) in from {
+            let Some(p) = position_at(&f.truth_positions, t) else { continue };
+            let (tn, te) = p.north_east_from(&t0);
+            let (n0, e0) = *origin.get_or_insert((n, e));
+            errors.push((n - n0 - tn).hypot(e - e0 - te));
+        }
+        let max = errors.iter().copied().fold(0.0, f64::max);
+        (!errors.is_empty()).then(|| json!({"rms_m": rms(&errors), "max_m": max, "samples": errors.len()}))
+    };
+    let start = f.t0.unwrap_or(0.0);
+    let pinc = error(&mut f.estimates.iter().filter(|e| e.t >= start).map(|e| (e.t, e.sim[0], e.sim[1])));
+    let autopilot = error(&mut f.raw_positions.iter().map(|&(t, n, e)| (t + start, n, e)));
+    let changes: Vec<Value> =
+        f.navigation_changes.iter().map(|(t, mode, std)| json!({"t": t, "mode": mode, "added_std_m": std})).collect();
+    json!({
+        "own_velocity": f.own_velocity_at.is_some(),
+        "autopilot_position_left_out": f.own_navigation_left_out,
+        "late_fixes": late_fixes,
+        "dead_reckoning_bound_m": bound,
+        "dead_reckoning_max_m": f.dead_reckoning_max,
+        "changes": changes,
+        "position_error_against_truth": {"pinc": pinc, "autopilot": autopilot},
+    })
+}
+
 /// The live figures: latencies, the estimate's and the tracking's errors against the
 /// simulator's truth (where it was streamed), the estimator's counts and health.
 fn figures<M: DiscreteModel>(
@@ -147,6 +183,7 @@ fn figures<M: DiscreteModel>(
             f.raw_positions.iter().map(|&(t, n, e)| (t, n - offset[0], e - offset[1])).collect();
         crate::closed_loop::horizontal_figures(plan, &positions)
     });
+    let navigation = navigation_figures(f, estimator);
     for &(t, z) in &f.raw_depths {
         if let Some(tr) = truth_at(&f.truths, t) {
             raw_depth_err.push(z - tr.z);
@@ -175,6 +212,7 @@ fn figures<M: DiscreteModel>(
         "truth_horizontal": horizontal,
         "horizontal_against_position_source": against_source,
         "horizontal_goal_changes": f.goal_changes,
+        "navigation": navigation,
         "raw_depth_rms_error": rms(&raw_depth_err),
         "js_gain": f.js_gain,
         "heading_reference": f.heading_reference.map(|h| h.key()),
