@@ -392,7 +392,7 @@ def test_the_dvl_lost_is_dead_reckoned_and_holds_depth_and_heading(station):
     # the last delta) and leaves its position frozen. pinc navigates on the DVL's own messages
     # (forwarded by the autopilot): within 1.5 s of the last it dead reckons on its model and
     # the current it estimated, keeps the point while the added uncertainty stays within its
-    # bound (1 m), and says so.
+    # bound (3 m), and says so.
     r, s = station["pinc, DVL lost"]
     live = s["live"]
     assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]

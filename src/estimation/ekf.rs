@@ -214,6 +214,9 @@ impl<M: DiscreteModel> Ekf<M> {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
         };
+        // While nothing measures the horizontal motion its sensors' figures are of the past:
+        // adapting on them would grow the dead reckoning's spread step after step.
+        let horizontal = horizontal.filter(|_| self.horizontal_disturbance == HorizontalDisturbance::Estimated);
         for (states, nis) in [(&[6][..], nis(Sensor::Depth)), (&[7][..], yaw), (&[4, 5][..], horizontal)] {
             let Some(nis) = nis else { continue };
             let factor = if nis > ADAPT_HIGH {

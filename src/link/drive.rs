@@ -494,7 +494,13 @@ impl Drive {
         let mut fresh = None;
         if let Some(r) = r {
             let from_autopilot = self.autopilot.sent(&r);
-            let state = if from_autopilot { self.read(&r) } else { None };
+            // A DVL's deltas come from its own system (BlueOS's extension, a second ground
+            // station), forwarded by the autopilot: measurements, never the state's clock.
+            let state = match &r.message {
+                _ if from_autopilot => self.read(&r),
+                MavMessage::VISION_POSITION_DELTA(_) => self.read(&r).and(None),
+                _ => None,
+            };
             let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
             seen(&r, t);
             if from_autopilot {

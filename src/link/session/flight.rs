@@ -713,7 +713,8 @@ impl<'l> Flight<'l> {
             self.raw_depths.push((fresh.state.t, fresh.state.sim[2]));
         }
         let (n, e) = (fresh.state.sim[0], fresh.state.sim[1]);
-        if now.horizontal && n.is_finite() && e.is_finite() {
+        // The autopilot's position as pinc steered by it: while a horizontal source is measured.
+        if now.navigation == Navigation::Measured && n.is_finite() && e.is_finite() {
             self.raw_positions.push((t, n, e));
         }
         if self.log_error.is_none() {
