@@ -389,7 +389,7 @@ def navigation_line(who, s):
 def test_the_dvl_lost_is_dead_reckoned_and_holds_depth_and_heading(station):
     # The DVL's messages stop 35 s into the station, for good. ArduSub's EKF goes on without
     # them for 5 s before it says it stopped aiding ("EKF3 IMU0 stopped aiding", 4.96 s after
-    # the last delta) and leaves its position frozen. pinc navigates on the DVL's own messages
+    # the last delta) and leaves its position frozen. pinc reads the DVL's own messages
     # (forwarded by the autopilot): within 1.5 s of the last it dead reckons on its model and
     # the current it estimated, keeps the point while the added uncertainty stays within its
     # bound (3 m), and says so.
@@ -397,7 +397,7 @@ def test_the_dvl_lost_is_dead_reckoned_and_holds_depth_and_heading(station):
     live = s["live"]
     assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
     nav = navigation_line("pinc, DVL lost", s)
-    assert nav["own_velocity"] and nav["autopilot_position_left_out"] > 0, nav
+    assert nav["dvl_seen"] and nav["dvl_left_out_beside_the_autopilots_position"] > 0, nav
     stop = dvl_events(s)["deltas_stopped"]["t"]
     t0 = start_time(read_mcap(Path(s["log"])))
     reckoning = [c for c in nav["changes"] if c["mode"] == "dead_reckoning"]

@@ -103,9 +103,9 @@ pub struct Ekf<M: DiscreteModel> {
 pub enum HorizontalDisturbance {
     /// Estimated: a position or velocity observes the horizontal motion.
     Estimated,
-    /// Held at its last estimate, without decay, turned against the vehicle's turns (dead
-    /// reckoning: the current is taken to stay as it was over the ground while nothing
-    /// measures it); its variance still grows.
+    /// Held at its last estimate, without decay or random walk, turned against the vehicle's
+    /// turns (dead reckoning: the current is taken to stay as it was over the ground while
+    /// nothing measures it).
     Held,
     /// Held at zero: nothing observes the horizontal motion, and nothing did before.
     Off,
@@ -214,9 +214,16 @@ impl<M: DiscreteModel> Ekf<M> {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
         };
-        // While nothing measures the horizontal motion its sensors' figures are of the past:
-        // adapting on them would grow the dead reckoning's spread step after step.
-        let horizontal = horizontal.filter(|_| self.horizontal_disturbance == HorizontalDisturbance::Estimated);
+        // While nothing measures the horizontal motion its sensors' figures are of the past,
+        // and what they adapted answered how the model met them: dead reckoning spreads by the
+        // model's own process noise.
+        let horizontal = if self.horizontal_disturbance == HorizontalDisturbance::Estimated {
+            horizontal
+        } else {
+            self.q_scale[4] = 1.0;
+            self.q_scale[5] = 1.0;
+            None
+        };
         for (states, nis) in [(&[6][..], nis(Sensor::Depth)), (&[7][..], yaw), (&[4, 5][..], horizontal)] {
             let Some(nis) = nis else { continue };
             let factor = if nis > ADAPT_HIGH {
@@ -377,6 +384,12 @@ impl<M: DiscreteModel> Ekf<M> {
         let mut q = self.q;
         for i in 0..NS {
             q[(i, i)] *= self.q_scale[i];
+        }
+        if held {
+            // Held is held: no random walk either (it would spread as fast as the current it
+            // stands for is estimated, 0.26 N per step, metres of position in seconds).
+            q[(NS, NS)] = 0.0;
+            q[(NS + 1, NS + 1)] = 0.0;
         }
         self.p = f * self.p * f.transpose() + q;
         self.p = (self.p + self.p.transpose()) * 0.5;

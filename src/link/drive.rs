@@ -418,6 +418,12 @@ impl Drive {
         )
     }
 
+    /// Whether the autopilot's horizontal position is integrated from velocities alone
+    /// (`EK3_SRC1_POSXY` 0: a DVL without position resets), not measured absolutely.
+    pub fn position_integrated(&self) -> bool {
+        self.params.get("EK3_SRC1_POSXY") == Some(0.0)
+    }
+
     /// The flight mode of the autopilot's newest heartbeat (ArduSub's `custom_mode`).
     pub fn mode(&self) -> u32 {
         self.mode

@@ -45,11 +45,18 @@ pub(super) struct Flight<'l> {
     horizontal_before: Option<bool>,
     /// The navigation's standing last cycle (its changes are said).
     navigation_before: Navigation,
-    /// When a DVL's velocity (`VISION_POSITION_DELTA`) last came: from the first, pinc
-    /// navigates on its own and leaves the autopilot's horizontal position out.
+    /// When a DVL's velocity (`VISION_POSITION_DELTA`) last came.
     pub(super) own_velocity_at: Option<f64>,
-    /// Autopilot positions left out because pinc navigates on its own sources.
-    pub(super) own_navigation_left_out: u64,
+    /// DVL velocities fused (the autopilot's position not measured) and left out (it is: its
+    /// position and velocity carry the same DVL already).
+    pub(super) dvl_fused: u64,
+    pub(super) dvl_left_out: u64,
+    /// Where the autopilot's integrated position (no absolute source) lies from pinc's: taken
+    /// when the autopilot measures again after a loss, since it goes on from where its own
+    /// dead reckoning froze. Its positions are fused less this.
+    pub(super) autopilot_offset: [f64; 2],
+    /// The offset is to be taken from the next autopilot position.
+    relatch: bool,
     /// Each navigation change (scenario time s, `measured` / `dead_reckoning` / `lost`, the
     /// dead reckoning's added uncertainty m).
     pub(super) navigation_changes: Vec<(f64, &'static str, f64)>,
@@ -124,7 +131,10 @@ impl<'l> Flight<'l> {
             horizontal_before: None,
             navigation_before: Navigation::Lost,
             own_velocity_at: None,
-            own_navigation_left_out: 0,
+            dvl_fused: 0,
+            dvl_left_out: 0,
+            autopilot_offset: [0.0, 0.0],
+            relatch: false,
             navigation_changes: Vec::new(),
             dead_reckoning_max: 0.0,
             ages: Vec::new(),
@@ -414,36 +424,46 @@ impl<'l> Flight<'l> {
                 from_autopilot: false,
             });
         }
+        // An integrated position (no absolute source: a DVL's EKF) that comes back after a loss
+        // goes on from where the autopilot's dead reckoning froze, metres off: pinc's own dead
+        // reckoning is kept and the autopilot's position taken from there (an absolute one, a
+        // GPS, is taken as it is).
+        if position_measured && self.position_measured_before == Some(false) && drive.position_integrated() {
+            self.relatch = true;
+        }
         self.position_measured_before = Some(position_measured);
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
-        let started = each!(&*estimator, tr => tr.started());
         let observations: Vec<Observation> = drive.drain_observations().collect();
         for mut ob in observations {
-            if let Observation::Measured(Measurement::VelocityBody { t, .. }) = ob {
-                if self.own_velocity_at.is_none() {
-                    self.notes.push(Note {
-                        t,
-                        level: Level::Info,
-                        text: "a DVL's velocities (VISION_POSITION_DELTA) reach pinc: it navigates on them, the \
-                               autopilot's horizontal position left out once the estimate has started"
-                            .into(),
-                        from_autopilot: false,
-                    });
-                }
-                self.own_velocity_at = Some(t);
-            }
-            // pinc's own navigation: the autopilot's position integrates the same DVL, and after
-            // a gap it goes on from where its dead reckoning froze (metres off): left out, its
-            // vertical velocity kept.
-            let own = started && self.own_velocity_at.is_some();
             match ob {
-                Observation::Measured(Measurement::VelocityNed { t, vd, .. }) if own => {
-                    self.own_navigation_left_out += 1;
-                    ob = Observation::Measured(Measurement::VerticalVelocity { t, vd });
+                // A DVL's own velocities: what pinc dead reckons on while the autopilot's
+                // position is not measured; beside a measured one they are in it already.
+                Observation::Measured(Measurement::VelocityBody { t, .. }) => {
+                    self.own_velocity_at = Some(t);
+                    if position_measured {
+                        self.dvl_left_out += 1;
+                        continue;
+                    }
+                    self.dvl_fused += 1;
                 }
-                Observation::Measured(Measurement::Position { .. }) if own => {
-                    self.own_navigation_left_out += 1;
-                    continue;
+                Observation::Measured(Measurement::Position { t, x, y, z }) if position_measured => {
+                    if self.relatch {
+                        self.relatch = false;
+                        let s = each!(&*estimator, tr => *tr.ekf().state());
+                        self.autopilot_offset = [x - s[0], y - s[1]];
+                        self.notes.push(Note {
+                            t,
+                            level: Level::Info,
+                            text: format!(
+                                "the autopilot's position is back {:.2} m north and {:.2} m east of pinc's dead \
+                                 reckoning: it goes on from where its own froze, so it is fused less that",
+                                self.autopilot_offset[0], self.autopilot_offset[1]
+                            ),
+                            from_autopilot: false,
+                        });
+                    }
+                    let [dn, de] = self.autopilot_offset;
+                    ob = Observation::Measured(Measurement::Position { t, x: x - dn, y: y - de, z });
                 }
                 // A dead-reckoned position's vertical velocity is still the EKF's estimate from
                 // its accelerometers and depth: that part is kept.

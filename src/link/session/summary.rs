@@ -124,8 +124,10 @@ fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>)
     let changes: Vec<Value> =
         f.navigation_changes.iter().map(|(t, mode, std)| json!({"t": t, "mode": mode, "added_std_m": std})).collect();
     json!({
-        "own_velocity": f.own_velocity_at.is_some(),
-        "autopilot_position_left_out": f.own_navigation_left_out,
+        "dvl_seen": f.own_velocity_at.is_some(),
+        "dvl_fused": f.dvl_fused,
+        "dvl_left_out_beside_the_autopilots_position": f.dvl_left_out,
+        "autopilot_offset_m": f.autopilot_offset,
         "late_fixes": late_fixes,
         "dead_reckoning_bound_m": bound,
         "dead_reckoning_max_m": f.dead_reckoning_max,
