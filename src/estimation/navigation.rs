@@ -14,7 +14,7 @@ use serde::Serialize;
 
 /// The dead reckoning's added horizontal uncertainty (m, one standard deviation) past which
 /// the horizontal estimate counts as lost, unless set.
-pub const DEFAULT_DEAD_RECKONING_BOUND_M: f64 = 3.0;
+pub const DEFAULT_DEAD_RECKONING_BOUND_M: f64 = 10.0;
 
 /// The standing of the horizontal estimate at one time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

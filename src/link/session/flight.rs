@@ -24,6 +24,11 @@ use serde_json::json;
 use std::cell::RefCell;
 use std::time::{Duration, Instant};
 
+/// How long (s) after the autopilot takes an integrated position source up again its
+/// positions set the offset to pinc's dead reckoning rather than being fused, while its
+/// estimate settles.
+const RELATCH_S: f64 = 5.0;
+
 /// What a session keeps as it flies: the log, the notes still to write, the samples and
 /// every count the summary reports.
 pub(super) struct Flight<'l> {
@@ -55,8 +60,12 @@ pub(super) struct Flight<'l> {
     /// when the autopilot measures again after a loss, since it goes on from where its own
     /// dead reckoning froze. Its positions are fused less this.
     pub(super) autopilot_offset: [f64; 2],
-    /// The offset is to be taken from the next autopilot position.
-    relatch: bool,
+    /// Until when (autopilot time, s) the offset is taken from each autopilot position rather
+    /// than the position fused: the autopilot's estimate settles for a few seconds after it
+    /// takes its source up again.
+    relatch_until: Option<f64>,
+    /// Autopilot positions the offset was taken from since it came back.
+    relatched: u64,
     /// Each navigation change (scenario time s, `measured` / `dead_reckoning` / `lost`, the
     /// dead reckoning's added uncertainty m).
     pub(super) navigation_changes: Vec<(f64, &'static str, f64)>,
@@ -134,7 +143,8 @@ impl<'l> Flight<'l> {
             dvl_fused: 0,
             dvl_left_out: 0,
             autopilot_offset: [0.0, 0.0],
-            relatch: false,
+            relatch_until: None,
+            relatched: 0,
             navigation_changes: Vec::new(),
             dead_reckoning_max: 0.0,
             ages: Vec::new(),
@@ -428,9 +438,11 @@ impl<'l> Flight<'l> {
         // goes on from where the autopilot's dead reckoning froze, metres off: pinc's own dead
         // reckoning is kept and the autopilot's position taken from there (an absolute one, a
         // GPS, is taken as it is).
-        if position_measured && self.position_measured_before == Some(false) && drive.position_integrated() {
-            self.relatch = true;
+        let returned = position_measured && self.position_measured_before == Some(false);
+        if returned && drive.position_integrated() && each!(&*estimator, tr => tr.navigation(t)).usable() {
+            self.relatch_until = Some(t + RELATCH_S);
         }
+        let relatching = self.relatch_until.is_some_and(|until| t < until);
         self.position_measured_before = Some(position_measured);
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
         let observations: Vec<Observation> = drive.drain_observations().collect();
@@ -440,23 +452,26 @@ impl<'l> Flight<'l> {
                 // position is not measured; beside a measured one they are in it already.
                 Observation::Measured(Measurement::VelocityBody { t, .. }) => {
                     self.own_velocity_at = Some(t);
-                    if position_measured {
+                    if position_measured && !relatching {
                         self.dvl_left_out += 1;
                         continue;
                     }
                     self.dvl_fused += 1;
                 }
                 Observation::Measured(Measurement::Position { t, x, y, z }) if position_measured => {
-                    if self.relatch {
-                        self.relatch = false;
+                    if relatching {
                         let s = each!(&*estimator, tr => *tr.ekf().state());
                         self.autopilot_offset = [x - s[0], y - s[1]];
+                        self.relatched += 1;
+                        continue;
+                    }
+                    if std::mem::take(&mut self.relatched) > 0 {
                         self.notes.push(Note {
                             t,
                             level: Level::Info,
                             text: format!(
-                                "the autopilot's position is back {:.2} m north and {:.2} m east of pinc's dead \
-                                 reckoning: it goes on from where its own froze, so it is fused less that",
+                                "the autopilot's position came back {:.2} m north and {:.2} m east of pinc's dead \
+                                 reckoning (it goes on from where its own froze): fused less that from {t:.2} s",
                                 self.autopilot_offset[0], self.autopilot_offset[1]
                             ),
                             from_autopilot: false,
