@@ -66,6 +66,8 @@ pub(super) struct Flight<'l> {
     relatch_until: Option<f64>,
     /// Autopilot positions the offset was taken from since it came back.
     relatched: u64,
+    /// The autopilot has measured its position at least once this session.
+    measured_once: bool,
     /// Each navigation change (scenario time s, `measured` / `dead_reckoning` / `lost`, the
     /// dead reckoning's added uncertainty m).
     pub(super) navigation_changes: Vec<(f64, &'static str, f64)>,
@@ -145,6 +147,7 @@ impl<'l> Flight<'l> {
             autopilot_offset: [0.0, 0.0],
             relatch_until: None,
             relatched: 0,
+            measured_once: false,
             navigation_changes: Vec::new(),
             dead_reckoning_max: 0.0,
             ages: Vec::new(),
@@ -438,7 +441,9 @@ impl<'l> Flight<'l> {
         // goes on from where the autopilot's dead reckoning froze, metres off: pinc's own dead
         // reckoning is kept and the autopilot's position taken from there (an absolute one, a
         // GPS, is taken as it is).
-        let returned = position_measured && self.position_measured_before == Some(false);
+        // A return: measured again after a loss, not the first time it is measured.
+        let returned = position_measured && self.position_measured_before == Some(false) && self.measured_once;
+        self.measured_once |= position_measured;
         if returned && drive.position_integrated() && each!(&*estimator, tr => tr.navigation(t)).usable() {
             self.relatch_until = Some(t + RELATCH_S);
         }
