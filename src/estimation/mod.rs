@@ -1,8 +1,8 @@
 //! State estimation on the model: an extended Kalman filter whose process model is the
 //! controller's own ([`ekf`]), the measurements a vehicle gives and their noise
 //! ([`measurement`]), the filter fed in time as a controller or a log replay feeds it
-//! ([`estimator`]), where its horizontal estimate stands: measured, dead reckoned or lost, and
-//! a position fix's place in the local frame ([`navigation`]), what its innovations say of the model ([`health`]: the adaptation of its
+//! ([`estimator`]), where its horizontal estimate stands: measured, dead reckoned or lost
+//! ([`navigation`]), what its innovations say of the model ([`health`]: the adaptation of its
 //! process noise, the live stop on a lost vehicle), ArduSub's MAVLink messages turned into
 //! measurements ([`mavlink`]), a smoother for recorded logs ([`smoother`]) and a recorded log
 //! replayed through the filter ([`replay`]), and a recorded dataset's windows started from
@@ -29,4 +29,4 @@ pub use ekf::{Ekf, Estimate, FilterCounts, NE, Update};
 pub use estimator::{Estimator, HORIZONTAL_FRESH_S, MAX_FIX_LATENCY_S};
 pub use health::{Health, Lost, Sensor};
 pub use measurement::{Measurement, NoiseSettings, white_noise_std};
-pub use navigation::{DEFAULT_DEAD_RECKONING_BOUND_M, LocalFrame, Navigation};
+pub use navigation::{DEFAULT_DEAD_RECKONING_BOUND_M, Navigation};
