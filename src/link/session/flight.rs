@@ -438,10 +438,9 @@ impl<'l> Flight<'l> {
             });
         }
         // An integrated position (no absolute source: a DVL's EKF) that comes back after a loss
-        // goes on from where the autopilot's dead reckoning froze, metres off: pinc's own dead
-        // reckoning is kept and the autopilot's position taken from there (an absolute one, a
-        // GPS, is taken as it is).
-        // A return: measured again after a loss, not the first time it is measured.
+        // (measured again, not for the first time) goes on from where the autopilot's dead
+        // reckoning froze, metres off: pinc's own dead reckoning is kept and the autopilot's
+        // position taken from there (an absolute one, a GPS, is taken as it is).
         let returned = position_measured && self.position_measured_before == Some(false) && self.measured_once;
         self.measured_once |= position_measured;
         if returned && drive.position_integrated() && each!(&*estimator, tr => tr.navigation(t)).usable() {
@@ -546,17 +545,18 @@ impl<'l> Flight<'l> {
         };
         let observed = each!(&*estimator, tr => tr.horizontal_observed(fresh.state.t));
         let navigation = each!(&*estimator, tr => tr.navigation(fresh.state.t));
-        let horizontal = observed;
-        if self.horizontal_before.is_some_and(|b| b != horizontal) || (horizontal && self.horizontal_before.is_none()) {
-            let text = if horizontal {
+        if self.horizontal_before.is_some_and(|b| b != observed) || (observed && self.horizontal_before.is_none()) {
+            let text = if observed {
                 "position source present: position and velocity fused into the estimate"
             } else {
                 "position source lost: running on the estimate (depth, heading, yaw rate and the model)"
             };
-            let level = if horizontal { Level::Info } else { Level::Warning };
+            let level = if observed { Level::Info } else { Level::Warning };
             self.notes.push(Note { t: fresh.state.t, level, text: text.into(), from_autopilot: false });
         }
-        self.horizontal_before = Some(horizontal);
+        self.horizontal_before = Some(observed);
+        // Steered on: measured, or dead reckoned within the bound (the estimate's, so not on
+        // the raw state).
         let horizontal = navigation.usable() && !o.estimator.no_estimator || observed;
         let state = match (&estimate, o.estimator.no_estimator) {
             (Some(e), _) if horizontal || self.position_free => Some(e.sim),
