@@ -213,39 +213,7 @@ impl<'l> Flight<'l> {
         // bound (a GPS without its fix, a DVL that lost the bottom: the model and the current
         // estimated before carry the estimate); past the bound it is dropped.
         let dropped = !now.navigation.usable();
-        if let Navigation::DeadReckoning { std, .. } = now.navigation {
-            self.dead_reckoning_max = self.dead_reckoning_max.max(std);
-        }
-        if now.navigation.name() != self.navigation_before.name() && self.t0.is_some() {
-            let std = match now.navigation {
-                Navigation::DeadReckoning { std, .. } => std,
-                _ => match self.navigation_before {
-                    Navigation::DeadReckoning { std, .. } => std,
-                    _ => 0.0,
-                },
-            };
-            let text = match (now.navigation, self.navigation_before) {
-                (Navigation::DeadReckoning { since, .. }, _) => format!(
-                    "dead reckoning from {t:.2} s: nothing horizontal measured since {:.2} s; the goal is kept \
-                     while the added uncertainty stays within {:.2} m",
-                    since - self.t0.unwrap_or(0.0),
-                    self.dead_reckoning_bound
-                ),
-                (Navigation::Measured, Navigation::DeadReckoning { .. }) => {
-                    format!("navigation measured again at {t:.2} s after dead reckoning (added uncertainty {std:.2} m)")
-                }
-                (Navigation::Lost, Navigation::DeadReckoning { .. }) => format!(
-                    "dead reckoning past its bound at {t:.2} s ({:.2} m of added uncertainty)",
-                    self.dead_reckoning_bound
-                ),
-                (n, _) => format!("navigation {} at {t:.2} s", n.name()),
-            };
-            eprintln!("{text}");
-            let level = if now.navigation.usable() { Level::Info } else { Level::Warning };
-            self.notes.push(Note { t: at, level, text, from_autopilot: false });
-            self.navigation_changes.push((t, now.navigation.name(), std));
-        }
-        self.navigation_before = now.navigation;
+        self.say_navigation(now.navigation, t, at);
         if dropped != self.goal_dropped {
             let text = if dropped {
                 format!(
@@ -263,6 +231,44 @@ impl<'l> Flight<'l> {
             self.goal_changes.push((t, dropped));
         }
         Ok(!dropped)
+    }
+
+    /// Each change of the navigation's standing (measured, dead reckoning, lost) said in the
+    /// terminal and the log, and kept for the summary with the dead reckoning's added spread.
+    fn say_navigation(&mut self, navigation: Navigation, t: f64, at: f64) {
+        if let Navigation::DeadReckoning { std, .. } = navigation {
+            self.dead_reckoning_max = self.dead_reckoning_max.max(std);
+        }
+        if navigation.name() != self.navigation_before.name() && self.t0.is_some() {
+            let std = match navigation {
+                Navigation::DeadReckoning { std, .. } => std,
+                _ => match self.navigation_before {
+                    Navigation::DeadReckoning { std, .. } => std,
+                    _ => 0.0,
+                },
+            };
+            let text = match (navigation, self.navigation_before) {
+                (Navigation::DeadReckoning { since, .. }, _) => format!(
+                    "dead reckoning from {t:.2} s: nothing horizontal measured since {:.2} s; the goal is kept \
+                     while the added uncertainty stays within {:.2} m",
+                    since - self.t0.unwrap_or(0.0),
+                    self.dead_reckoning_bound
+                ),
+                (Navigation::Measured, Navigation::DeadReckoning { .. }) => {
+                    format!("navigation measured again at {t:.2} s after dead reckoning (added uncertainty {std:.2} m)")
+                }
+                (Navigation::Lost, Navigation::DeadReckoning { .. }) => format!(
+                    "dead reckoning past its bound at {t:.2} s ({:.2} m of added uncertainty)",
+                    self.dead_reckoning_bound
+                ),
+                (n, _) => format!("navigation {} at {t:.2} s", n.name()),
+            };
+            eprintln!("{text}");
+            let level = if navigation.usable() { Level::Info } else { Level::Warning };
+            self.notes.push(Note { t: at, level, text, from_autopilot: false });
+            self.navigation_changes.push((t, navigation.name(), std));
+        }
+        self.navigation_before = navigation;
     }
 
     /// A log line at autopilot time `at` (on the scenario's clock once it started); the first
