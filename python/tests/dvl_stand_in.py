@@ -20,6 +20,14 @@ SERIAL2, 5763), so it never shares the client's link. While the client runs it
   the first and the last delta sent, and each change of the autopilot's word on the DVL's
   health: SYS_STATUS's visual odometry bit, `vision_healthy`).
 
+With `--usbl` it also stands in for a USBL, Water Linked's Underwater GPS G2 through its BlueOS
+extension: GPS_INPUT at 4 Hz (in simulated time) carrying the true position of when it was
+measured plus a seeded Gaussian error of --usbl-noise m (default 0.25) on north and east, sent
+--usbl-latency s (default 0.5) after it was measured, `horiz_accuracy` the noise, no velocity
+(a USBL measures none), the autopilot reading it as a MAVLink GPS (GPS1_TYPE 14). `--no-dvl`
+leaves the deltas out (the USBL alone). Each fix sent is recorded (`{"event": "fix", ...}` only
+for the first; the count at the end).
+
 `--stop-after S` stops the deltas S seconds after the autopilot first reports armed (the DVL's
 messages lost: a DVL that lost bottom lock or its cable); the record goes on. With
 `--resume-after R` (R > S) they come back R seconds after arming (bottom lock regained), the
@@ -27,7 +35,8 @@ first delta over a fresh interval. The sensor is
 the only place the truth enters: nothing else from the simulator goes to the client.
 
 usage: dvl_stand_in.py --record FILE [--port 5763] [--noise M_S] [--seed N] [--stop-after S]
-                       [--resume-after R] -- CLIENT [ARGS...]
+                       [--resume-after R] [--usbl [--usbl-noise M] [--usbl-latency S]] [--no-dvl]
+                       -- CLIENT [ARGS...]
 Exits with the client's status.
 """
 
@@ -49,6 +58,12 @@ GPS_GLOBAL_ORIGIN = 49
 TRUTH_HZ = 50  # SIM_STATE's stream, exact in simulated time (the simulator's README)
 DELTA_EVERY = 5  # SIM_STATEs per VISION_POSITION_DELTA: 10 Hz
 HOME = (33.810313, -118.393867)  # run_in_netns.sh's --home
+FIX_EVERY_S = 0.25  # the USBL's 4 Hz
+METRES_PER_E7_DEG = 0.011131884502145034  # ArduPilot's spherical earth
+# GPS_INPUT's fields left out: velocity (horizontal 8, vertical 16), its accuracy (32), the
+# vertical accuracy (128).
+USBL_IGNORE = 8 | 16 | 32 | 128
+GPS_EPOCH_UNIX_S = 315964800  # 1980-01-06, GPS time's start (leap seconds left out)
 
 
 def body_velocity(s):
@@ -76,6 +91,10 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--stop-after", type=float, default=None, help="stop the deltas this long after arming (s)")
     p.add_argument("--resume-after", type=float, default=None, help="send the deltas again this long after arming (s)")
+    p.add_argument("--usbl", action="store_true", help="also send a USBL's fixes as GPS_INPUT")
+    p.add_argument("--usbl-noise", type=float, default=0.25, help="USBL position noise, m (1 sigma, per axis)")
+    p.add_argument("--usbl-latency", type=float, default=0.5, help="how late each USBL fix is sent, s")
+    p.add_argument("--no-dvl", action="store_true", help="send no deltas (the USBL alone)")
     p.add_argument("client", nargs=argparse.REMAINDER)
     a = p.parse_args()
     client = a.client[1:] if a.client and a.client[0] == "--" else a.client
@@ -99,8 +118,22 @@ def main() -> int:
     last_att = None  # roll, pitch, yaw at the start of the interval
     sent = 0
     vision_healthy = None
+    usbl_rng = random.Random(a.seed + 1000)
+    next_fix_sim = 0.0  # simulated time of the next fix (s)
+    sim_time = 0.0
+    fixes_due = []  # (host time to send, lat_e7, lon_e7, depth m), oldest first
+    fixes_sent = 0
     while proc.poll() is None and m is not None:
         now = time.monotonic()
+        while fixes_due and fixes_due[0][0] <= now:
+            _, lat, lon, depth = fixes_due.pop(0)
+            gps_s = time.time() - GPS_EPOCH_UNIX_S
+            week, week_ms = int(gps_s // 604800), int((gps_s % 604800) * 1000)
+            m.mav.gps_input_send(int(time.time() * 1e6), 0, USBL_IGNORE, week_ms, week, 3, lat, lon, -depth,
+                                 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, a.usbl_noise, 0.0, 10)
+            if fixes_sent == 0:
+                note(event="first_fix", t=boot[0] + (now - boot[1]) if boot else None)
+            fixes_sent += 1
         if not truth_flowing and now - asked_streams > 2.0:  # asked again until SIM_STATE flows
             asked_streams = now
             for msg_id, hz in ((SIM_STATE, TRUTH_HZ), (ATTITUDE, TRUTH_HZ), (SYS_STATUS, 10)):
@@ -136,6 +169,16 @@ def main() -> int:
             truth_flowing = True
             t = boot[0] + (time.monotonic() - boot[1])
             note(t=round(t, 4), lat_e7=msg.lat_int, lon_e7=msg.lon_int, depth_m=-msg.alt, yaw_rad=msg.yaw)
+            sim_time += 1.0 / TRUTH_HZ
+            if a.usbl and sim_time >= next_fix_sim:
+                next_fix_sim += FIX_EVERY_S
+                north, east = usbl_rng.gauss(0.0, a.usbl_noise), usbl_rng.gauss(0.0, a.usbl_noise)
+                scale = math.cos(math.radians(msg.lat_int * 1e-7))
+                lat = msg.lat_int + round(north / METRES_PER_E7_DEG)
+                lon = msg.lon_int + round(east / (METRES_PER_E7_DEG * scale))
+                fixes_due.append((time.monotonic() + a.usbl_latency, lat, lon, -msg.alt))
+            if a.no_dvl:
+                continue
             since_arming = None if armed_at is None else time.monotonic() - armed_at
             if stopped:
                 if a.resume_after is None or since_arming < a.resume_after:
@@ -167,6 +210,8 @@ def main() -> int:
             acc, n_acc, last_att = [0.0, 0.0, 0.0], 0, att
     if m is not None and not stopped:
         note(event="deltas_end", sent=sent)
+    if a.usbl:
+        note(event="fixes_end", sent=fixes_sent)
     return proc.wait()
 
 

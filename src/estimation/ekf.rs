@@ -323,6 +323,35 @@ impl<M: DiscreteModel> Ekf<M> {
         }
     }
 
+    /// Takes the DVL's velocity noise (m/s) as measured on its own readings.
+    pub fn set_velocity_body_std(&mut self, std: f64) {
+        self.noise.velocity_body_std = std;
+    }
+
+    /// Sets the process noise on the horizontal position (m per step): the kinematics' own
+    /// error, small where a DVL measures the velocity it integrates.
+    pub fn set_position_process_std(&mut self, std: f64) {
+        for i in [0, 1] {
+            self.noise.process_std[i] = std;
+            self.q[(i, i)] = std * std;
+        }
+    }
+
+    /// Opens the horizontal position's spread to `std` (m) at least, its correlations cut: a
+    /// new absolute source is taken up (a USBL's fixes after the autopilot's position), whose
+    /// frame the estimate so far need not share, and which would otherwise be weighed against
+    /// a confidence it did not earn.
+    pub fn open_horizontal_position(&mut self, std: f64) {
+        for i in [0, 1] {
+            let keep = self.p[(i, i)].max(std * std);
+            for j in 0..NE {
+                self.p[(i, j)] = 0.0;
+                self.p[(j, i)] = 0.0;
+            }
+            self.p[(i, i)] = keep;
+        }
+    }
+
     /// Time of the estimate (s).
     pub fn t(&self) -> f64 {
         self.t
@@ -502,6 +531,13 @@ impl<M: DiscreteModel> Ekf<M> {
                 // A NaN depth: the position source's depth is left to the depth sensor.
                 let c = !z.is_finite() || self.scalar(z - self.x[2], &Self::row(&[(2, 1.0)]), sp * sp, p, true);
                 a && b && c
+            }
+            // The sensor's own word on its accuracy where it gives one.
+            Measurement::Fix { x, y, std, .. } => {
+                let r = if std.is_finite() && std > 0.0 { std * std } else { sp * sp };
+                let p = Sensor::Position;
+                let a = self.scalar(x - self.x[0], &Self::row(&[(0, 1.0)]), r, p, true);
+                a & self.scalar(y - self.x[1], &Self::row(&[(1, 1.0)]), r, p, true)
             }
             Measurement::VelocityNed { vn, ve, vd, .. } => {
                 // vn = c u - s v, ve = s u + c v, vd = w (roll and pitch taken as zero).

@@ -12,6 +12,11 @@
 //!   while `LOCAL_POSITION_NED` comes (its velocity holds the same number);
 //! - `VISION_POSITION_DELTA` (a DVL, forwarded by the autopilot from the DVL's link): the
 //!   body velocity over the ground;
+//! - `GPS_INPUT` (a USBL such as Water Linked's Underwater GPS through its extension, or a
+//!   GPS on MAVLink) and `GLOBAL_VISION_POSITION_ESTIMATE` (ArduPilot takes its `x y` as
+//!   metres in the local NED frame), from the sensor's own link: position fixes, once the
+//!   autopilot told its EKF origin (`GPS_GLOBAL_ORIGIN`) for the first; each stamped at its
+//!   arrival less the sensor's latency (the message's own stamp is the sender's clock);
 //! - `SERVO_OUTPUT_RAW` through a vehicle file's thrusters: the input actually applied.
 //!
 //! Messages older than the newest of their kind are dropped (and counted).
@@ -19,7 +24,7 @@
 use super::measurement::Measurement;
 use crate::types::Input;
 use crate::vehicle::Thrusters;
-use mavlink::dialects::ardupilotmega::{EkfStatusFlags, MavMessage, SERVO_OUTPUT_RAW_DATA};
+use mavlink::dialects::ardupilotmega::{EkfStatusFlags, GpsInputIgnoreFlags, MavMessage, SERVO_OUTPUT_RAW_DATA};
 
 /// Standard gravity (m/s^2), as ArduPilot's `GRAVITY_MSS`.
 pub const GRAVITY: f64 = 9.80665;
@@ -34,6 +39,19 @@ pub fn depth_from_pressure(hpa: f64, surface_hpa: f64, density: f64) -> f64 {
 const LOCAL_POSITION_COVERS_S: f64 = 1.0;
 /// `SERVO_OUTPUT_RAW.time_usec` wraps every 2^32 us.
 pub const USEC_WRAP_S: f64 = 4294.967296;
+/// Metres per 1e-7 degree of latitude on ArduPilot's spherical earth (`LOCATION_SCALING_FACTOR`).
+pub const METRES_PER_E7_DEGREE: f64 = 0.011131884502145034;
+/// `GPS_INPUT.fix_type` from which a fix is a position (2: 2D; its depth is not used).
+const FIX_2D: u8 = 2;
+
+/// North and east (m) of `lat_e7 lon_e7` (1e-7 deg) from `origin` on ArduPilot's flat earth
+/// about it, as its EKF turns a GPS fix into its local frame.
+pub fn north_east_of(origin: (i32, i32), lat_e7: i32, lon_e7: i32) -> (f64, f64) {
+    let scale = (f64::from(origin.0) * 1e-7).to_radians().cos();
+    let north = f64::from(lat_e7.wrapping_sub(origin.0)) * METRES_PER_E7_DEGREE;
+    let east = f64::from(lon_e7.wrapping_sub(origin.1)) * METRES_PER_E7_DEGREE * scale;
+    (north, east)
+}
 
 /// The eight outputs of a `SERVO_OUTPUT_RAW` (us).
 pub fn servo_pwm(o: &SERVO_OUTPUT_RAW_DATA) -> [u16; 8] {
@@ -67,8 +85,15 @@ pub struct MavlinkMeasurements {
     water_density: f64,
     thrusters: Option<Thrusters>,
     external_pressure: bool,
-    /// Newest stamp of attitude, pressure, local position, outputs, global position, DVL.
-    newest: [f64; 6],
+    /// Newest stamp of attitude, pressure, local position, outputs, global position, DVL,
+    /// position fix.
+    newest: [f64; 7],
+    /// The autopilot's EKF origin (1e-7 deg), once it said it.
+    origin: Option<(i32, i32)>,
+    /// How late (s) the positioning sensor's fixes arrive after they were measured.
+    fix_latency: f64,
+    /// Fixes that came before the origin was known, and so were left out.
+    fixes_before_origin: u64,
     dropped: u64,
     /// The newest EKF_STATUS_REPORT vouches for the vertical velocity.
     vertical_velocity_valid: bool,
@@ -84,7 +109,10 @@ impl MavlinkMeasurements {
             water_density,
             thrusters,
             external_pressure: false,
-            newest: [f64::NEG_INFINITY; 6],
+            newest: [f64::NEG_INFINITY; 7],
+            origin: None,
+            fix_latency: 0.0,
+            fixes_before_origin: 0,
             dropped: 0,
             vertical_velocity_valid: false,
             vertical_velocity_left_out: 0,
@@ -98,9 +126,43 @@ impl MavlinkMeasurements {
 
     /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0).
     pub fn restart(&mut self) {
-        self.newest = [f64::NEG_INFINITY; 6];
+        self.newest = [f64::NEG_INFINITY; 7];
+        self.origin = None;
         self.external_pressure = false;
         self.vertical_velocity_valid = false;
+    }
+
+    /// Position fixes are stamped `latency` s before they arrive (a USBL's acoustic round trip
+    /// and processing: Water Linked's Underwater GPS is some 0.5 s late).
+    pub fn set_fix_latency(&mut self, latency: f64) {
+        self.fix_latency = latency;
+    }
+
+    /// The latency (s) position fixes are stamped with.
+    pub fn fix_latency(&self) -> f64 {
+        self.fix_latency
+    }
+
+    /// The autopilot's EKF origin (1e-7 deg), once `GPS_GLOBAL_ORIGIN` said it.
+    pub fn origin(&self) -> Option<(i32, i32)> {
+        self.origin
+    }
+
+    /// Position fixes left out because the origin was not known yet.
+    pub fn fixes_before_origin(&self) -> u64 {
+        self.fixes_before_origin
+    }
+
+    fn fix(&mut self, now: f64, lat_e7: i32, lon_e7: i32, std: f64, mut out: impl FnMut(Observation)) {
+        let Some(origin) = self.origin else {
+            self.fixes_before_origin += 1;
+            return;
+        };
+        let t = now - self.fix_latency;
+        if self.in_order(6, t) {
+            let (x, y) = north_east_of(origin, lat_e7, lon_e7);
+            out(Observation::Measured(Measurement::Fix { t, x, y, std }));
+        }
     }
 
     /// Whether the newest `EKF_STATUS_REPORT` vouches for the autopilot's vertical velocity.
@@ -192,6 +254,20 @@ impl MavlinkMeasurements {
                     out(Observation::Measured(Measurement::VelocityBody { t, u, v, w }));
                 }
             }
+            MavMessage::GPS_GLOBAL_ORIGIN(o) => self.origin = Some((o.latitude, o.longitude)),
+            MavMessage::GPS_INPUT(g) if g.fix_type as u8 >= FIX_2D => {
+                let stated = !g.ignore_flags.contains(GpsInputIgnoreFlags::GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY)
+                    && g.horiz_accuracy > 0.0;
+                let std = if stated { f64::from(g.horiz_accuracy) } else { f64::NAN };
+                self.fix(now, g.lat, g.lon, std, out);
+            }
+            MavMessage::GLOBAL_VISION_POSITION_ESTIMATE(g) if g.x.is_finite() && g.y.is_finite() => {
+                let t = now - self.fix_latency;
+                if self.in_order(6, t) {
+                    let (x, y) = (f64::from(g.x), f64::from(g.y));
+                    out(Observation::Measured(Measurement::Fix { t, x, y, std: f64::NAN }));
+                }
+            }
             MavMessage::EKF_STATUS_REPORT(e) => {
                 self.vertical_velocity_valid = e.flags.contains(EkfStatusFlags::EKF_VELOCITY_VERT)
                     && !e.flags.contains(EkfStatusFlags::EKF_UNINITIALIZED);
@@ -236,6 +312,46 @@ mod tests {
         m.observe(0.0, &lp, |o| got.push(o));
         m.observe(0.0, &global(1240, 10), |o| got.push(o));
         assert_eq!(got.len(), 3, "the position's velocity holds it: {got:?}");
+    }
+
+    /// A `GPS_INPUT` fix waits for the EKF origin, then is metres north and east of it on
+    /// ArduPilot's flat earth, stamped its latency before it came, with the stated accuracy.
+    #[test]
+    fn gps_input_fixes_are_placed_from_the_origin_and_stamped_when_measured() {
+        use mavlink::dialects::ardupilotmega::{GPS_GLOBAL_ORIGIN_DATA, GPS_INPUT_DATA, GpsFixType};
+        let mut m = MavlinkMeasurements::new(1013.25, 1000.0, None);
+        m.set_fix_latency(0.5);
+        let mut got = Vec::new();
+        let origin = (338_103_130, -1_183_938_670);
+        let fix = |dlat: i32, dlon: i32, acc: f32, flags| {
+            MavMessage::GPS_INPUT(GPS_INPUT_DATA {
+                lat: origin.0 + dlat,
+                lon: origin.1 + dlon,
+                horiz_accuracy: acc,
+                ignore_flags: flags,
+                fix_type: GpsFixType::GPS_FIX_TYPE_3D_FIX,
+                ..Default::default()
+            })
+        };
+        m.observe(10.0, &fix(100, 0, 0.25, GpsInputIgnoreFlags::empty()), |o| got.push(o));
+        assert!(got.is_empty() && m.fixes_before_origin() == 1);
+        let o = GPS_GLOBAL_ORIGIN_DATA { latitude: origin.0, longitude: origin.1, altitude: 0 };
+        m.observe(10.1, &MavMessage::GPS_GLOBAL_ORIGIN(o), |o| got.push(o));
+        // 100e-7 deg north is 1.113 m; 100e-7 deg east at 33.81 deg north is 0.925 m.
+        m.observe(10.25, &fix(100, 100, 0.25, GpsInputIgnoreFlags::empty()), |o| got.push(o));
+        let Observation::Measured(Measurement::Fix { t, x, y, std }) = got[0] else { panic!("{got:?}") };
+        assert!((t - 9.75).abs() < 1e-12 && (std - 0.25).abs() < 1e-7, "{t} {std}");
+        assert!((x - 1.113188).abs() < 1e-5 && (y - 1.113188 * 33.8103130_f64.to_radians().cos()).abs() < 1e-5);
+        // No stated accuracy: NaN (the filter's own figure); no fix: nothing.
+        let ignore = GpsInputIgnoreFlags::GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY;
+        m.observe(10.5, &fix(0, 0, 0.25, ignore), |o| got.push(o));
+        assert!(matches!(got[1], Observation::Measured(Measurement::Fix { std, .. }) if std.is_nan()));
+        let mut none = fix(0, 0, 0.25, ignore);
+        if let MavMessage::GPS_INPUT(g) = &mut none {
+            g.fix_type = GpsFixType::GPS_FIX_TYPE_NO_FIX;
+        }
+        m.observe(10.75, &none, |o| got.push(o));
+        assert_eq!(got.len(), 2);
     }
 
     #[test]

@@ -40,6 +40,19 @@ pub enum Measurement {
         /// Down (m); NaN to leave depth to a depth sensor.
         z: f64,
     },
+    /// A position fix of the vehicle's own positioning sensor (a USBL such as Water Linked's
+    /// Underwater GPS, a GPS at the surface), turned into the autopilot's local NED frame (m),
+    /// at the time it was measured.
+    Fix {
+        /// Time (s) it was measured.
+        t: f64,
+        /// North (m).
+        x: f64,
+        /// East (m).
+        y: f64,
+        /// Its standard deviation (m) as the sensor states it; NaN where it states none.
+        std: f64,
+    },
     /// NED velocity (m/s), as the autopilot's EKF reports it.
     VelocityNed {
         /// Time (s).
@@ -80,13 +93,14 @@ impl Measurement {
             | Measurement::Heading { t, .. }
             | Measurement::YawRate { t, .. }
             | Measurement::Position { t, .. }
+            | Measurement::Fix { t, .. }
             | Measurement::VelocityNed { t, .. }
             | Measurement::VerticalVelocity { t, .. }
             | Measurement::VelocityBody { t, .. } => t,
         }
     }
 
-    /// Its kind's name (`depth`, `heading`, `yaw_rate`, `position`, `velocity_ned`,
+    /// Its kind's name (`depth`, `heading`, `yaw_rate`, `position`, `fix`, `velocity_ned`,
     /// `vertical_velocity`, `velocity_body`).
     pub fn kind(&self) -> &'static str {
         match self {
@@ -94,6 +108,7 @@ impl Measurement {
             Measurement::Heading { .. } => "heading",
             Measurement::YawRate { .. } => "yaw_rate",
             Measurement::Position { .. } => "position",
+            Measurement::Fix { .. } => "fix",
             Measurement::VelocityNed { .. } => "velocity_ned",
             Measurement::VerticalVelocity { .. } => "vertical_velocity",
             Measurement::VelocityBody { .. } => "velocity_body",
@@ -104,7 +119,10 @@ impl Measurement {
     pub fn observes_horizontal(&self) -> bool {
         matches!(
             self,
-            Measurement::Position { .. } | Measurement::VelocityNed { .. } | Measurement::VelocityBody { .. }
+            Measurement::Position { .. }
+                | Measurement::Fix { .. }
+                | Measurement::VelocityNed { .. }
+                | Measurement::VelocityBody { .. }
         )
     }
 }

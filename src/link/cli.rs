@@ -132,6 +132,15 @@ fn metres(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A number of seconds from 0 to the longest latency a fix may have.
+fn seconds_or_zero(s: &str) -> Result<f64, String> {
+    let most = crate::estimation::MAX_FIX_LATENCY_S;
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=most).contains(&v) => Ok(v),
+        _ => Err(format!("expected a latency in seconds from 0 to {most}, got {s:?}")),
+    }
+}
+
 /// A positive number of seconds, or an error naming `name`.
 ///
 /// # Errors
@@ -286,11 +295,22 @@ pub struct EstimatorArgs {
     /// [default: 0.1].
     #[arg(long)]
     pub velocity_ned_std: Option<f64>,
+    /// How far the current's horizontal force may wander (N, one standard deviation over its
+    /// 60 s correlation time): smaller steadies a noisy position sensor where no DVL measures
+    /// the velocity (a USBL alone), larger follows a current that changes [default: 5].
+    #[arg(long)]
+    pub current_std: Option<f64>,
     /// How much dead reckoning may add to the horizontal uncertainty (m, one standard
     /// deviation) while no position or velocity is measured (a DVL that lost the bottom, a GPS
     /// without its fix) before the horizontal goal is dropped; 0 drops it at once.
     #[arg(long, default_value_t = crate::estimation::DEFAULT_DEAD_RECKONING_BOUND_M, value_parser = metres)]
     pub dead_reckoning_bound: f64,
+    /// How late (s) the positioning sensor's fixes (`GPS_INPUT`, `GLOBAL_VISION_POSITION_ESTIMATE`
+    /// from its own link: a USBL, a GPS on MAVLink) arrive after they were measured; each is
+    /// fused against the estimate of that time (at most 2 s). Water Linked's Underwater GPS:
+    /// about 0.5.
+    #[arg(long, default_value_t = 0.0, value_parser = seconds_or_zero)]
+    pub fix_latency: f64,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]
@@ -316,6 +336,11 @@ impl EstimatorArgs {
             velocity_ned_std: self.velocity_ned_std.unwrap_or(d.velocity_ned_std),
             ..d
         };
+        let mut noise = noise;
+        if let Some(v) = self.current_std {
+            noise.disturbance_std[0] = v;
+            noise.disturbance_std[1] = v;
+        }
         noise.validate()?;
         Ok(noise)
     }

@@ -90,12 +90,18 @@ pub struct Drive {
     gps_fix: Option<u8>,
     /// The newest `SYS_STATUS`'s health of a DVL (visual odometry), where one is present.
     vision_healthy: Option<bool>,
+    /// When the EKF origin was last asked for.
+    origin_asked: Option<Instant>,
     watch: SensorWatch,
     /// Silence (s) of depth or heading, and how long (s) a live depth reading may stay the same.
     sensor_silence: f64,
     frozen_depth: f64,
 }
 
+/// How often the EKF origin is asked for while fixes come without it.
+const ORIGIN_ASK_EVERY: Duration = Duration::from_secs(2);
+/// `GPS_GLOBAL_ORIGIN`'s message id.
+const GPS_GLOBAL_ORIGIN_ID: u32 = 49;
 /// How often an arm command is repeated while the autopilot refuses it (ground stations
 /// retry about once a second too).
 const ARM_RETRY: Duration = Duration::from_secs(1);
@@ -249,6 +255,7 @@ impl Drive {
             mode,
             gps_fix: None,
             vision_healthy: None,
+            origin_asked: None,
             watch: SensorWatch::default(),
             sensor_silence: settings.sensor_silence,
             frozen_depth: settings.frozen_depth,
@@ -418,6 +425,16 @@ impl Drive {
         )
     }
 
+    /// Whether the autopilot's own position controllers (GUIDED, POSHOLD) have their position:
+    /// measured, and absolute where its source is one (`EK3_SRC1_POSXY` 3: a GPS, a USBL read
+    /// as one; a DVL's EKF flies relative to its start until it takes the fixes up, measured
+    /// 25-37 s after arming with the USBL stand-in, and then jumps to them).
+    pub fn position_ready_for_its_hold(&self) -> bool {
+        let absolute_source = self.params.get("EK3_SRC1_POSXY") == Some(3.0);
+        self.position_measured()
+            && (!absolute_source || self.ekf_status.as_ref().is_some_and(|s| s.absolute_position()))
+    }
+
     /// Whether the autopilot's horizontal position is integrated from velocities alone
     /// (`EK3_SRC1_POSXY` 0: a DVL without position resets), not measured absolutely.
     pub fn position_integrated(&self) -> bool {
@@ -490,6 +507,20 @@ impl Drive {
         })
     }
 
+    /// Asks the autopilot for its EKF origin (`GPS_GLOBAL_ORIGIN`), at most every
+    /// [`ORIGIN_ASK_EVERY`], while fixes come and it is not known: a fix in degrees is placed
+    /// in the local frame from it.
+    fn ask_origin(&mut self, at: Instant) {
+        if self.assembler.reader().origin().is_some()
+            || self.origin_asked.is_some_and(|then| at.saturating_duration_since(then) < ORIGIN_ASK_EVERY)
+        {
+            return;
+        }
+        self.origin_asked = Some(at);
+        // A refusal or a lost request is asked again; the link's own failure shows elsewhere.
+        self.link.request_message(GPS_GLOBAL_ORIGIN_ID).ok();
+    }
+
     /// Handles one message (or a short silence): the watchdog, the state.
     fn poll(&mut self, seen: &mut impl FnMut(&Received, f64), most: Duration) -> Result<Option<Fresh>, Trigger> {
         if self.stop.load(Ordering::Relaxed) {
@@ -500,11 +531,16 @@ impl Drive {
         let mut fresh = None;
         if let Some(r) = r {
             let from_autopilot = self.autopilot.sent(&r);
-            // A DVL's deltas come from its own system (BlueOS's extension, a second ground
-            // station), forwarded by the autopilot: measurements, never the state's clock.
+            // A DVL's deltas and a USBL's fixes come from their own systems (BlueOS's
+            // extensions, ground stations beside pinc), forwarded by the autopilot:
+            // measurements, never the state's clock.
             let state = match &r.message {
                 _ if from_autopilot => self.read(&r),
                 MavMessage::VISION_POSITION_DELTA(_) => self.read(&r).and(None),
+                MavMessage::GPS_INPUT(_) | MavMessage::GLOBAL_VISION_POSITION_ESTIMATE(_) => {
+                    self.ask_origin(r.at);
+                    self.read(&r).and(None)
+                }
                 _ => None,
             };
             let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);

@@ -237,6 +237,12 @@ impl StateAssembler {
         self.reader.set_thrusters(Some(thrusters));
     }
 
+    /// Position fixes from the vehicle's own positioning sensor are stamped `latency` s before
+    /// they arrive.
+    pub fn set_fix_latency(&mut self, latency: f64) {
+        self.reader.set_fix_latency(latency);
+    }
+
     /// The reader of the messages (what it dropped and left out).
     pub fn reader(&self) -> &MavlinkMeasurements {
         &self.reader

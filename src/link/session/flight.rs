@@ -9,7 +9,7 @@ use super::truth::Truth;
 use super::{AnyEstimator, AutopilotHold, EKF_STATUS_WAIT, Flyer, SessionOptions, Setup};
 use crate::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
 use crate::estimation::mavlink::Observation;
-use crate::estimation::{Estimate, Measurement, Navigation};
+use crate::estimation::{Estimate, Measurement, Navigation, white_noise_std};
 use crate::link::autopilot_estimate::HeadingReference;
 use crate::link::drive::{Drive, Fresh, Note, Sent, Stopped};
 use crate::link::link::{Autopilot, Received, SubMode};
@@ -28,6 +28,30 @@ use std::time::{Duration, Instant};
 /// positions set the offset to pinc's dead reckoning rather than being fused, while its
 /// estimate settles.
 const RELATCH_S: f64 = 5.0;
+/// The positioning sensor's own fixes navigate while the newest is at most this old (s, from
+/// when it was measured: a 4 Hz USBL 0.5 s late is 0.5-0.75 s old); past it the autopilot's
+/// position is the fallback.
+const OWN_FIXES_FRESH_S: f64 = 3.0;
+/// The fixes' and the DVL's white noise is measured again every this many readings, from the
+/// last [`NOISE_WINDOW`] of them.
+const NOISE_EVERY: usize = 16;
+const NOISE_WINDOW: usize = 240;
+/// The least DVL velocity noise (m/s) taken from its readings: a still vehicle's readings can
+/// look quieter than the sensor is.
+const DVL_NOISE_FLOOR: f64 = 0.005;
+/// With the sensor's own fixes control starts once they have navigated this long (s): the
+/// point held is where the estimate puts the vehicle then, and its error then stays in every
+/// figure after (beside a DVL, 80 fixes of 0.25 m average to some 3 cm).
+const FIXES_SETTLE_S: f64 = 20.0;
+/// The spread (m) a USBL's position is opened to when its fixes are taken up, where it states
+/// no accuracy of its own and none was measured yet.
+const FIX_STD_UNKNOWN: f64 = 1.0;
+/// The process noise on the horizontal position (m per step) while navigating on the sensors'
+/// own messages: the position is the integral of the velocity the model and the DVL give, with
+/// little error of its own; the default (0.005) is for the autopilot's filtered position, and
+/// beside a USBL's noisy fixes it let the estimate wander 5 cm (one standard deviation, per
+/// axis) where 0.001 lets it wander 2-3.
+const OWN_FIXES_POSITION_PROCESS_STD: f64 = 0.001;
 
 /// What a session keeps as it flies: the log, the notes still to write, the samples and
 /// every count the summary reports.
@@ -56,6 +80,22 @@ pub(super) struct Flight<'l> {
     /// position and velocity carry the same DVL already).
     pub(super) dvl_fused: u64,
     pub(super) dvl_left_out: u64,
+    /// The positioning sensor's own fixes (`GPS_INPUT`, `GLOBAL_VISION_POSITION_ESTIMATE`:
+    /// time measured, north, east), the std the sensor stated for the newest, and the white
+    /// noise measured on them (m).
+    pub(super) fixes: Vec<(f64, f64, f64)>,
+    pub(super) fix_std_stated: Option<f64>,
+    pub(super) fix_noise: Option<f64>,
+    /// The DVL's velocities (time, surge, sway) and the white noise measured on them (m/s).
+    dvl_velocities: Vec<(f64, f64, f64)>,
+    pub(super) dvl_noise: Option<f64>,
+    /// The autopilot's positions and velocities left out while pinc navigates on the sensors'
+    /// own messages (they carry the same fixes, filtered).
+    pub(super) autopilot_left_out: u64,
+    /// Since when (autopilot time, s) pinc navigates on the sensor's own fixes, and the
+    /// position's process noise set before (restored when they stop).
+    own_fixes_since: Option<f64>,
+    position_process_std: f64,
     /// Where the autopilot's integrated position (no absolute source) lies from pinc's: taken
     /// when the autopilot measures again after a loss, since it goes on from where its own
     /// dead reckoning froze. Its positions are fused less this.
@@ -114,6 +154,15 @@ pub(super) struct Flight<'l> {
     stream_samples: bool,
 }
 
+/// The white noise of a two-axis reading `(t, a, b)` (position fixes, DVL velocities): each
+/// axis's spread about the line through its neighbours ([`white_noise_std`]), the two axes'
+/// mean; `None` for too few.
+pub(super) fn white_noise_2d(readings: &[(f64, f64, f64)]) -> Option<f64> {
+    let a: Vec<(f64, f64)> = readings.iter().map(|&(t, a, _)| (t, a)).collect();
+    let b: Vec<(f64, f64)> = readings.iter().map(|&(t, _, b)| (t, b)).collect();
+    Some(0.5 * (white_noise_std(&a, false)? + white_noise_std(&b, false)?))
+}
+
 /// The state to control on, or why not yet.
 pub(super) struct Estimated {
     estimate: Option<Estimate>,
@@ -144,6 +193,14 @@ impl<'l> Flight<'l> {
             own_velocity_at: None,
             dvl_fused: 0,
             dvl_left_out: 0,
+            fixes: Vec::new(),
+            fix_std_stated: None,
+            fix_noise: None,
+            dvl_velocities: Vec::new(),
+            dvl_noise: None,
+            autopilot_left_out: 0,
+            own_fixes_since: None,
+            position_process_std: 0.0,
             autopilot_offset: [0.0, 0.0],
             relatch_until: None,
             relatched: 0,
@@ -454,19 +511,91 @@ impl<'l> Flight<'l> {
         }
         let relatching = self.relatch_until.is_some_and(|until| t < until);
         self.position_measured_before = Some(position_measured);
+        // With the positioning sensor's own fixes pinc navigates on its sensors: the fixes,
+        // the DVL's velocities, the model. The autopilot's position (the same fixes through its
+        // EKF, which cannot take a 0.5 s latency and jumps when it takes the fixes up) is the
+        // fallback for when they stop.
+        let own_fixes = self.fixes.last().is_some_and(|&(f, ..)| t - f <= OWN_FIXES_FRESH_S);
+        match (own_fixes, self.own_fixes_since) {
+            (true, None) => {
+                self.own_fixes_since = Some(t);
+                let std = self.fix_std_stated.or(self.fix_noise).unwrap_or(FIX_STD_UNKNOWN);
+                self.position_process_std = each!(&*estimator, tr => tr.position_process_std());
+                each!(&mut *estimator, tr => {
+                    tr.open_horizontal_position(std);
+                    tr.set_position_process_std(OWN_FIXES_POSITION_PROCESS_STD);
+                });
+                self.notes.push(Note {
+                    t,
+                    level: Level::Info,
+                    text: format!(
+                        "navigating on the positioning sensor's own fixes from {t:.2} s (their latency {:.2} s): the \
+                         autopilot's position is left out while they come",
+                        drive.assembler().reader().fix_latency()
+                    ),
+                    from_autopilot: false,
+                });
+            }
+            (false, Some(_)) => {
+                self.own_fixes_since = None;
+                each!(&mut *estimator, tr => tr.set_position_process_std(self.position_process_std));
+                self.notes.push(Note {
+                    t,
+                    level: Level::Warning,
+                    text: format!(
+                        "the positioning sensor's fixes stopped ({OWN_FIXES_FRESH_S} s without one): the autopilot's \
+                         position is fused again where it measures one"
+                    ),
+                    from_autopilot: false,
+                });
+            }
+            _ => {}
+        }
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
         let observations: Vec<Observation> = drive.drain_observations().collect();
         for mut ob in observations {
             match ob {
                 // A DVL's own velocities: what pinc dead reckons on while the autopilot's
                 // position is not measured; beside a measured one they are in it already.
-                Observation::Measured(Measurement::VelocityBody { t, .. }) => {
+                Observation::Measured(Measurement::VelocityBody { t, u, v, .. }) => {
                     self.own_velocity_at = Some(t);
-                    if position_measured && !relatching {
+                    // The DVL's noise, measured on its own readings (the filter's default is a
+                    // guess): taken by the estimator as it is measured.
+                    self.dvl_velocities.push((t, u, v));
+                    let n = self.dvl_velocities.len();
+                    if n % NOISE_EVERY == 0
+                        && let Some(noise) = white_noise_2d(&self.dvl_velocities[n.saturating_sub(NOISE_WINDOW)..])
+                    {
+                        self.dvl_noise = Some(noise);
+                        each!(&mut *estimator, tr => tr.set_velocity_body_std(noise.max(DVL_NOISE_FLOOR)));
+                    }
+                    if position_measured && !relatching && !own_fixes {
                         self.dvl_left_out += 1;
                         continue;
                     }
                     self.dvl_fused += 1;
+                }
+                Observation::Measured(Measurement::Fix { t, x, y, std }) => {
+                    self.fixes.push((t, x, y));
+                    self.fix_std_stated = std.is_finite().then_some(std);
+                    if self.fixes.len() % NOISE_EVERY == 0 {
+                        self.fix_noise = white_noise_2d(&self.fixes[self.fixes.len().saturating_sub(NOISE_WINDOW)..]);
+                    }
+                    // A sensor that states no accuracy: the noise measured on its fixes so far.
+                    if let (false, Some(measured)) = (std.is_finite(), self.fix_noise) {
+                        ob = Observation::Measured(Measurement::Fix { t, x, y, std: measured });
+                    }
+                }
+                Observation::Measured(Measurement::Position { .. } | Measurement::VelocityNed { .. }) if own_fixes => {
+                    self.autopilot_left_out += 1;
+                    if let Observation::Measured(Measurement::VelocityNed { t, vd, .. }) = ob
+                        && vertical_velocity_valid
+                    {
+                        self.vertical_velocities += 1;
+                        ob = Observation::Measured(Measurement::VerticalVelocity { t, vd });
+                    } else {
+                        continue;
+                    }
                 }
                 Observation::Measured(Measurement::Position { t, x, y, z }) if position_measured => {
                     if relatching {
@@ -600,7 +729,12 @@ impl<'l> Flight<'l> {
                 self.not_ready_said.push(why.clone());
             }
         }
-        let waiting_for_position = !now.horizontal && self.waited.elapsed() < self.wait_position;
+        // With the sensor's own fixes, until they settled the estimate; with the autopilot's
+        // hold, until the autopilot measures its own position (its controller steers by it).
+        let unsettled = self.own_fixes_since.is_some_and(|since| fresh.state.t - since < FIXES_SETTLE_S);
+        let autopilot_unplaced = self.hold.is_some() && !drive.position_ready_for_its_hold();
+        let waiting_for_position =
+            (!now.horizontal || unsettled || autopilot_unplaced) && self.waited.elapsed() < self.wait_position;
         if now.state.is_none() || waiting_for_position || !not_ready.is_empty() {
             if self.waited.elapsed() > self.give_up && (now.state.is_none() || !not_ready.is_empty()) {
                 return Err(self.gave_up(&not_ready, fresh, o));
@@ -634,6 +768,11 @@ impl<'l> Flight<'l> {
         self.control_after = Some(self.waited.elapsed().as_secs_f64());
         if let Some(s) = &now.state {
             self.hold_xy = (s[0], s[1]);
+        }
+        // The autopilot's hold steers by its own position: the point is where that puts the
+        // vehicle (pinc's estimate, on the sensors' own fixes, may lie elsewhere).
+        if self.hold.is_some() && fresh.state.capability == Capability::Full {
+            self.hold_xy = (fresh.state.sim[0], fresh.state.sim[1]);
         }
         Ok(Some(*self.t0.insert(fresh.state.t)))
     }

@@ -175,7 +175,8 @@ pub fn run<M: DiscreteModel + Clone>(
     log: &mut McapLog,
 ) -> Result<LiveRun, String> {
     let setup = Setup::new(&flyer, o, scenario.horizontal.is_some())?;
-    let (link, autopilot, assembler) = connect(o)?;
+    let (link, autopilot, mut assembler) = connect(o)?;
+    assembler.set_fix_latency(o.estimator.fix_latency);
     let mut flight = flight::Flight::new(&setup, log);
     flight.say_start(o, &setup, &autopilot);
     let truths: RefCell<truth::Feed> = RefCell::new(truth::Feed::default());

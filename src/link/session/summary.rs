@@ -101,7 +101,8 @@ fn delivered_ratios(f: &mut Flight, t_end: f64) -> serde_json::Map<String, Value
 /// pinc's own navigation: what it navigated on, its dead reckoning, and (with the simulator's
 /// truth) its horizontal position's error beside the autopilot's, each measured from where it
 /// put the vehicle when control started.
-fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>) -> Value {
+fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>, drive: &Drive) -> Value {
+    let reader = drive.assembler().reader();
     let late_fixes = each!(estimator, tr => tr.late_fixes());
     let bound = each!(estimator, tr => tr.dead_reckoning_bound());
     let error = |from: &mut dyn Iterator<Item = (f64, f64, f64)>| -> Option<Value> {
@@ -128,6 +129,13 @@ fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>)
         "dvl_fused": f.dvl_fused,
         "dvl_left_out_beside_the_autopilots_position": f.dvl_left_out,
         "autopilot_offset_m": f.autopilot_offset,
+        "fixes": f.fixes.len(),
+        "fixes_before_the_origin": reader.fixes_before_origin(),
+        "fix_latency_s": reader.fix_latency(),
+        "fix_std_stated_m": f.fix_std_stated,
+        "fix_noise_measured_m": super::flight::white_noise_2d(&f.fixes),
+        "dvl_noise_measured_m_s": f.dvl_noise,
+        "autopilot_left_out_beside_own_fixes": f.autopilot_left_out,
         "late_fixes": late_fixes,
         "dead_reckoning_bound_m": bound,
         "dead_reckoning_max_m": f.dead_reckoning_max,
@@ -185,7 +193,7 @@ fn figures<M: DiscreteModel>(
             f.raw_positions.iter().map(|&(t, n, e)| (t, n - offset[0], e - offset[1])).collect();
         crate::closed_loop::horizontal_figures(plan, &positions)
     });
-    let navigation = navigation_figures(f, estimator);
+    let navigation = navigation_figures(f, estimator, drive);
     for &(t, z) in &f.raw_depths {
         if let Some(tr) = truth_at(&f.truths, t) {
             raw_depth_err.push(z - tr.z);
