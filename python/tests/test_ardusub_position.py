@@ -61,15 +61,15 @@ DVL_LOST_AFTER_S = 40
 DVL_GAP = ("--stop-after", "30", "--resume-after", "50")
 
 
-def fly(out_dir, *extra, faults=(), timeout=420, common=COMMON, dvl=None):
+def fly(out_dir, *extra, faults=(), timeout=420, common=COMMON, dvl=None, parms=GPS_CURRENT):
     """One flight on its own simulator; its summary (JSON) and the run. A fitted model carries
     its thrusters: `common=WAIT` leaves the vehicle file out. `dvl` (the stand-in's options, a
     list): the GPS off and the DVL stand-in beside pinc, its record in `out_dir/dvl.jsonl`; with
     `--usbl` in them the USBL beside it (the autopilot set up for it), and with `--no-dvl` too
-    the USBL alone."""
+    the USBL alone. `parms`: the simulator's parameter files with the GPS (a current of
+    another speed or direction)."""
     client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--arm", "--sim-truth", "--json",
               "--out-dir", out_dir, "--timeout", "30", *common, *extra]
-    parms = GPS_CURRENT
     if dvl is not None:
         client = [sys.executable, DVL_STAND_IN, "--record", out_dir / "dvl.jsonl", *dvl, "--", *client]
         parms = DVL_CURRENT + [USBL] * ("--usbl" in dvl) + [USBL_ALONE] * ("--no-dvl" in dvl)
@@ -457,7 +457,10 @@ def test_a_dvl_gap_is_dead_reckoned_beside_guided(survey):
 
 # pinc's station RMS against GUIDED's on the same USBL stand-in, at most (the issue's target is
 # 0.5x: see the measured figures in test_a_usbls_fixes_are_steadied_beside_guided).
-LIMIT = {"DVL + USBL": 0.8, "USBL": 0.8}
+LIMIT = {"DVL + USBL": 0.5, "USBL": 0.75}
+# Without a DVL the current is told to wander less than its default 5 N: the fixes alone move
+# the estimate of it, and the controller with it.
+USBL_ALONE_CURRENT = ("--current-std", "0.5")
 
 
 @pytest.fixture(scope="module")
@@ -471,7 +474,8 @@ def usbl(tmp_path_factory, fitted):
     return side_by_side({
         "pinc (fitted), DVL + USBL": ((tmp / "pinc_dvl", *pinc), {"common": WAIT, "dvl": ["--usbl"]}),
         "ArduSub GUIDED, DVL + USBL": ((tmp / "guided_dvl", *guided), {"dvl": ["--usbl"]}),
-        "pinc (fitted), USBL": ((tmp / "pinc", *pinc), {"common": WAIT, "dvl": ["--usbl", "--no-dvl"]}),
+        "pinc (fitted), USBL": ((tmp / "pinc", *pinc, *USBL_ALONE_CURRENT),
+                                {"common": WAIT, "dvl": ["--usbl", "--no-dvl"]}),
         "ArduSub GUIDED, USBL": ((tmp / "guided", *guided), {"dvl": ["--usbl", "--no-dvl"]}),
     })
 
@@ -502,4 +506,10 @@ def test_a_usbls_fixes_are_steadied_beside_guided(usbl):
         assert (nav["dvl_noise_measured_m_s"] is not None) == (sensors == "DVL + USBL"), nav
         assert s["live"]["horizontal_goal_changes"] == [], s["live"]["horizontal_goal_changes"]
         assert pinc["samples"] >= 740 and pinc["depth_rms_m"] < guided["depth_rms_m"], (pinc, guided)
+        # Measured (truth RMS, m; pinc on its sensors' own messages, GUIDED on its EKF):
+        #   DVL + USBL  pinc 0.049-0.055 (three draws), GUIDED 0.153-0.173: 0.28-0.36x
+        #   USBL alone  pinc 0.176-0.27 (--current-std 0.5), GUIDED 0.31-0.48: 0.57x on the
+        #               same draws (the issue's 0.5x is not reached: the estimate, on the model
+        #               and 4 Hz fixes 0.5 s late, follows the truth within 0.17-0.24 m RMS and
+        #               the vehicle swings about the point at some 0.3 m/s)
         assert pinc["horizontal_rms_m"] <= LIMIT[sensors] * guided["horizontal_rms_m"], (sensors, pinc, guided)
