@@ -46,7 +46,7 @@ GPS_CURRENT = [JS_GAIN, CURRENT]
 WAIT = ("--wait-position", "45", "--max-distance", "25")
 COMMON = ("--vehicle", SIM_VEHICLE, *WAIT)
 # The GPS off, the DVL stand-in's velocities into the EKF, the declination set by hand.
-DVL_CURRENT = [JS_GAIN, CURRENT, FIXTURES / "dvl_stand_in.parm"]
+DVL_PARMS = FIXTURES / "dvl_stand_in.parm"
 DVL_STAND_IN = Path(__file__).resolve().parent / "dvl_stand_in.py"
 # A USBL beside the DVL (the EKF's position from its GPS_INPUT fixes), and alone.
 USBL, USBL_ALONE = FIXTURES / "usbl.parm", FIXTURES / "usbl_alone.parm"
@@ -72,7 +72,7 @@ def fly(out_dir, *extra, faults=(), timeout=420, common=COMMON, dvl=None, parms=
               "--out-dir", out_dir, "--timeout", "30", *common, *extra]
     if dvl is not None:
         client = [sys.executable, DVL_STAND_IN, "--record", out_dir / "dvl.jsonl", *dvl, "--", *client]
-        parms = DVL_CURRENT + [USBL] * ("--usbl" in dvl) + [USBL_ALONE] * ("--no-dvl" in dvl)
+        parms = [*parms, DVL_PARMS] + [USBL] * ("--usbl" in dvl) + [USBL_ALONE] * ("--no-dvl" in dvl)
     r = run_on_firmware(out_dir, parms, with_faults(client, faults, out_dir / "faults.jsonl"), timeout=timeout)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr}"
     s = json.loads(r.stdout)
@@ -204,13 +204,24 @@ def recorded_truth_figures(s, record, plan):
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    """The station flown six times at once: pinc, GUIDED, POSHOLD, pinc losing its GPS 60 s
-    after arming (control starts when GPS is fused, 20-45 s after arming), and pinc on the DVL
-    stand-in alone, keeping it and losing it for good."""
+def fitted(tmp_path_factory):
+    """The model `pinc fit` makes of the 90 s four-axis recording with the GPS (the fit tests')."""
+    out = tmp_path_factory.mktemp("fitted") / "fitted"
+    pinc_fit(GPS_RECORDING, out)
+    return out / "model.pinc"
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory, fitted):
+    """The station flown seven times at once: pinc, GUIDED, POSHOLD, pinc losing its GPS 60 s
+    after arming (control starts when GPS is fused, 20-45 s after arming), pinc on the DVL
+    stand-in alone, keeping it and losing it for good, and the fitted model on the DVL and a
+    USBL through the DVL's 20 s gap."""
     tmp = tmp_path_factory.mktemp("station")
     pinc = ("--oracle", "--scenario", "station")
     return side_by_side({
+        "pinc (fitted), DVL gap, USBL": ((tmp / "gap_usbl", "--model", fitted, *FIX_LATENCY, "--scenario", "station"),
+                                         {"common": WAIT, "dvl": ["--usbl", *DVL_GAP]}),
         "pinc (simulator's file)": ((tmp / "pinc", *pinc), {}),
         "ArduSub GUIDED": ((tmp / "guided", "--autopilot-hold", "guided", "--scenario", "station"), {}),
         "ArduSub POSHOLD": ((tmp / "poshold", "--autopilot-hold", "poshold", "--scenario", "station"), {}),
@@ -228,21 +239,13 @@ def test_station_keeping_in_a_current_beside_guided_and_poshold(station):
     # (measured: RMS 1.23 against 1.79 cm, largest 2.0 against 3.1 cm). Against the truth both
     # sit on the floor the position source sets (measured: 5.77 against 5.83 cm; the
     # autopilot's position itself is 5.0 cm RMS from the truth, from where it started):
-    # pinc no worse than GUIDED there, both far better than POSHOLD (12.1 cm, and it flies
+    # pinc no worse than GUIDED there (within 5 %), both far better than POSHOLD (12.1 cm, and it flies
     # neither the depth step nor the turn: it ignores those targets).
     assert pinc["source_rms_m"] < guided["source_rms_m"] and pinc["source_max_m"] < guided["source_max_m"], t
-    assert pinc["horizontal_rms_m"] <= 1.1 * guided["horizontal_rms_m"], t
+    assert pinc["horizontal_rms_m"] <= 1.05 * guided["horizontal_rms_m"], t
     assert pinc["horizontal_rms_m"] < 0.75 * poshold["horizontal_rms_m"], t
     assert pinc["depth_rms_m"] <= 0.13 and pinc["depth_rms_m"] < guided["depth_rms_m"], t
     assert pinc["held_heading_deg"] < guided["held_heading_deg"], t
-
-
-@pytest.fixture(scope="module")
-def fitted(tmp_path_factory):
-    """The model `pinc fit` makes of the 90 s four-axis recording with the GPS (the fit tests')."""
-    out = tmp_path_factory.mktemp("fitted") / "fitted"
-    pinc_fit(GPS_RECORDING, out)
-    return out / "model.pinc"
 
 
 @pytest.fixture(scope="module")
@@ -270,7 +273,7 @@ def test_a_survey_in_a_current_beside_guided(survey):
     # Cross-track (measured against the truth: RMS 6.2 against 6.8 cm, largest 9.3 against 15.7
     # cm; the depth 0.139 against 0.164 m RMS, the dive from the surface included): pinc keeps
     # closer to the legs and to the schedule (both reach the last point 0.7-0.9 s early).
-    assert pinc["horizontal_rms_m"] <= 1.1 * guided["horizontal_rms_m"], t
+    assert pinc["horizontal_rms_m"] <= 1.05 * guided["horizontal_rms_m"], t
     assert pinc["horizontal_max_m"] < guided["horizontal_max_m"], t
     assert pinc["source_rms_m"] < guided["source_rms_m"], t
     assert pinc["finished_s"] is not None and pinc["finished_s"] <= pinc["schedule_s"] + 0.5, t
@@ -455,6 +458,9 @@ def test_a_dvl_gap_is_dead_reckoned_beside_guided(survey):
     assert pinc[1] < guided[1] and pinc[2] < guided[2], (pinc, guided)
 
 
+# The fast surveys: legs of 10 m, 2 m apart, at these speeds (m/s), across a 0.5 m/s current.
+FAST_SPEEDS = (0.5, 0.8)
+ACROSS = [JS_GAIN, FIXTURES / "current_0_5_across.parm"]
 # pinc's station RMS against GUIDED's on the same USBL stand-in, at most (the issue's target is
 # 0.5x: see the measured figures in test_a_usbls_fixes_are_steadied_beside_guided).
 LIMIT = {"DVL + USBL": 0.5, "USBL": 0.75}
@@ -465,13 +471,22 @@ USBL_ALONE_CURRENT = ("--current-std", "0.5")
 
 @pytest.fixture(scope="module")
 def usbl(tmp_path_factory, fitted):
-    """The station on a USBL stand-in (Water Linked's Underwater GPS: GPS_INPUT at 4 Hz, 0.25 m
-    of noise, 0.5 s late), beside the DVL stand-in and alone, the fitted model and GUIDED on the
-    same sensors, all at once."""
+    """All at once: the station on a USBL stand-in (Water Linked's Underwater GPS: GPS_INPUT at
+    4 Hz, 0.25 m of noise, 0.5 s late), beside the DVL stand-in and alone, and the fast surveys
+    on the DVL (legs at 0.5 and 0.8 m/s, a 0.5 m/s current across them); the fitted model and
+    GUIDED on the same sensors."""
     tmp = tmp_path_factory.mktemp("usbl")
     pinc = ("--model", fitted, *FIX_LATENCY, "--scenario", "station")
     guided = ("--autopilot-hold", "guided", "--scenario", "station")
+    fast = {}
+    for speed in FAST_SPEEDS:
+        survey = ("--survey", f"6,10,2,{speed},2")
+        fast[f"pinc (fitted), survey at {speed} m/s"] = (
+            (tmp / f"fast_{speed}", "--model", fitted, *survey), {"common": WAIT, "parms": ACROSS, "dvl": []})
+        fast[f"ArduSub GUIDED, survey at {speed} m/s"] = (
+            (tmp / f"fast_guided_{speed}", "--autopilot-hold", "guided", *survey), {"parms": ACROSS, "dvl": []})
     return side_by_side({
+        **fast,
         "pinc (fitted), DVL + USBL": ((tmp / "pinc_dvl", *pinc), {"common": WAIT, "dvl": ["--usbl"]}),
         "ArduSub GUIDED, DVL + USBL": ((tmp / "guided_dvl", *guided), {"dvl": ["--usbl"]}),
         "pinc (fitted), USBL": ((tmp / "pinc", *pinc, *USBL_ALONE_CURRENT),
@@ -488,7 +503,7 @@ def test_a_usbls_fixes_are_steadied_beside_guided(usbl):
     # metres, and cannot take a 0.5 s latency). GUIDED holds where its own position says,
     # from when its EKF has taken the fixes up.
     got = {}
-    for who in usbl:
+    for who in [w for w in usbl if "survey" not in w]:
         r, s = usbl[who]
         got[who] = dvl_row(who, r, s, STATION_PLAN)
     for sensors in ("DVL + USBL", "USBL"):
@@ -513,3 +528,37 @@ def test_a_usbls_fixes_are_steadied_beside_guided(usbl):
         #               and 4 Hz fixes 0.5 s late, follows the truth within 0.17-0.24 m RMS and
         #               the vehicle swings about the point at some 0.3 m/s)
         assert pinc["horizontal_rms_m"] <= LIMIT[sensors] * guided["horizontal_rms_m"], (sensors, pinc, guided)
+
+
+def test_fast_surveys_across_a_current_beside_guided(usbl):
+    # The issue's case where control matters: legs at 0.5 and 0.8 m/s with a 0.5 m/s current
+    # across them, on the DVL (its ideal stand-in: the sensor is not the floor), the fitted
+    # model beside GUIDED on the same schedule. Measured (cross-track RMS against the truth):
+    # 0.5 m/s pinc 0.033 m, GUIDED 0.095 m (0.35x); 0.8 m/s 0.047 m against 0.146 m (0.32x);
+    # both end within 0.4 s before the schedule. On the GPS the same surveys gave 0.59x and
+    # 0.40x: at 0.5 m/s the GPS's own 5 cm wander is most of pinc's 5.6 cm.
+    for speed in FAST_SPEEDS:
+        rows = {}
+        for who in (f"pinc (fitted), survey at {speed} m/s", f"ArduSub GUIDED, survey at {speed} m/s"):
+            rows[who] = dvl_row(who, *usbl[who], survey_plan(speed=speed))
+        pinc, guided = rows.values()
+        print(f"survey at {speed} m/s: pinc / GUIDED {pinc['horizontal_rms_m'] / guided['horizontal_rms_m']:.2f}x")
+        assert pinc["horizontal_rms_m"] <= 0.5 * guided["horizontal_rms_m"], (speed, pinc, guided)
+        assert pinc["finished_s"] is not None and pinc["finished_s"] <= pinc["schedule_s"] + 0.5, pinc
+        assert pinc["samples"] >= (pinc["schedule_s"] - 1.0) / 0.08, pinc
+
+
+def test_a_dvl_gap_beside_a_usbl_comes_back_to_the_point(station):
+    # The DVL's 20 s gap with a USBL's fixes beside it: pinc navigates on the fixes and the
+    # model through the gap (nothing to dead reckon), and 10 s after the DVL's return is back
+    # within 0.1 m of the point.
+    r, s = station["pinc (fitted), DVL gap, USBL"]
+    assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
+    ev = dvl_events(s)
+    stop, back = ev["deltas_stopped"]["t"], ev["deltas_resumed"]["t"]
+    d = distances_from_the_point(s, [stop + 10.0, back, back + 10.0])
+    nav = navigation_line("pinc (fitted), DVL gap, USBL", s)
+    print(f"DVL gap beside a USBL: from the point 10 s after the loss, at the return, 10 s after it: "
+          f"{[round(x, 3) for x in d]}")
+    assert [c["mode"] for c in nav["changes"]] == ["measured"], nav["changes"]
+    assert d[0] <= 0.3 and d[1] <= 0.6 and d[2] <= 0.1, d

@@ -318,6 +318,7 @@ fn try_main(a: Args) -> Result<(), String> {
             &vehicle,
             model.fitted.as_ref(),
             &mut log,
+            &a.out_dir.join(format!("{name}_navigation.png")),
         ))
         .transpose(),
         None => Ok(None),
@@ -698,6 +699,8 @@ fn live(
     // What a model fitted by `pinc fit` carries of its vehicle (thrusters, sensors).
     fitted: Option<&pinc::model::FittedVehicle>,
     log: &mut McapLog,
+    // Where the navigation against the simulator's truth is drawn (with --sim-truth).
+    navigation_png: &std::path::Path,
 ) -> Result<RunOutcome, String> {
     use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
     let options = SessionOptions {
@@ -731,5 +734,10 @@ fn live(
         };
         run(flyer, scenario, &options, log)?
     };
-    Ok((outcome.samples, outcome.log_error, outcome.stopped, outcome.live))
+    let mut live = outcome.live;
+    if let (Some(track), Some(serde_json::Value::Object(o))) = (&outcome.navigation, live.as_mut()) {
+        track.plot(navigation_png, &format!("{}, scenario {}", hold.map_or("pinc", |h| h.name()), scenario.name()))?;
+        o.insert("navigation_plot".into(), navigation_png.display().to_string().into());
+    }
+    Ok((outcome.samples, outcome.log_error, outcome.stopped, live))
 }

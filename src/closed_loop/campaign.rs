@@ -157,7 +157,8 @@ impl Campaign {
             PincModel::load(&s.model).map_err(|e| SetupError::Model { path: s.model.clone(), why: e.to_string() })?;
         let bounds =
             Predictor::reference(&model).input_bounds().ok_or_else(|| SetupError::NoEnvelope(s.model.clone()))?;
-        let mut scenario = scenario_of(s, &path_limits(&vehicle, bounds, s.max_distance))?;
+        let heading = s.path_heading.map_or(PathHeading::Track, PathHeading::Fixed);
+        let mut scenario = scenario_of(s, &path_limits(&vehicle, bounds, s.max_distance, heading))?;
         // A reference file or path took the duration above (checked there); the built-ins take it here.
         if s.reference.is_none()
             && s.path.is_none()
@@ -251,11 +252,21 @@ impl Campaign {
 }
 
 /// The limits a path is checked against: the vehicle's steady horizontal speed at the
-/// model's largest surge or sway force (whichever is smaller), and the distance limit.
-pub fn path_limits(vehicle: &VehicleParams, (lo, hi): (Input, Input), max_distance: Option<f64>) -> PathLimits {
+/// model's largest force on the axis it travels along (surge where it faces along each leg,
+/// else the smaller of surge and sway), and the distance limit.
+pub fn path_limits(
+    vehicle: &VehicleParams,
+    (lo, hi): (Input, Input),
+    max_distance: Option<f64>,
+    heading: PathHeading,
+) -> PathLimits {
     let surge = crate::vehicle::terminal_speed(hi[0].min(-lo[0]).max(0.0), vehicle.x_u, vehicle.x_uu);
     let sway = crate::vehicle::terminal_speed(hi[1].min(-lo[1]).max(0.0), vehicle.y_v, vehicle.y_vv);
-    PathLimits { max_speed: surge.min(sway), max_distance }
+    let max_speed = match heading {
+        PathHeading::Track => surge,
+        PathHeading::Fixed(_) => surge.min(sway),
+    };
+    PathLimits { max_speed, max_distance }
 }
 
 /// The scenario `s` names: a reference file, a path file, a survey, or a built-in one.

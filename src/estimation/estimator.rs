@@ -40,6 +40,8 @@ pub struct Estimator<M: DiscreteModel> {
     last_reported: Option<Input>,
     commanded_since_report: bool,
     last_horizontal: Option<f64>,
+    /// When a velocity (a DVL's, the autopilot's) was last fused.
+    last_velocity: Option<f64>,
     /// The larger variance of the horizontal position at the last horizontal fusion.
     horizontal_variance_then: f64,
     dead_reckoning_bound: f64,
@@ -69,6 +71,7 @@ impl<M: DiscreteModel> Estimator<M> {
             last_reported: None,
             commanded_since_report: false,
             last_horizontal: None,
+            last_velocity: None,
             horizontal_variance_then: 0.0,
             dead_reckoning_bound: DEFAULT_DEAD_RECKONING_BOUND_M,
             past: [(f64::NEG_INFINITY, 0.0, 0.0); PAST],
@@ -331,6 +334,7 @@ impl<M: DiscreteModel> Estimator<M> {
         self.started = true;
         // Dead reckoning counts from a horizontal measurement of this run.
         self.last_horizontal = pos.map(|_| t);
+        self.last_velocity = vel.map(|_| t);
         self.horizontal_variance_then = self.horizontal_variance();
     }
 
@@ -369,7 +373,12 @@ impl<M: DiscreteModel> Estimator<M> {
             }
         }
         let now = self.ekf.t();
+        // A velocity measured before and lost (a DVL's gap) while positions still come (a
+        // USBL's fixes): the current estimated on the velocities is held, as in dead reckoning;
+        // the fixes alone move it by their noise.
+        let velocity_lost = self.last_velocity.is_some_and(|l| now - l > HORIZONTAL_FRESH_S);
         self.ekf.set_horizontal_disturbance(match self.navigation(now) {
+            Navigation::Measured if velocity_lost => HorizontalDisturbance::Held,
             Navigation::Measured => HorizontalDisturbance::Estimated,
             Navigation::DeadReckoning { .. } => HorizontalDisturbance::Held,
             Navigation::Lost => HorizontalDisturbance::Off,
@@ -399,6 +408,9 @@ impl<M: DiscreteModel> Estimator<M> {
             if self.ekf.update(&m) == Update::Fused && m.observes_horizontal() {
                 self.last_horizontal = Some(now);
                 self.horizontal_variance_then = self.horizontal_variance();
+                if matches!(m, Measurement::VelocityBody { .. } | Measurement::VelocityNed { .. }) {
+                    self.last_velocity = Some(now);
+                }
             }
         }
         self.pending.clear();

@@ -9,7 +9,8 @@ use super::truth::Truth;
 use super::{AnyEstimator, AutopilotHold, EKF_STATUS_WAIT, Flyer, SessionOptions, Setup};
 use crate::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
 use crate::estimation::mavlink::Observation;
-use crate::estimation::{Estimate, Measurement, Navigation, white_noise_std};
+use super::noise_window::NoiseWindow;
+use crate::estimation::{Estimate, Measurement, Navigation};
 use crate::link::autopilot_estimate::HeadingReference;
 use crate::link::drive::{Drive, Fresh, Note, Sent, Stopped};
 use crate::link::link::{Autopilot, Received, SubMode};
@@ -32,10 +33,6 @@ const RELATCH_S: f64 = 5.0;
 /// when it was measured: a 4 Hz USBL 0.5 s late is 0.5-0.75 s old); past it the autopilot's
 /// position is the fallback.
 const OWN_FIXES_FRESH_S: f64 = 3.0;
-/// The fixes' and the DVL's white noise is measured again every this many readings, from the
-/// last [`NOISE_WINDOW`] of them.
-const NOISE_EVERY: usize = 16;
-const NOISE_WINDOW: usize = 240;
 /// The least DVL velocity noise (m/s) taken from its readings: a still vehicle's readings can
 /// look quieter than the sensor is.
 const DVL_NOISE_FLOOR: f64 = 0.005;
@@ -81,14 +78,11 @@ pub(super) struct Flight<'l> {
     pub(super) dvl_fused: u64,
     pub(super) dvl_left_out: u64,
     /// The positioning sensor's own fixes (`GPS_INPUT`, `GLOBAL_VISION_POSITION_ESTIMATE`:
-    /// time measured, north, east), the std the sensor stated for the newest, and the white
-    /// noise measured on them (m).
-    pub(super) fixes: Vec<(f64, f64, f64)>,
+    /// time measured, north, east, m) and the std the sensor stated for the newest.
+    pub(super) fixes: NoiseWindow,
     pub(super) fix_std_stated: Option<f64>,
-    pub(super) fix_noise: Option<f64>,
-    /// The DVL's velocities (time, surge, sway) and the white noise measured on them (m/s).
-    dvl_velocities: Vec<(f64, f64, f64)>,
-    pub(super) dvl_noise: Option<f64>,
+    /// The DVL's velocities (time, surge, sway, m/s).
+    pub(super) dvl_velocities: NoiseWindow,
     /// The autopilot's positions and velocities left out while pinc navigates on the sensors'
     /// own messages (they carry the same fixes, filtered).
     pub(super) autopilot_left_out: u64,
@@ -154,15 +148,6 @@ pub(super) struct Flight<'l> {
     stream_samples: bool,
 }
 
-/// The white noise of a two-axis reading `(t, a, b)` (position fixes, DVL velocities): each
-/// axis's spread about the line through its neighbours ([`white_noise_std`]), the two axes'
-/// mean; `None` for too few.
-pub(super) fn white_noise_2d(readings: &[(f64, f64, f64)]) -> Option<f64> {
-    let a: Vec<(f64, f64)> = readings.iter().map(|&(t, a, _)| (t, a)).collect();
-    let b: Vec<(f64, f64)> = readings.iter().map(|&(t, _, b)| (t, b)).collect();
-    Some(0.5 * (white_noise_std(&a, false)? + white_noise_std(&b, false)?))
-}
-
 /// The state to control on, or why not yet.
 pub(super) struct Estimated {
     estimate: Option<Estimate>,
@@ -193,11 +178,9 @@ impl<'l> Flight<'l> {
             own_velocity_at: None,
             dvl_fused: 0,
             dvl_left_out: 0,
-            fixes: Vec::new(),
+            fixes: NoiseWindow::default(),
             fix_std_stated: None,
-            fix_noise: None,
-            dvl_velocities: Vec::new(),
-            dvl_noise: None,
+            dvl_velocities: NoiseWindow::default(),
             autopilot_left_out: 0,
             own_fixes_since: None,
             position_process_std: 0.0,
@@ -379,7 +362,13 @@ impl<'l> Flight<'l> {
         let reason = stopped.trigger.map_or_else(|| "stopped".to_string(), |t| t.to_string());
         self.log_line(0.0, Level::Error, &reason);
         eprintln!("{reason}");
-        super::LiveRun { samples: Vec::new(), log_error: self.log_error, stopped: Some(reason), live: None }
+        super::LiveRun {
+            samples: Vec::new(),
+            log_error: self.log_error,
+            stopped: Some(reason),
+            live: None,
+            navigation: None,
+        }
     }
 
     /// The cycles, from the first fresh state to the scenario's end or a stop.
@@ -515,11 +504,11 @@ impl<'l> Flight<'l> {
         // the DVL's velocities, the model. The autopilot's position (the same fixes through its
         // EKF, which cannot take a 0.5 s latency and jumps when it takes the fixes up) is the
         // fallback for when they stop.
-        let own_fixes = self.fixes.last().is_some_and(|&(f, ..)| t - f <= OWN_FIXES_FRESH_S);
+        let own_fixes = self.fixes.newest().is_some_and(|f| t - f <= OWN_FIXES_FRESH_S);
         match (own_fixes, self.own_fixes_since) {
             (true, None) => {
                 self.own_fixes_since = Some(t);
-                let std = self.fix_std_stated.or(self.fix_noise).unwrap_or(FIX_STD_UNKNOWN);
+                let std = self.fix_std_stated.or(self.fixes.noise()).unwrap_or(FIX_STD_UNKNOWN);
                 self.position_process_std = each!(&*estimator, tr => tr.position_process_std());
                 each!(&mut *estimator, tr => {
                     tr.open_horizontal_position(std);
@@ -561,12 +550,7 @@ impl<'l> Flight<'l> {
                     self.own_velocity_at = Some(t);
                     // The DVL's noise, measured on its own readings (the filter's default is a
                     // guess): taken by the estimator as it is measured.
-                    self.dvl_velocities.push((t, u, v));
-                    let n = self.dvl_velocities.len();
-                    if n % NOISE_EVERY == 0
-                        && let Some(noise) = white_noise_2d(&self.dvl_velocities[n.saturating_sub(NOISE_WINDOW)..])
-                    {
-                        self.dvl_noise = Some(noise);
+                    if let Some(noise) = self.dvl_velocities.push(t, u, v) {
                         each!(&mut *estimator, tr => tr.set_velocity_body_std(noise.max(DVL_NOISE_FLOOR)));
                     }
                     if position_measured && !relatching && !own_fixes {
@@ -576,13 +560,10 @@ impl<'l> Flight<'l> {
                     self.dvl_fused += 1;
                 }
                 Observation::Measured(Measurement::Fix { t, x, y, std }) => {
-                    self.fixes.push((t, x, y));
+                    self.fixes.push(t, x, y);
                     self.fix_std_stated = std.is_finite().then_some(std);
-                    if self.fixes.len() % NOISE_EVERY == 0 {
-                        self.fix_noise = white_noise_2d(&self.fixes[self.fixes.len().saturating_sub(NOISE_WINDOW)..]);
-                    }
                     // A sensor that states no accuracy: the noise measured on its fixes so far.
-                    if let (false, Some(measured)) = (std.is_finite(), self.fix_noise) {
+                    if let (false, Some(measured)) = (std.is_finite(), self.fixes.noise()) {
                         ob = Observation::Measured(Measurement::Fix { t, x, y, std: measured });
                     }
                 }

@@ -131,6 +131,8 @@ pub struct LiveRun {
     /// The live figures: latencies, the estimator's counts and health, the heading reference,
     /// the errors against a simulator's truth.
     pub live: Option<Value>,
+    /// The navigation against a simulator's truth, for its plot (with `--sim-truth`).
+    pub navigation: Option<NavigationTrack>,
 }
 
 /// The process model of the estimator.
@@ -154,8 +156,12 @@ macro_rules! each {
     };
 }
 
+pub use navigation_plot::NavigationTrack;
+
 // After the macro: the stages use it.
 mod flight;
+mod navigation_plot;
+mod noise_window;
 mod summary;
 mod targets;
 mod truth;

@@ -4,7 +4,7 @@
 
 use super::flight::Flight;
 use super::truth::{errors_against_truth, percentiles_ms, position_at, rms, truth_at};
-use super::{AnyEstimator, AutopilotHold, LiveRun, SessionOptions};
+use super::{AnyEstimator, AutopilotHold, LiveRun, NavigationTrack, SessionOptions};
 use crate::closed_loop::Level;
 use crate::estimation::Health;
 use crate::link::drive::Drive;
@@ -71,7 +71,8 @@ pub(super) fn end<M: DiscreteModel>(
     if let (Value::Object(live), Value::Object(extra)) = (&mut live, extra) {
         live.extend(extra);
     }
-    LiveRun { samples: std::mem::take(&mut f.samples), log_error: f.log_error, stopped: reason, live: Some(live) }
+    let navigation = navigation_track(&f);
+    LiveRun { samples: std::mem::take(&mut f.samples), log_error: f.log_error, stopped: reason, live: Some(live), navigation }
 }
 
 /// What the thrusters delivered of what was asked (from SERVO_OUTPUT_RAW): a wrong pilot gain
@@ -105,23 +106,12 @@ fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>,
     let reader = drive.assembler().reader();
     let late_fixes = each!(estimator, tr => tr.late_fixes());
     let bound = each!(estimator, tr => tr.dead_reckoning_bound());
-    let error = |from: &mut dyn Iterator<Item = (f64, f64, f64)>| -> Option<Value> {
-        let start = f.t0?;
-        let t0 = position_at(&f.truth_positions, start)?;
-        let mut origin = None;
-        let mut errors = Vec::new();
-        for (t, n, e) in from {
-            let Some(p) = position_at(&f.truth_positions, t) else { continue };
-            let (tn, te) = p.north_east_from(&t0);
-            let (n0, e0) = *origin.get_or_insert((n, e));
-            errors.push((n - n0 - tn).hypot(e - e0 - te));
-        }
+    let error = |track: Vec<Displaced>| -> Option<Value> {
+        let errors: Vec<f64> = track.iter().map(|d| (d.own.0 - d.truth.0).hypot(d.own.1 - d.truth.1)).collect();
         let max = errors.iter().copied().fold(0.0, f64::max);
         (!errors.is_empty()).then(|| json!({"rms_m": rms(&errors), "max_m": max, "samples": errors.len()}))
     };
-    let start = f.t0.unwrap_or(0.0);
-    let pinc = error(&mut f.estimates.iter().filter(|e| e.t >= start).map(|e| (e.t, e.sim[0], e.sim[1])));
-    let autopilot = error(&mut f.raw_positions.iter().map(|&(t, n, e)| (t + start, n, e)));
+    let (pinc, autopilot) = (error(pinc_track(f)), error(autopilot_track(f)));
     let changes: Vec<Value> =
         f.navigation_changes.iter().map(|(t, mode, std)| json!({"t": t, "mode": mode, "added_std_m": std})).collect();
     json!({
@@ -129,18 +119,75 @@ fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>,
         "dvl_fused": f.dvl_fused,
         "dvl_left_out_beside_the_autopilots_position": f.dvl_left_out,
         "autopilot_offset_m": f.autopilot_offset,
-        "fixes": f.fixes.len(),
+        "fixes": f.fixes.count(),
         "fixes_before_the_origin": reader.fixes_before_origin(),
         "fix_latency_s": reader.fix_latency(),
         "fix_std_stated_m": f.fix_std_stated,
-        "fix_noise_measured_m": super::flight::white_noise_2d(&f.fixes),
-        "dvl_noise_measured_m_s": f.dvl_noise,
+        "fix_noise_measured_m": f.fixes.noise(),
+        "dvl_noise_measured_m_s": f.dvl_velocities.noise(),
         "autopilot_left_out_beside_own_fixes": f.autopilot_left_out,
         "late_fixes": late_fixes,
         "dead_reckoning_bound_m": bound,
         "dead_reckoning_max_m": f.dead_reckoning_max,
         "changes": changes,
         "position_error_against_truth": {"pinc": pinc, "autopilot": autopilot},
+    })
+}
+
+/// A horizontal position at one time (autopilot time, s) against the truth: its displacement
+/// from its own first sample, the truth's from where the vehicle truly was when control
+/// started (north, east, m).
+pub(super) struct Displaced {
+    pub(super) t: f64,
+    pub(super) own: (f64, f64),
+    pub(super) truth: (f64, f64),
+}
+
+/// Positions `(t, north, east)` against the simulator's truth; empty without it.
+fn against_truth(f: &Flight, from: impl Iterator<Item = (f64, f64, f64)>) -> Vec<Displaced> {
+    let Some(t0) = f.t0.and_then(|start| position_at(&f.truth_positions, start)) else { return Vec::new() };
+    let mut origin = None;
+    from.filter_map(|(t, n, e)| {
+        let truth = position_at(&f.truth_positions, t)?.north_east_from(&t0);
+        let (n0, e0) = *origin.get_or_insert((n, e));
+        Some(Displaced { t, own: (n - n0, e - e0), truth })
+    })
+    .collect()
+}
+
+/// pinc's estimate from the start on, against the truth.
+pub(super) fn pinc_track(f: &Flight) -> Vec<Displaced> {
+    let start = f.t0.unwrap_or(0.0);
+    against_truth(f, f.estimates.iter().filter(|e| e.t >= start).map(|e| (e.t, e.sim[0], e.sim[1])))
+}
+
+/// The autopilot's position (while it measured one), against the truth.
+pub(super) fn autopilot_track(f: &Flight) -> Vec<Displaced> {
+    let start = f.t0.unwrap_or(0.0);
+    against_truth(f, f.raw_positions.iter().map(|&(t, n, e)| (t + start, n, e)))
+}
+
+/// The navigation against the truth for its plot; `None` without the truth.
+fn navigation_track(f: &Flight) -> Option<NavigationTrack> {
+    let start = f.t0?;
+    let (pinc, autopilot) = (pinc_track(f), autopilot_track(f));
+    if pinc.is_empty() {
+        return None;
+    }
+    let on_clock = |d: &Displaced| d.t - start;
+    let distance = |track: &[Displaced], of: fn(&Displaced) -> (f64, f64)| -> Vec<(f64, f64)> {
+        track.iter().map(|d| (on_clock(d), of(d).0.hypot(of(d).1))).collect()
+    };
+    let error = |track: &[Displaced]| -> Vec<(f64, f64)> {
+        track.iter().map(|d| (on_clock(d), (d.own.0 - d.truth.0).hypot(d.own.1 - d.truth.1))).collect()
+    };
+    Some(NavigationTrack {
+        truth: distance(&pinc, |d| d.truth),
+        pinc: distance(&pinc, |d| d.own),
+        autopilot: distance(&autopilot, |d| d.own),
+        pinc_error: error(&pinc),
+        autopilot_error: error(&autopilot),
+        changes: f.navigation_changes.iter().map(|&(t, mode, _)| (t, mode)).collect(),
     })
 }
 

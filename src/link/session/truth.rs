@@ -4,6 +4,7 @@
 use crate::estimation::Estimate;
 use mavlink::dialects::ardupilotmega::{SIM_STATE_DATA, SIMSTATE_DATA};
 use serde_json::{Value, json};
+use crate::estimation::mavlink::METRES_PER_E7_DEGREE;
 
 /// The simulator's truth at an autopilot time: depth, heading, body velocities, yaw rate.
 #[derive(Debug, Clone, Copy)]
@@ -55,15 +56,12 @@ pub(super) fn position_at(positions: &[Position], t: f64) -> Option<Position> {
     Some(Position { t, lat_lon: (lerp(a.lat_lon.0, b.lat_lon.0), lerp(a.lat_lon.1, b.lat_lon.1)) })
 }
 
-/// Metres per 1e-7 degree of latitude (ArduPilot's spherical earth of radius 6378137 m).
-const METRES_PER_E7_DEG: f64 = 0.011_131_884_502_145_034;
-
 impl Position {
     /// Metres north and east of `other` (a flat earth: fine over a few hundred metres).
     pub(super) fn north_east_from(&self, other: &Position) -> (f64, f64) {
         let lat = other.lat_lon.0 * 1e-7;
-        let dn = (self.lat_lon.0 - other.lat_lon.0) * METRES_PER_E7_DEG;
-        let de = (self.lat_lon.1 - other.lat_lon.1) * METRES_PER_E7_DEG * lat.to_radians().cos();
+        let dn = (self.lat_lon.0 - other.lat_lon.0) * METRES_PER_E7_DEGREE;
+        let de = (self.lat_lon.1 - other.lat_lon.1) * METRES_PER_E7_DEGREE * lat.to_radians().cos();
         (dn, de)
     }
 }

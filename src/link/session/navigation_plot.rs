@@ -1,0 +1,62 @@
+//! The horizontal navigation of a live run against the simulator's truth, drawn: how far the
+//! vehicle truly was from where control started, where pinc's estimate and the autopilot's
+//! position put it, and each one's error, over the run (a DVL gap shows as the autopilot's
+//! position freezing while pinc's dead reckoning follows the truth).
+
+use crate::plot::{Panel, PlotError, Series, figure};
+use std::path::Path;
+
+/// A live run's navigation against the truth, per sample (scenario time s, metres).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NavigationTrack {
+    /// Distance from where control started: the truth's, pinc's estimate's, the autopilot's
+    /// position's (each from its own value then).
+    pub truth: Vec<(f64, f64)>,
+    /// pinc's estimate's distance from the point.
+    pub pinc: Vec<(f64, f64)>,
+    /// The autopilot's position's distance from the point, while it measured one.
+    pub autopilot: Vec<(f64, f64)>,
+    /// pinc's estimate's distance from the truth.
+    pub pinc_error: Vec<(f64, f64)>,
+    /// The autopilot's position's distance from the truth.
+    pub autopilot_error: Vec<(f64, f64)>,
+    /// Each change of pinc's navigation: scenario time, `measured` / `dead_reckoning` / `lost`.
+    pub changes: Vec<(f64, &'static str)>,
+}
+
+impl NavigationTrack {
+    /// Draws it to `path` (PNG): the distances from the point above, the errors below, the
+    /// navigation's changes in the title.
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn plot(&self, path: &Path, title: &str) -> Result<(), PlotError> {
+        let changes: Vec<String> = self.changes.iter().map(|(t, mode)| format!("{mode} at {t:.1} s")).collect();
+        let top = format!("{title}: distance from where control started ({})", changes.join(", "));
+        let line = |label, points: &[(f64, f64)], color, dashed| Series { label, points: points.to_vec(), color, dashed };
+        let panels = [
+            Panel {
+                title: &top,
+                x_label: "time (s)",
+                y_label: "distance (m)",
+                log_y: false,
+                series: vec![
+                    line("truth", &self.truth, 0, false),
+                    line("pinc's estimate", &self.pinc, 1, false),
+                    line("the autopilot's position", &self.autopilot, 2, true),
+                ],
+            },
+            Panel {
+                title: "distance from the truth",
+                x_label: "time (s)",
+                y_label: "error (m)",
+                log_y: false,
+                series: vec![
+                    line("pinc's estimate", &self.pinc_error, 1, false),
+                    line("the autopilot's position", &self.autopilot_error, 2, true),
+                ],
+            },
+        ];
+        figure(path, 1200, 900, 1, &panels)
+    }
+}
