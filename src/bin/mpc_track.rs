@@ -270,6 +270,19 @@ fn settings(a: &Args) -> Result<Settings, String> {
     })
 }
 
+/// Who flies: `oracle`, `pinc` or the autopilot's hold.
+fn controller_name(a: &Args) -> &str {
+    let controller = if a.oracle { "oracle" } else { "pinc" };
+    #[cfg(feature = "vehicle")]
+    let controller = a.autopilot_hold.as_deref().unwrap_or(controller);
+    controller
+}
+
+/// The run's files' name: `mpc_<scenario>_<controller>`.
+fn run_name(a: &Args, scenario: &Scenario) -> String {
+    format!("mpc_{}_{}", scenario.name(), controller_name(a))
+}
+
 fn try_main(a: Args) -> Result<(), String> {
     let settings = settings(&a)?;
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
@@ -280,10 +293,8 @@ fn try_main(a: Args) -> Result<(), String> {
     if let Some(n) = a.monte_carlo {
         return monte_carlo(&a, n, &campaign);
     }
-    let controller = if a.oracle { "oracle" } else { "pinc" };
-    #[cfg(feature = "vehicle")]
-    let controller = a.autopilot_hold.as_deref().unwrap_or(controller);
-    let name = format!("mpc_{}_{controller}", scenario.name());
+    let controller = controller_name(&a);
+    let name = run_name(&a, scenario);
     let png = a.out_dir.join(format!("{name}.png"));
     let mcap = a.out_dir.join(format!("{name}.mcap"));
     let info =
@@ -318,7 +329,6 @@ fn try_main(a: Args) -> Result<(), String> {
             &vehicle,
             model.fitted.as_ref(),
             &mut log,
-            &a.out_dir.join(format!("{name}_navigation.png")),
         ))
         .transpose(),
         None => Ok(None),
@@ -699,8 +709,6 @@ fn live(
     // What a model fitted by `pinc fit` carries of its vehicle (thrusters, sensors).
     fitted: Option<&pinc::model::FittedVehicle>,
     log: &mut McapLog,
-    // Where the navigation against the simulator's truth is drawn (with --sim-truth).
-    navigation_png: &std::path::Path,
 ) -> Result<RunOutcome, String> {
     use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
     let options = SessionOptions {
@@ -734,8 +742,10 @@ fn live(
         };
         run(flyer, scenario, &options, log)?
     };
+    // The navigation against the simulator's truth, drawn (with --sim-truth).
     let mut live = outcome.live;
     if let (Some(track), Some(serde_json::Value::Object(o))) = (&outcome.navigation, live.as_mut()) {
+        let navigation_png = &a.out_dir.join(format!("{}_navigation.png", run_name(a, scenario)));
         track.plot(navigation_png, &format!("{}, scenario {}", hold.map_or("pinc", |h| h.name()), scenario.name()))?;
         o.insert("navigation_plot".into(), navigation_png.display().to_string().into());
     }

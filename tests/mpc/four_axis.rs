@@ -5,8 +5,9 @@
 #![cfg(feature = "mpc")]
 
 use crate::riccati::{compare, shipped, tight};
-use pinc::closed_loop::campaign::{Campaign, Controller, Settings};
+use pinc::closed_loop::campaign::{Campaign, Controller, Settings, path_limits};
 use pinc::closed_loop::monte_carlo::robustness;
+use pinc::closed_loop::path_plan::PathHeading;
 use pinc::closed_loop::{FOUR_AXIS_CURRENT, Scenario, run};
 use pinc::mpc::{Mpc, MpcConfig, QpSolver};
 use pinc::traits::DiscreteModel;
@@ -116,6 +117,19 @@ fn a_path_that_cannot_be_flown_is_refused_before_anything_moves() {
     // Faster than the vehicle's steady speed at the model's largest force.
     let e = refused(Settings { survey: Some([4.0, 10.0, 2.0, 5.0, 2.0]), ..Settings::default() });
     assert!(e.contains("faster than the vehicle's"), "{e}");
+    // Facing along its legs the vehicle goes at its surge's steady speed; with a fixed heading a
+    // leg may ask for sway, the weaker axis: the smaller of the two.
+    let c = campaign("survey", QpSolver::Riccati);
+    let along = path_limits(&c.vehicle, c.bounds, None, PathHeading::Track).max_speed;
+    let fixed = path_limits(&c.vehicle, c.bounds, None, PathHeading::Fixed(0.0)).max_speed;
+    assert!(fixed < along, "{fixed} {along}");
+    let between = |heading| Settings {
+        survey: Some([4.0, 10.0, 2.0, 0.5 * (fixed + along), 2.0]),
+        path_heading: heading,
+        ..Settings::default()
+    };
+    assert!(Campaign::new(&between(None)).is_ok());
+    assert!(refused(between(Some(0.0))).contains("faster than the vehicle's"));
     // The built-in station reaches nowhere; the built-in survey 10.8 m.
     assert!(
         Campaign::new(&Settings { scenario: "station".into(), max_distance: Some(1.0), ..Settings::default() }).is_ok()

@@ -4,12 +4,12 @@
 //! ([`Flight::wait_to_start`]), the command (pinc's MPC: [`Flight::mpc_cycle`]; the autopilot's
 //! hold: [`Flight::hold_cycle`]), and the cycle's record ([`Flight::record`]).
 
+use super::noise_window::NoiseWindow;
 use super::targets::send_targets;
 use super::truth::Truth;
 use super::{AnyEstimator, AutopilotHold, EKF_STATUS_WAIT, Flyer, SessionOptions, Setup};
 use crate::closed_loop::{Level, LogError, McapLog, Sample, Scenario};
 use crate::estimation::mavlink::Observation;
-use super::noise_window::NoiseWindow;
 use crate::estimation::{Estimate, Measurement, Navigation};
 use crate::link::autopilot_estimate::HeadingReference;
 use crate::link::drive::{Drive, Fresh, Note, Sent, Stopped};

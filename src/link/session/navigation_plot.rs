@@ -1,10 +1,13 @@
 //! The horizontal navigation of a live run against the simulator's truth, drawn: how far the
 //! vehicle truly was from where control started, where pinc's estimate and the autopilot's
 //! position put it, and each one's error, over the run (a DVL gap shows as the autopilot's
-//! position freezing while pinc's dead reckoning follows the truth).
+//! position stopping while pinc's dead reckoning follows the truth).
 
 use crate::plot::{Panel, PlotError, Series, figure};
 use std::path::Path;
+
+/// Samples further apart than this (s) are drawn apart.
+const GAP_S: f64 = 1.0;
 
 /// A live run's navigation against the truth, per sample (scenario time s, metres).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -33,28 +36,47 @@ impl NavigationTrack {
     pub fn plot(&self, path: &Path, title: &str) -> Result<(), PlotError> {
         let changes: Vec<String> = self.changes.iter().map(|(t, mode)| format!("{mode} at {t:.1} s")).collect();
         let top = format!("{title}: distance from where control started ({})", changes.join(", "));
-        let line = |label, points: &[(f64, f64)], color, dashed| Series { label, points: points.to_vec(), color, dashed };
+        // A line broken where its samples stop for longer than a second (the autopilot's
+        // position while it measures none), each piece labelled once.
+        let line = |label: &'static str, points: &[(f64, f64)], color, dashed| -> Vec<Series<'static>> {
+            points
+                .chunk_by(|a, b| b.0 - a.0 <= GAP_S)
+                .enumerate()
+                .map(|(i, piece)| Series {
+                    label: if i == 0 { label } else { "" },
+                    points: piece.to_vec(),
+                    color,
+                    dashed,
+                })
+                .collect()
+        };
         let panels = [
             Panel {
                 title: &top,
                 x_label: "time (s)",
                 y_label: "distance (m)",
                 log_y: false,
-                series: vec![
+                series: [
                     line("truth", &self.truth, 0, false),
                     line("pinc's estimate", &self.pinc, 1, false),
                     line("the autopilot's position", &self.autopilot, 2, true),
-                ],
+                ]
+                .into_iter()
+                .flatten()
+                .collect(),
             },
             Panel {
                 title: "distance from the truth",
                 x_label: "time (s)",
                 y_label: "error (m)",
                 log_y: false,
-                series: vec![
+                series: [
                     line("pinc's estimate", &self.pinc_error, 1, false),
                     line("the autopilot's position", &self.autopilot_error, 2, true),
-                ],
+                ]
+                .into_iter()
+                .flatten()
+                .collect(),
             },
         ];
         figure(path, 1200, 900, 1, &panels)

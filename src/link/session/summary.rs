@@ -72,7 +72,13 @@ pub(super) fn end<M: DiscreteModel>(
         live.extend(extra);
     }
     let navigation = navigation_track(&f);
-    LiveRun { samples: std::mem::take(&mut f.samples), log_error: f.log_error, stopped: reason, live: Some(live), navigation }
+    LiveRun {
+        samples: std::mem::take(&mut f.samples),
+        log_error: f.log_error,
+        stopped: reason,
+        live: Some(live),
+        navigation,
+    }
 }
 
 /// What the thrusters delivered of what was asked (from SERVO_OUTPUT_RAW): a wrong pilot gain

@@ -2,9 +2,9 @@
 //! and the tracking against what the vehicle really did.
 
 use crate::estimation::Estimate;
+use crate::estimation::mavlink::METRES_PER_E7_DEGREE;
 use mavlink::dialects::ardupilotmega::{SIM_STATE_DATA, SIMSTATE_DATA};
 use serde_json::{Value, json};
-use crate::estimation::mavlink::METRES_PER_E7_DEGREE;
 
 /// The simulator's truth at an autopilot time: depth, heading, body velocities, yaw rate.
 #[derive(Debug, Clone, Copy)]
