@@ -38,7 +38,7 @@ const OWN_FIXES_FRESH_S: f64 = 3.0;
 const DVL_NOISE_FLOOR: f64 = 0.005;
 /// With the sensor's own fixes control starts once they have navigated this long (s): the
 /// point held is where the estimate puts the vehicle then, and its error then stays in every
-/// figure after (beside a DVL, 80 fixes of 0.25 m average to some 3 cm).
+/// figure after (beside a DVL: the station 0.095-0.128 m RMS after 10 s of fixes, 0.049-0.056 m after 20).
 const FIXES_SETTLE_S: f64 = 20.0;
 /// The spread (m) a USBL's position is opened to when its fixes are taken up, where it states
 /// no accuracy of its own and none was measured yet.
