@@ -500,46 +500,7 @@ impl<'l> Flight<'l> {
         }
         let relatching = self.relatch_until.is_some_and(|until| t < until);
         self.position_measured_before = Some(position_measured);
-        // With the positioning sensor's own fixes pinc navigates on its sensors: the fixes,
-        // the DVL's velocities, the model. The autopilot's position (the same fixes through its
-        // EKF, which cannot take a 0.5 s latency and jumps when it takes the fixes up) is the
-        // fallback for when they stop.
-        let own_fixes = self.fixes.newest().is_some_and(|f| t - f <= OWN_FIXES_FRESH_S);
-        match (own_fixes, self.own_fixes_since) {
-            (true, None) => {
-                self.own_fixes_since = Some(t);
-                let std = self.fix_std_stated.or(self.fixes.noise()).unwrap_or(FIX_STD_UNKNOWN);
-                self.position_process_std = each!(&*estimator, tr => tr.position_process_std());
-                each!(&mut *estimator, tr => {
-                    tr.open_horizontal_position(std);
-                    tr.set_position_process_std(OWN_FIXES_POSITION_PROCESS_STD);
-                });
-                self.notes.push(Note {
-                    t,
-                    level: Level::Info,
-                    text: format!(
-                        "navigating on the positioning sensor's own fixes from {t:.2} s (their latency {:.2} s): the \
-                         autopilot's position is left out while they come",
-                        drive.assembler().reader().fix_latency()
-                    ),
-                    from_autopilot: false,
-                });
-            }
-            (false, Some(_)) => {
-                self.own_fixes_since = None;
-                each!(&mut *estimator, tr => tr.set_position_process_std(self.position_process_std));
-                self.notes.push(Note {
-                    t,
-                    level: Level::Warning,
-                    text: format!(
-                        "the positioning sensor's fixes stopped ({OWN_FIXES_FRESH_S} s without one): the autopilot's \
-                         position is fused again where it measures one"
-                    ),
-                    from_autopilot: false,
-                });
-            }
-            _ => {}
-        }
+        let own_fixes = self.own_fixes_now(drive, estimator, t);
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
         let observations: Vec<Observation> = drive.drain_observations().collect();
         for mut ob in observations {
@@ -625,6 +586,52 @@ impl<'l> Flight<'l> {
                 Observation::Unfused(_) => {}
             });
         }
+    }
+
+    /// Whether pinc navigates on the positioning sensor's own fixes at `t`; taking them up and
+    /// leaving them are said, and set the estimator for them.
+    fn own_fixes_now<M: DiscreteModel>(&mut self, drive: &Drive, estimator: &mut AnyEstimator<M>, t: f64) -> bool {
+        // With the positioning sensor's own fixes pinc navigates on its sensors: the fixes,
+        // the DVL's velocities, the model. The autopilot's position (the same fixes through its
+        // EKF, which cannot take a 0.5 s latency and jumps when it takes the fixes up) is the
+        // fallback for when they stop.
+        let own_fixes = self.fixes.newest().is_some_and(|f| t - f <= OWN_FIXES_FRESH_S);
+        match (own_fixes, self.own_fixes_since) {
+            (true, None) => {
+                self.own_fixes_since = Some(t);
+                let std = self.fix_std_stated.or(self.fixes.noise()).unwrap_or(FIX_STD_UNKNOWN);
+                self.position_process_std = each!(&*estimator, tr => tr.position_process_std());
+                each!(&mut *estimator, tr => {
+                    tr.open_horizontal_position(std);
+                    tr.set_position_process_std(OWN_FIXES_POSITION_PROCESS_STD);
+                });
+                self.notes.push(Note {
+                    t,
+                    level: Level::Info,
+                    text: format!(
+                        "navigating on the positioning sensor's own fixes from {t:.2} s (their latency {:.2} s): the \
+                         autopilot's position is left out while they come",
+                        drive.assembler().reader().fix_latency()
+                    ),
+                    from_autopilot: false,
+                });
+            }
+            (false, Some(_)) => {
+                self.own_fixes_since = None;
+                each!(&mut *estimator, tr => tr.set_position_process_std(self.position_process_std));
+                self.notes.push(Note {
+                    t,
+                    level: Level::Warning,
+                    text: format!(
+                        "the positioning sensor's fixes stopped ({OWN_FIXES_FRESH_S} s without one): the autopilot's \
+                         position is fused again where it measures one"
+                    ),
+                    from_autopilot: false,
+                });
+            }
+            _ => {}
+        }
+        own_fixes
     }
 
     /// The outputs the autopilot reports against what pinc asked for, once the command has

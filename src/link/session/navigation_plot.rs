@@ -50,34 +50,31 @@ impl NavigationTrack {
                 })
                 .collect()
         };
+        let panel = |title, y_label, series: Vec<Vec<Series<'static>>>| Panel {
+            title,
+            x_label: "time (s)",
+            y_label,
+            log_y: false,
+            series: series.into_iter().flatten().collect(),
+        };
         let panels = [
-            Panel {
-                title: &top,
-                x_label: "time (s)",
-                y_label: "distance (m)",
-                log_y: false,
-                series: [
+            panel(
+                &top,
+                "distance (m)",
+                vec![
                     line("truth", &self.truth, 0, false),
                     line("pinc's estimate", &self.pinc, 1, false),
                     line("the autopilot's position", &self.autopilot, 2, true),
-                ]
-                .into_iter()
-                .flatten()
-                .collect(),
-            },
-            Panel {
-                title: "distance from the truth",
-                x_label: "time (s)",
-                y_label: "error (m)",
-                log_y: false,
-                series: [
+                ],
+            ),
+            panel(
+                "distance from the truth",
+                "error (m)",
+                vec![
                     line("pinc's estimate", &self.pinc_error, 1, false),
                     line("the autopilot's position", &self.autopilot_error, 2, true),
-                ]
-                .into_iter()
-                .flatten()
-                .collect(),
-            },
+                ],
+            ),
         ];
         figure(path, 1200, 900, 1, &panels)
     }
