@@ -25,6 +25,7 @@ from pymavlink import mavutil
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
+from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select
 
@@ -100,7 +101,12 @@ class Observer:
 def wait(what, ok, timeout, every=0.2):
     until = time.monotonic() + timeout
     while time.monotonic() < until:
-        v = ok()
+        # The page rebuilds its lists as the server's state arrives: an element read while it is
+        # replaced is stale, which is "not yet", not a failure.
+        try:
+            v = ok()
+        except StaleElementReferenceException:
+            v = None
         if v:
             return v
         time.sleep(every)
@@ -149,6 +155,17 @@ def main():
     def click(id_):
         browser.find_element(By.ID, id_).click()
 
+    def options(id_):
+        return [o.text for o in Select(browser.find_element(By.ID, id_)).options]
+
+    def choose(id_, name):
+        # The list may be rebuilt between finding the option and picking it: picked is when the
+        # select says so.
+        def picked():
+            Select(browser.find_element(By.ID, id_)).select_by_visible_text(name)
+            return browser.find_element(By.ID, id_).get_attribute("value") == name
+        wait(f"{name} picked in {id_}", picked, 10)
+
     def job_done(timeout):
         wait("the job's end", lambda: text("job-state") in ("finished", "failed", "stopped"), timeout)
         return text("job-state")
@@ -177,9 +194,8 @@ def main():
         shot("excited")
 
         # 3. The fit of that recording (few epochs: the test's time).
-        wait("the recording in the list", lambda: result["excite"]["recording"] in
-             [o.text for o in Select(browser.find_element(By.ID, "fit-recording")).options], 10)
-        Select(browser.find_element(By.ID, "fit-recording")).select_by_visible_text(result["excite"]["recording"])
+        wait("the recording in the list", lambda: result["excite"]["recording"] in options("fit-recording"), 10)
+        choose("fit-recording", result["excite"]["recording"])
         field("fit-epochs", 5)
         click("fit-start")
         wait("the fit to start", lambda: text("job-kind") == "fit", 10)
@@ -192,9 +208,8 @@ def main():
 
         # 4. A 30 s flight of depth and heading steps on the fitted model.
         model = result["fit"]["model"]
-        wait("the model in the list", lambda: model in
-             [o.text for o in Select(browser.find_element(By.ID, "fly-model")).options], 10)
-        Select(browser.find_element(By.ID, "fly-model")).select_by_visible_text(model)
+        wait("the model in the list", lambda: model in options("fly-model"), 10)
+        choose("fly-model", model)
         for k, v in (("fly-d0", 1.0), ("fly-d1", 1.5), ("fly-dat", 10), ("fly-h0", 0), ("fly-h1", 45), ("fly-hat", 15),
                      ("fly-duration", 30)):
             field(k, v)
@@ -274,9 +289,10 @@ def main():
         browser.get(f"http://127.0.0.1:{PORT}/")
         wait("the partial recording listed", lambda: any(
             "partial" in r.text for r in browser.find_elements(By.CSS_SELECTOR, "#files tr")), 20)
-        partial = [o.text for o in Select(browser.find_element(By.ID, "fit-recording")).options if o.text.endswith(".partial")]
+        partial = wait("the partial recording in the fit's list",
+                       lambda: [o for o in options("fit-recording") if o.endswith(".partial")], 10)
         result["killed"]["partial"] = partial
-        Select(browser.find_element(By.ID, "fit-recording")).select_by_visible_text(partial[0])
+        choose("fit-recording", partial[0])
         field("fit-epochs", 5)
         click("fit-start")
         wait("the fit to start", lambda: text("job-kind") == "fit", 10)
