@@ -18,6 +18,8 @@ pub mod fit;
 pub mod model;
 #[cfg(feature = "mpc")]
 pub mod mpc;
+#[cfg(feature = "mpc")]
+pub mod pilot;
 pub mod runtime;
 #[cfg(feature = "train")]
 pub mod train;

@@ -6,4 +6,5 @@ mod common;
 mod closed_loop;
 mod four_axis;
 mod mcap_log;
+mod pilot;
 mod riccati;

@@ -1,0 +1,232 @@
+//! The pilot's sticks: one reading, checked, and the speeds full deflection stands for.
+
+use crate::traits::DiscreteModel;
+use crate::types::{Input, State};
+use serde::{Deserialize, Serialize};
+
+/// One reading of the pilot's four sticks, each in `[-1, 1]`, in the body frame
+/// forward-right-down: `surge` forward, `sway` to starboard, `heave` down, `yaw` a turn to
+/// starboard (clockwise seen from above).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Sticks {
+    /// Forward (+) or back.
+    pub surge: f64,
+    /// Starboard (+) or port.
+    pub sway: f64,
+    /// Down (+) or up.
+    pub heave: f64,
+    /// Turn to starboard (+) or port.
+    pub yaw: f64,
+}
+
+/// A stick reading refused, with what was wrong; the vehicle holds meanwhile.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StickError {
+    /// The reading is not a JSON object with the four axes as numbers.
+    #[error("stick reading {0}")]
+    Malformed(String),
+    /// An axis is not a finite number (JSON's `null`, what a browser sends for NaN).
+    #[error("stick {axis} is not a number")]
+    NotFinite {
+        /// The axis.
+        axis: &'static str,
+    },
+    /// An axis past full deflection.
+    #[error("stick {axis} is {value}: outside -1..1")]
+    OutOfRange {
+        /// The axis.
+        axis: &'static str,
+        /// What came.
+        value: f64,
+    },
+    /// A reading sooner after the last than any gamepad or joystick sends them.
+    #[error("stick reading {interval_ms:.1} ms after the last: more than one per {min_ms:.0} ms is refused")]
+    TooFast {
+        /// Since the last accepted reading (ms).
+        interval_ms: f64,
+        /// The shortest interval taken (ms).
+        min_ms: f64,
+    },
+}
+
+/// The axes' names, in [`Sticks::axes`]'s order.
+pub const AXES: [&str; 4] = ["surge", "sway", "heave", "yaw"];
+
+impl Sticks {
+    /// All four centred.
+    pub const CENTRED: Sticks = Sticks { surge: 0.0, sway: 0.0, heave: 0.0, yaw: 0.0 };
+
+    /// `[surge, sway, heave, yaw]`.
+    pub fn axes(&self) -> [f64; 4] {
+        [self.surge, self.sway, self.heave, self.yaw]
+    }
+
+    /// A reading from its four axes, checked.
+    ///
+    /// # Errors
+    /// An axis not finite or outside `[-1, 1]`.
+    pub fn new([surge, sway, heave, yaw]: [f64; 4]) -> Result<Self, StickError> {
+        let s = Sticks { surge, sway, heave, yaw };
+        for (axis, value) in AXES.into_iter().zip(s.axes()) {
+            if !value.is_finite() {
+                return Err(StickError::NotFinite { axis });
+            }
+            if value.abs() > 1.0 {
+                return Err(StickError::OutOfRange { axis, value });
+            }
+        }
+        Ok(s)
+    }
+
+    /// A reading from one JSON object `{"surge": .., "sway": .., "heave": .., "yaw": ..}`
+    /// (other keys, such as a token or a time, are the sender's and ignored here).
+    ///
+    /// # Errors
+    /// Not such an object, an axis missing, `null` or not a number, or outside `[-1, 1]`.
+    pub fn from_json(line: &str) -> Result<Self, StickError> {
+        let value: serde_json::Value =
+            serde_json::from_str(line).map_err(|e| StickError::Malformed(format!("is not JSON: {e}")))?;
+        Self::from_value(&value)
+    }
+
+    /// [`Sticks::from_json`] on a parsed value.
+    ///
+    /// # Errors
+    /// As [`Sticks::from_json`].
+    pub fn from_value(value: &serde_json::Value) -> Result<Self, StickError> {
+        let object = value.as_object().ok_or_else(|| StickError::Malformed("is not a JSON object".into()))?;
+        let mut axes = [0.0; 4];
+        for (slot, axis) in axes.iter_mut().zip(AXES) {
+            *slot = match object.get(axis) {
+                None => return Err(StickError::Malformed(format!("has no {axis}"))),
+                Some(serde_json::Value::Null) => return Err(StickError::NotFinite { axis }),
+                Some(v) => v.as_f64().ok_or_else(|| StickError::Malformed(format!("{axis} is not a number: {v}")))?,
+            };
+        }
+        Self::new(axes)
+    }
+
+    /// Whether every axis lies within `deadband` of the centre.
+    pub fn centred(&self, deadband: f64) -> bool {
+        self.axes().iter().all(|a| a.abs() <= deadband)
+    }
+}
+
+/// What full deflection of each stick asks for: surge, sway and heave speeds over the ground
+/// (m/s) and the yaw rate (rad/s).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StickLimits {
+    /// Surge (m/s).
+    pub surge: f64,
+    /// Sway (m/s).
+    pub sway: f64,
+    /// Heave (m/s).
+    pub heave: f64,
+    /// Yaw rate (rad/s).
+    pub yaw_rate: f64,
+}
+
+/// The share of the model's steady speed at full thrust that full deflection asks for: the
+/// rest is what the controller has left to hold depth, heading and a current.
+pub const STEADY_SPEED_SHARE: f64 = 0.8;
+/// How long the model is run at full thrust to find its steady speeds (s).
+const STEADY_RUN_S: f64 = 15.0;
+
+impl StickLimits {
+    /// What full deflection asks for on `model` within the input bounds `(lo, hi)`: on each
+    /// axis [`STEADY_SPEED_SHARE`] of the slower of its two steady speeds (the model run from
+    /// rest at full thrust one way and the other), capped by `wanted` where given (surge, sway,
+    /// heave m/s, yaw rate rad/s).
+    ///
+    /// # Errors
+    /// The model fails on the run, or an axis cannot move at all (bounds of zero).
+    pub fn of_model<M: DiscreteModel>(
+        model: &M,
+        (lo, hi): (Input, Input),
+        wanted: [Option<f64>; 4],
+    ) -> Result<Self, String> {
+        let mut ws = model.workspace();
+        let steps = (STEADY_RUN_S / model.dt()).ceil() as usize;
+        let mut steady = [f64::INFINITY; 4];
+        for (axis, speed) in steady.iter_mut().enumerate() {
+            for bound in [lo[axis], hi[axis]] {
+                let mut u = Input::zeros();
+                u[axis] = bound;
+                let mut x = State::zeros();
+                x[3] = 1.0;
+                let mut next = State::zeros();
+                for _ in 0..steps {
+                    model
+                        .step(&mut ws, &x, &u, &mut next)
+                        .map_err(|e| format!("the model at full {}: {e}", AXES[axis]))?;
+                    std::mem::swap(&mut x, &mut next);
+                    // Depth and heading as they were: only the velocity is sought.
+                    (x[2], x[3], x[4]) = (0.0, 1.0, 0.0);
+                }
+                *speed = speed.min(x[5 + axis].abs());
+            }
+            if !(speed.is_finite() && *speed > 1e-3) {
+                return Err(format!("the model does not move in {} at full thrust: no stick speed for it", AXES[axis]));
+            }
+        }
+        let limit = |axis: usize| {
+            let share = STEADY_SPEED_SHARE * steady[axis];
+            wanted[axis].map_or(share, |w| w.min(share))
+        };
+        Ok(Self { surge: limit(0), sway: limit(1), heave: limit(2), yaw_rate: limit(3) })
+    }
+
+    /// `[surge, sway, heave, yaw_rate]`.
+    pub fn axes(&self) -> [f64; 4] {
+        [self.surge, self.sway, self.heave, self.yaw_rate]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reading_is_refused_with_what_is_wrong() {
+        assert_eq!(
+            Sticks::from_json(r#"{"surge": 0.5, "sway": 0, "heave": -1, "yaw": 0.25, "token": "x"}"#),
+            Ok(Sticks { surge: 0.5, sway: 0.0, heave: -1.0, yaw: 0.25 })
+        );
+        assert_eq!(
+            Sticks::from_json(r#"{"surge": null, "sway": 0, "heave": 0, "yaw": 0}"#),
+            Err(StickError::NotFinite { axis: "surge" })
+        );
+        assert_eq!(
+            Sticks::from_json(r#"{"surge": 0, "sway": 1.5, "heave": 0, "yaw": 0}"#).unwrap_err().to_string(),
+            "stick sway is 1.5: outside -1..1"
+        );
+        assert_eq!(
+            Sticks::from_json(r#"{"surge": 0, "sway": 0, "yaw": 0}"#).unwrap_err().to_string(),
+            "stick reading has no heave"
+        );
+        assert!(matches!(Sticks::from_json("[1, 2]"), Err(StickError::Malformed(_))));
+        assert!(matches!(Sticks::from_json(r#"{"surge": "1""#), Err(StickError::Malformed(_))));
+        assert_eq!(Sticks::new([0.0, f64::NAN, 0.0, 0.0]), Err(StickError::NotFinite { axis: "sway" }));
+    }
+
+    #[test]
+    fn full_deflection_is_a_share_of_the_models_steady_speed() {
+        use crate::vehicle::{Rk4Vehicle, terminal_speed};
+        let v = Rk4Vehicle::with_dt(0.08);
+        let p = v.params;
+        let (lo, hi) = (
+            Input::from_column_slice(&[-80.0, -60.0, -70.0, -20.0]),
+            Input::from_column_slice(&[85.0, 60.0, 70.0, 20.0]),
+        );
+        let l = StickLimits::of_model(&v, (lo, hi), [None, Some(0.3), None, None]).unwrap();
+        // Surge: the slower way (back, 80 N) against the closed form of the steady speed.
+        let back = terminal_speed(80.0, p.x_u, p.x_uu);
+        approx::assert_relative_eq!(l.surge, STEADY_SPEED_SHARE * back, max_relative = 1e-3);
+        assert_eq!(l.sway, 0.3);
+        // Heave: buoyancy helps one way and hinders the other; the slower is taken.
+        let slower = terminal_speed(70.0 - p.net_buoyancy().abs(), p.z_w, p.z_ww);
+        approx::assert_relative_eq!(l.heave, STEADY_SPEED_SHARE * slower, max_relative = 1e-3);
+        let none = (Input::from_column_slice(&[0.0, -60.0, -70.0, -20.0]), hi);
+        assert!(StickLimits::of_model(&v, none, [None; 4]).unwrap_err().contains("surge"));
+    }
+}
