@@ -162,6 +162,21 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[arg(long, requires = "connect")]
     stream_samples: bool,
+    /// With --connect: fly the pilot's sticks instead of the scenario's references: one JSON
+    /// object per line {"surge","sway","heave","yaw"} (each -1..1: forward, starboard, down, a
+    /// turn to starboard) from this file, `-` for stdin (docs/PILOT.md). On four axes (the
+    /// station's set-up) wherever a position is known; centred sticks hold where the vehicle
+    /// comes to rest; none for 0.5 s counts as centred. Runs --duration s [default: 3600].
+    /// With --autopilot-hold poshold or althold the sticks go to the autopilot instead.
+    #[cfg(feature = "vehicle")]
+    #[arg(long, value_name = "FILE|-", requires = "connect",
+          conflicts_with_all = ["reference", "path", "survey"])]
+    pilot: Option<String>,
+    /// What full sticks ask for: SURGE,SWAY,HEAVE (m/s),YAW (deg/s), each up to the model's
+    /// steady speed at full thrust [default: 0.8 of it].
+    #[cfg(feature = "vehicle")]
+    #[arg(long, value_name = "U,V,W,R", value_delimiter = ',', requires = "pilot")]
+    pilot_speeds: Option<Vec<f64>>,
     /// Serve the run live over Foxglove's WebSocket protocol at [HOST:]PORT (loopback unless a
     /// host is given; port 0 picks a free one): the MCAP log's topics as they are written, to
     /// open in Foxglove without a file. A simulated run then goes in real time.
@@ -219,14 +234,26 @@ fn left_out_flag() -> Option<String> {
     ))
 }
 
+/// How long `--pilot` flies unless `--duration` says (s).
+#[cfg(feature = "vehicle")]
+const PILOT_DURATION_S: f64 = 3600.0;
+
 /// The closed loop's settings from the flags: the controller and scenario come from the
 /// library's one set-up path (shared with the Python package, so a seed's run is the same
 /// everywhere).
 fn settings(a: &Args) -> Result<Settings, String> {
+    // The pilot's sticks fly on the station's four-axis set-up, an hour unless told.
+    #[cfg(feature = "vehicle")]
+    let (scenario, duration) = match a.pilot {
+        Some(_) => (ScenarioName::Station, a.duration.or(Some(PILOT_DURATION_S))),
+        None => (a.scenario, a.duration),
+    };
+    #[cfg(not(feature = "vehicle"))]
+    let (scenario, duration) = (a.scenario, a.duration);
     Ok(Settings {
         model: a.model.clone(),
         vehicle: a.vehicle.clone(),
-        scenario: match a.scenario {
+        scenario: match scenario {
             ScenarioName::Default => "default",
             ScenarioName::Disturbed => "disturbed",
             ScenarioName::Station => "station",
@@ -253,7 +280,7 @@ fn settings(a: &Args) -> Result<Settings, String> {
             None => None,
         },
         max_distance: a.max_distance,
-        duration: a.duration,
+        duration,
         horizon: a.horizon,
         disturbance_gain: a.disturbance_gain,
         envelope_constraints: !a.no_envelope_constraints,
@@ -697,6 +724,18 @@ fn plot(
     figure(path, 1400, height, 2, &panels)
 }
 
+/// `--pilot-speeds U,V,W,R` (m/s, m/s, m/s, deg/s) as the assist's caps (yaw in rad/s).
+#[cfg(feature = "vehicle")]
+fn pilot_speeds(given: Option<&[f64]>) -> Result<[Option<f64>; 4], String> {
+    let Some(v) = given else { return Ok([None; 4]) };
+    let [u, v, w, r]: [f64; 4] =
+        v.try_into().map_err(|_| "--pilot-speeds: four speeds SURGE,SWAY,HEAVE (m/s),YAW (deg/s)".to_string())?;
+    if [u, v, w, r].iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(format!("--pilot-speeds: each speed must be a positive number, got {u},{v},{w},{r}"));
+    }
+    Ok([Some(u), Some(v), Some(w), Some(r.to_radians())])
+}
+
 /// `--connect`: the live session flies the scenario, with pinc's MPC (on the model, or the
 /// analytic vehicle with `--oracle`) or the autopilot's own controller.
 #[cfg(feature = "vehicle")]
@@ -710,7 +749,11 @@ fn live(
     fitted: Option<&pinc::model::FittedVehicle>,
     log: &mut McapLog,
 ) -> Result<RunOutcome, String> {
-    use pinc::link::session::{AutopilotHold, Flyer, SessionOptions, run};
+    use pinc::link::session::{AutopilotHold, Flyer, PilotOptions, SessionOptions, run};
+    let pilot = match &a.pilot {
+        Some(source) => Some(PilotOptions { source: source.clone(), speeds: pilot_speeds(a.pilot_speeds.as_deref())? }),
+        None => None,
+    };
     let options = SessionOptions {
         connect,
         vehicle: a.vehicle.as_deref(),
@@ -720,6 +763,7 @@ fn live(
         estimator: &a.estimator,
         max_distance: a.max_distance,
         stream_samples: a.stream_samples,
+        pilot: pilot.as_ref(),
     };
     let mpc = mpc.map_err(|e| e.to_string())?;
     let hold = match a.autopilot_hold.as_deref() {

@@ -638,6 +638,19 @@ impl Drive {
         self.send_command(fresh, self.commander.neutral())
     }
 
+    /// The pilot's `sticks` as `MANUAL_CONTROL`'s pilot axes (the autopilot's own holds take
+    /// them as a ground station's joystick): full deflection 1000, heave down below 500.
+    pub fn send_sticks(&mut self, fresh: &Fresh, sticks: crate::pilot::Sticks) -> Result<Sent, Trigger> {
+        let axis = |a: f64, full: f64| (a.clamp(-1.0, 1.0) * full).round() as i16;
+        let command = Command::Manual {
+            x: axis(sticks.surge, 1000.0),
+            y: axis(sticks.sway, 1000.0),
+            z: 500 - axis(sticks.heave, 500.0),
+            r: axis(sticks.yaw, 1000.0),
+        };
+        self.send_command(fresh, command)
+    }
+
     fn send_command(&mut self, fresh: &Fresh, command: Command) -> Result<Sent, Trigger> {
         if self.last_sent.is_some_and(|t| fresh.state.t <= t) {
             return Err(Trigger::Error(format!("a second command for the state at {:.3} s", fresh.state.t)));

@@ -1,5 +1,5 @@
 //! Pilot assist: the sticks as velocity references for the MPC, and the stop it plans when
-//! they are let go (docs/MODEL.md section 13).
+//! they are let go (docs/MODEL.md section 14).
 //!
 //! Each axis group (the horizontal position, the depth, the heading) is in one of three
 //! phases. Moving: the reference runs ahead of where the vehicle is at the stick's speed, so
@@ -67,6 +67,12 @@ impl<const N: usize> Axis<N> {
         Self { phase: Phase::Holding, hold: here, way: [0.0; N], released: f64::NEG_INFINITY }
     }
 
+    /// `velocity`'s part along the way the axis went.
+    fn along(&self, velocity: [f64; N]) -> f64 {
+        let norm = self.way.iter().map(|w| w * w).sum::<f64>().sqrt().max(1e-12);
+        self.way.iter().zip(velocity).map(|(w, v)| w / norm * v).sum()
+    }
+
     /// The phase after this cycle; `Some` with the new phase when it changed.
     fn advance(
         &mut self,
@@ -74,7 +80,7 @@ impl<const N: usize> Axis<N> {
         commanded: Option<[f64; N]>,
         here: [f64; N],
         velocity: [f64; N],
-        rest: f64,
+        stop: Stop,
     ) -> Option<Phase> {
         let before = self.phase;
         match (self.phase, commanded) {
@@ -85,14 +91,14 @@ impl<const N: usize> Axis<N> {
                 (self.phase, self.released, self.hold) = (Phase::Stopping, t, here);
             }
             (Phase::Stopping, None) => {
+                let along = self.along(velocity);
                 let norm = self.way.iter().map(|w| w * w).sum::<f64>().sqrt().max(1e-12);
-                let along: f64 = self.way.iter().zip(velocity).map(|(w, v)| w / norm * v).sum();
-                if along <= rest || t - self.released >= STOP_TIMEOUT_S {
+                if along <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
                     (self.phase, self.hold) = (Phase::Holding, here);
                 } else {
-                    // Where the vehicle would have been BRAKE_LEAD_S ago at this speed: the MPC
-                    // brakes harder than for where it is, and the hold is taken at rest.
-                    self.hold = std::array::from_fn(|i| here[i] - BRAKE_LEAD_S * along * self.way[i] / norm);
+                    // Where the vehicle would have been `lead` ago at this speed: the MPC brakes
+                    // harder than for where it is, and the hold is taken at rest.
+                    self.hold = std::array::from_fn(|i| here[i] - stop.lead * along * self.way[i] / norm);
                 }
             }
             (Phase::Holding, None) => {}
@@ -100,6 +106,21 @@ impl<const N: usize> Axis<N> {
         (self.phase != before).then_some(self.phase)
     }
 }
+
+/// How an axis group stops: at rest under `rest` (m/s or rad/s) the way it went, the
+/// reference `lead` s of its speed behind it until then.
+#[derive(Debug, Clone, Copy)]
+struct Stop {
+    rest: f64,
+    lead: f64,
+}
+
+/// The horizontal position brakes on a reference behind it; depth and heading, whose
+/// controllers hold against buoyancy and a yaw moment, stop on one where they are (on the
+/// firmware a lead there swung the heading back 1 deg after a 15 deg/s turn).
+const HORIZONTAL_STOP: Stop = Stop { rest: REST_SPEED, lead: BRAKE_LEAD_S };
+const DEPTH_STOP: Stop = Stop { rest: REST_SPEED, lead: 0.0 };
+const HEADING_STOP: Stop = Stop { rest: REST_RATE, lead: 0.0 };
 
 /// A change of phase, for the log and the terminal.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -242,18 +263,18 @@ impl PilotAssist {
         if position {
             let a = self.horizontal.get_or_insert_with(|| Axis::holding([x[0], x[1]]));
             let moving = (out(sticks.surge) || out(sticks.sway)).then_some([vn, ve]);
-            if let Some(p) = a.advance(t, moving, [x[0], x[1]], [vn_now, ve_now], REST_SPEED) {
+            if let Some(p) = a.advance(t, moving, [x[0], x[1]], [vn_now, ve_now], HORIZONTAL_STOP) {
                 self.changes.push(PhaseChange { t, axis: "horizontal", phase: p, at: a.hold });
             }
         } else {
             self.horizontal = None;
         }
         let d = self.depth.get_or_insert_with(|| Axis::holding([here_depth]));
-        if let Some(p) = d.advance(t, out(sticks.heave).then_some([w]), [here_depth], [vz_now], REST_SPEED) {
+        if let Some(p) = d.advance(t, out(sticks.heave).then_some([w]), [here_depth], [vz_now], DEPTH_STOP) {
             self.changes.push(PhaseChange { t, axis: "depth", phase: p, at: [d.hold[0], 0.0] });
         }
         let h = self.heading.get_or_insert_with(|| Axis::holding([psi]));
-        if let Some(p) = h.advance(t, out(sticks.yaw).then_some([r]), [psi], [rate_now], REST_RATE) {
+        if let Some(p) = h.advance(t, out(sticks.yaw).then_some([r]), [psi], [rate_now], HEADING_STOP) {
             self.changes.push(PhaseChange { t, axis: "heading", phase: p, at: [h.hold[0].to_degrees(), 0.0] });
         }
 

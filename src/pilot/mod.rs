@@ -1,7 +1,7 @@
 //! Flying with the pilot: the sticks (from a gamepad on pinc's page, a ground station's
 //! joystick or a script) as velocity references for the MPC, and the stop it plans when they
 //! are let go, so a released stick comes to rest without going past and coming back
-//! (docs/PILOT.md, docs/MODEL.md section 13). The live session flies it on the vehicle
+//! (docs/PILOT.md, docs/MODEL.md section 14). The live session flies it on the vehicle
 //! (`mpc_track --connect --pilot`), [`fly_simulated`] on the simulated one.
 
 mod assist;

@@ -135,8 +135,8 @@ const STEADY_RUN_S: f64 = 15.0;
 impl StickLimits {
     /// What full deflection asks for on `model` within the input bounds `(lo, hi)`: on each
     /// axis [`STEADY_SPEED_SHARE`] of the slower of its two steady speeds (the model run from
-    /// rest at full thrust one way and the other), capped by `wanted` where given (surge, sway,
-    /// heave m/s, yaw rate rad/s).
+    /// rest at full thrust one way and the other), or `wanted` where given (surge, sway, heave
+    /// m/s, yaw rate rad/s) up to that steady speed.
     ///
     /// # Errors
     /// The model fails on the run, or an axis cannot move at all (bounds of zero).
@@ -169,10 +169,9 @@ impl StickLimits {
                 return Err(format!("the model does not move in {} at full thrust: no stick speed for it", AXES[axis]));
             }
         }
-        let limit = |axis: usize| {
-            let share = STEADY_SPEED_SHARE * steady[axis];
-            wanted[axis].map_or(share, |w| w.min(share))
-        };
+        // An owner's cap may ask for up to the steady speed itself (a current along helps; one
+        // against leaves the vehicle short, going as fast as it can).
+        let limit = |axis: usize| wanted[axis].map_or(STEADY_SPEED_SHARE * steady[axis], |w| w.min(steady[axis]));
         Ok(Self { surge: limit(0), sway: limit(1), heave: limit(2), yaw_rate: limit(3) })
     }
 
@@ -218,11 +217,14 @@ mod tests {
             Input::from_column_slice(&[-80.0, -60.0, -70.0, -20.0]),
             Input::from_column_slice(&[85.0, 60.0, 70.0, 20.0]),
         );
-        let l = StickLimits::of_model(&v, (lo, hi), [None, Some(0.3), None, None]).unwrap();
+        let l = StickLimits::of_model(&v, (lo, hi), [None, Some(0.3), None, Some(100.0)]).unwrap();
         // Surge: the slower way (back, 80 N) against the closed form of the steady speed.
         let back = terminal_speed(80.0, p.x_u, p.x_uu);
         approx::assert_relative_eq!(l.surge, STEADY_SPEED_SHARE * back, max_relative = 1e-3);
         assert_eq!(l.sway, 0.3);
+        // Asked for more than it can: the steady speed itself.
+        let shared = StickLimits::of_model(&v, (lo, hi), [None; 4]).unwrap();
+        approx::assert_relative_eq!(l.yaw_rate * STEADY_SPEED_SHARE, shared.yaw_rate, max_relative = 1e-12);
         // Heave: buoyancy helps one way and hinders the other; the slower is taken.
         let slower = terminal_speed(70.0 - p.net_buoyancy().abs(), p.z_w, p.z_ww);
         approx::assert_relative_eq!(l.heave, STEADY_SPEED_SHARE * slower, max_relative = 1e-3);

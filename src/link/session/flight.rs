@@ -318,6 +318,12 @@ impl<'l> Flight<'l> {
         self.log_error = self.log_error.take().or(self.log.log(t, level, text).err());
     }
 
+    /// `text` in the terminal and, at autopilot time `at`, the log.
+    fn say(&mut self, at: f64, level: Level, text: String) {
+        eprintln!("{text}");
+        self.notes.push(Note { t: at, level, text, from_autopilot: false });
+    }
+
     /// The notes gathered so far, into the log.
     pub(super) fn write_notes(&mut self) {
         for n in std::mem::take(&mut self.notes) {
@@ -379,6 +385,7 @@ impl<'l> Flight<'l> {
         estimator: &mut AnyEstimator<M>,
         flyer: &mut Flyer<M>,
         scenario: &Scenario,
+        mut pilot: Option<&mut super::pilot_feed::PilotFeed>,
         o: &SessionOptions,
         truths: &RefCell<super::truth::Feed>,
         mut seen: impl FnMut(&Received, f64),
@@ -434,12 +441,30 @@ impl<'l> Flight<'l> {
             }
             let goal = self.horizontal_goal(&now, &state, t, fresh.state.t)?;
             let offset = self.plan_offset();
+            let mut reference = scenario.reference_from(t, offset);
+            if let Some(feed) = pilot.as_deref_mut() {
+                for said in feed.take_readings(t) {
+                    self.say(fresh.state.t, Level::Warning, said);
+                }
+            }
             let (cycle, prediction, sent) = match flyer {
                 Flyer::Mpc(mpc) => {
-                    for (j, r) in refs.iter_mut().enumerate() {
-                        *r = scenario.reference_from(t + (j + 1) as f64 * self.dt, offset);
-                        if !goal {
-                            r.horizontal = None;
+                    if let Some(feed) = pilot.as_deref_mut() {
+                        let changes = feed.assist.changes().len();
+                        reference = feed.assist.references(t, &to_network(&state), goal, self.dt, &mut refs);
+                        for c in &feed.assist.changes()[changes..] {
+                            let text = format!(
+                                "pilot: {} {:?} at {:.2} s ({:.3}, {:.3})",
+                                c.axis, c.phase, c.t, c.at[0], c.at[1]
+                            );
+                            self.say(fresh.state.t, Level::Info, text);
+                        }
+                    } else {
+                        for (j, r) in refs.iter_mut().enumerate() {
+                            *r = scenario.reference_from(t + (j + 1) as f64 * self.dt, offset);
+                            if !goal {
+                                r.horizontal = None;
+                            }
                         }
                     }
                     let mpc = match (&mut depth_heading, goal) {
@@ -449,7 +474,8 @@ impl<'l> Flight<'l> {
                     self.mpc_cycle(drive, estimator, mpc, &fresh, &state, &refs)?
                 }
                 Flyer::Autopilot { hold, .. } => {
-                    self.hold_cycle(drive, estimator, *hold, &fresh, scenario, (t, offset))?
+                    let sticks = pilot.as_deref().map(|feed| feed.assist.commanded(t));
+                    self.hold_cycle(drive, estimator, *hold, &fresh, scenario, (t, offset), sticks)?
                 }
             };
             self.record(
@@ -458,14 +484,7 @@ impl<'l> Flight<'l> {
                 &now,
                 estimator,
                 truths,
-                Sample {
-                    t,
-                    state,
-                    reference: scenario.reference_from(t, offset),
-                    cycle,
-                    prediction,
-                    bound_violation: false,
-                },
+                Sample { t, state, reference, cycle, prediction, bound_violation: false },
             );
         }
     }
@@ -752,7 +771,7 @@ impl<'l> Flight<'l> {
             if now.estimate.is_some() { "state estimate" } else { "raw state" },
             if now.horizontal { " with a position source" } else { " without a position source (depth and heading)" }
         );
-        self.notes.push(Note { t: fresh.state.t, level: Level::Info, text, from_autopilot: false });
+        self.say(fresh.state.t, Level::Info, text);
         self.control_after = Some(self.waited.elapsed().as_secs_f64());
         if let Some(s) = &now.state {
             self.hold_xy = (s[0], s[1]);
@@ -807,8 +826,10 @@ impl<'l> Flight<'l> {
     }
 
     /// The autopilot's own hold: into its mode (asked again every half second until the
-    /// heartbeat says so; a refusal after 3 s), the cycle's targets, neutral pilot axes (they
-    /// keep the pilot-input failsafe quiet), and the outputs it applied as the cycle's input.
+    /// heartbeat says so; a refusal after 3 s), the cycle's targets and neutral pilot axes (they
+    /// keep the pilot-input failsafe quiet), or the pilot's `sticks` alone as its pilot axes,
+    /// and the outputs it applied as the cycle's input.
+    #[allow(clippy::too_many_arguments)]
     fn hold_cycle<M: DiscreteModel>(
         &mut self,
         drive: &mut Drive,
@@ -817,6 +838,7 @@ impl<'l> Flight<'l> {
         fresh: &Fresh,
         scenario: &Scenario,
         (t, offset): (f64, [f64; 2]),
+        sticks: Option<crate::pilot::Sticks>,
     ) -> Result<(CycleReport, Vec<crate::State>, Sent), Trigger> {
         if drive.mode() == hold.mode() as u32 {
             self.mode_entered.get_or_insert(t);
@@ -843,8 +865,13 @@ impl<'l> Flight<'l> {
         // The plan's point and velocity, or the start held.
         let horizontal =
             next.horizontal.unwrap_or_else(|| crate::mpc::Horizontal::hold(self.hold_xy.0, self.hold_xy.1));
-        send_targets(drive, hold, boot_ms, (next.depth, next.heading), rate, horizontal)?;
-        let sent = drive.send_neutral(fresh)?;
+        let sent = match sticks {
+            Some(sticks) => drive.send_sticks(fresh, sticks)?,
+            None => {
+                send_targets(drive, hold, boot_ms, (next.depth, next.heading), rate, horizontal)?;
+                drive.send_neutral(fresh)?
+            }
+        };
         let applied = self.last_applied;
         each!(&mut *estimator, tr => tr.commanded(applied));
         let cycle = CycleReport {

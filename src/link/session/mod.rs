@@ -117,6 +117,19 @@ pub struct SessionOptions<'a> {
     /// One JSON line per control cycle on stdout (the time, depth, heading and position with
     /// their references): what `pinc serve` plots live.
     pub stream_samples: bool,
+    /// Fly the pilot's sticks instead of the scenario's references (pinc's MPC only).
+    pub pilot: Option<&'a PilotOptions>,
+}
+
+/// Where the pilot's sticks come from and what full deflection asks for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PilotOptions {
+    /// A file or named pipe of one JSON object per line; `-` for stdin.
+    pub source: String,
+    /// Caps on full deflection: surge, sway, heave (m/s), yaw rate (rad/s); `None` leaves
+    /// [`StickLimits::of_model`](crate::pilot::StickLimits::of_model)'s share of the model's
+    /// steady speed.
+    pub speeds: [Option<f64>; 4],
 }
 
 /// A session's outcome.
@@ -162,6 +175,7 @@ pub use navigation_plot::NavigationTrack;
 mod flight;
 mod navigation_plot;
 mod noise_window;
+mod pilot_feed;
 mod summary;
 mod targets;
 mod truth;
@@ -191,6 +205,7 @@ pub fn run<M: DiscreteModel + Clone>(
         MavMessage::SIMSTATE(s) => truths.borrow_mut().positions.push(truth::position_of(t, s)),
         _ => {}
     };
+    let mut pilot = pilot_feed(&flyer, o)?;
     let stop = ctrl_c_flag()?;
     let Setup { commander, settings, estimator_model, noise, dead_reckoning_bound, .. } = setup;
     let mut drive = match Drive::start(link, autopilot, assembler, commander, settings, stop, seen) {
@@ -205,7 +220,7 @@ pub fn run<M: DiscreteModel + Clone>(
             AnyEstimator::<M>::Vehicle(Estimator::new(v, noise).with_dead_reckoning_bound(dead_reckoning_bound))
         }
     };
-    let outcome = flight.fly(&mut drive, &mut estimator, &mut flyer, scenario, o, &truths, seen);
+    let outcome = flight.fly(&mut drive, &mut estimator, &mut flyer, scenario, pilot.as_mut(), o, &truths, seen);
     Ok(summary::end(flight, drive, outcome, &estimator, o))
 }
 
@@ -302,6 +317,36 @@ impl<M: DiscreteModel + Clone> Setup<M> {
             stream_samples: o.stream_samples,
         })
     }
+}
+
+/// The pilot's sticks' reader and assist, with `--pilot`: full deflection from the MPC's model
+/// and bounds, the depth reference within the surface and `--max-depth`.
+fn pilot_feed<M: DiscreteModel>(flyer: &Flyer<M>, o: &SessionOptions) -> Result<Option<pilot_feed::PilotFeed>, String> {
+    let Some(p) = o.pilot else { return Ok(None) };
+    let mpc = match flyer {
+        Flyer::Mpc(mpc) => mpc,
+        // The autopilot's holds that take a pilot: the sticks go to it as its pilot axes.
+        Flyer::Autopilot { hold: hold @ (AutopilotHold::PosHold | AutopilotHold::AltHold), .. } => {
+            let any = crate::pilot::StickLimits { surge: 1.0, sway: 1.0, heave: 1.0, yaw_rate: 1.0 };
+            eprintln!("pilot: the sticks go to the autopilot's {} as MANUAL_CONTROL", hold.name());
+            return pilot_feed::PilotFeed::open(&p.source, crate::pilot::PilotAssist::new(any, (0.0, 0.0))).map(Some);
+        }
+        Flyer::Autopilot { hold, .. } => {
+            return Err(format!("--pilot: the autopilot's {} ignores the pilot's sticks", hold.name()));
+        }
+    };
+    let limits = crate::pilot::StickLimits::of_model(mpc.model(), mpc.bounds(), p.speeds)?;
+    let band = (0.0, o.drive.max_depth.unwrap_or(f64::INFINITY));
+    eprintln!(
+        "pilot assist: full sticks ask for {:.2} m/s surge, {:.2} m/s sway, {:.2} m/s heave, {:.1} deg/s yaw; \
+         centred sticks hold where the vehicle comes to rest; none for {} s counts as centred",
+        limits.surge,
+        limits.sway,
+        limits.heave,
+        limits.yaw_rate.to_degrees(),
+        crate::pilot::DEADMAN_S
+    );
+    pilot_feed::PilotFeed::open(&p.source, crate::pilot::PilotAssist::new(limits, band)).map(Some)
 }
 
 /// Ctrl-C stops the session (with neutral and the disarm it owes).

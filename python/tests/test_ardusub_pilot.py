@@ -1,0 +1,171 @@
+"""Pilot assist on the firmware (ArduSub 4.8.0-dev in ArduPilot's simulator, its GPS, the full
+pilot gain, a 0.3 m/s current towards 30 deg): the same scripted sticks flown by pinc
+(`mpc_track --connect --pilot -` on the four-axis fitted model) and by ArduSub's POSHOLD (the
+sticks sent to it as MANUAL_CONTROL, as Cockpit's joystick would), side by side, each on its
+own simulator. python/tests/pilot_sticks.py writes the sticks at 10 Hz from when control
+starts: a dive on the heave stick (2-6 s), then the stick out for 6 s (12-18 s) and let go, then
+a turn (26-29 s) let go. Every figure is from the simulator's truth (`/truth/position` and
+`/truth` in each run's log): the travel past the point where the stick was let go, along the
+way the vehicle went; how much of it came back; when it came to rest.
+
+POSHOLD's stick asks for a speed of its own: its stick is set so that it flies the speed
+pinc is asked for (measured here, stated with the figures).
+
+$PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
+"""
+
+import json
+import math
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from test_ardusub_fit import GPS_RECORDING, pinc_fit
+from test_ardusub_position import GPS_CURRENT, WAIT
+from test_ardusub_sitl import run_on_firmware
+from test_vehicle_drive import mpc_track_binary
+from test_vehicle_link import read_mcap
+
+STICKS = Path(__file__).resolve().parent / "pilot_sticks.py"
+RELEASE_S = 18.0
+TURN_RELEASE_S = 29.0
+DURATION_S = 40.0
+
+
+def sticks(axis, value, heave=0.5):
+    """The script: the dive, `value` on `axis` (0 surge, 1 sway) from 12 to 18 s, a turn."""
+    out = [0.0, 0.0, 0.0, 0.0]
+    out[axis] = value
+    return ["--stick", f"2,6,0,0,{heave},0", "--stick", f"12,{RELEASE_S}," + ",".join(map(str, out)),
+            "--stick", f"26,{TURN_RELEASE_S},0,0,0,0.5"]
+
+
+def pinc(surge, sway=0.3):
+    """pinc's full sticks: SURGE and SWAY m/s, 0.5 m/s heave, 30 deg/s."""
+    return ("--pilot-speeds", f"{surge},{sway},0.5,30")
+
+
+def fly(out_dir, script, *extra, timeout=300):
+    client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5760", "--arm", "--sim-truth", "--json",
+              "--out-dir", out_dir, "--timeout", "30", "--duration", str(DURATION_S), *WAIT, "--pilot", "-", *extra]
+    wrapped = [sys.executable, STICKS, "--record", out_dir / "sticks.jsonl", *script, "--", *client]
+    r = run_on_firmware(out_dir, GPS_CURRENT, wrapped, timeout=timeout)
+    assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr[-3000:]}"
+    return r, json.loads(r.stdout)
+
+
+def truth_track(s):
+    """`(t, north, east)` of the true position and `(t, depth, heading deg)`, session time."""
+    topics = read_mcap(Path(s["log"]))
+    positions = [(ns * 1e-9, m["north_m"], m["east_m"]) for ns, m in topics["/truth/position"]]
+    states = [(ns * 1e-9, m["z"], math.degrees(m["psi"])) for ns, m in topics["/truth"]]
+    return positions, states
+
+
+def at(track, t):
+    """The track's values at `t`, between its samples."""
+    for a, b in zip(track, track[1:]):
+        if a[0] <= t <= b[0]:
+            f = (t - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 0.0
+            return [x + f * (y - x) for x, y in zip(a[1:], b[1:])]
+    raise AssertionError(f"no sample about {t} s")
+
+
+def release(positions, t_release):
+    """Past the release point along the way it went; back from the farthest to where it rests
+    (its mean position 6-8 s after the release: the hold's own wander on the GPS averaged); at
+    rest after (the last time it was more than 3 cm from there); and the speed over the second
+    before the release."""
+    p, before = at(positions, t_release), at(positions, t_release - 1.0)
+    v = [p[0] - before[0], p[1] - before[1]]
+    speed = math.hypot(*v)
+    d = [v[0] / speed, v[1] / speed]
+    after = [(t, n, e) for t, n, e in positions if t_release <= t <= t_release + 8.0]
+    rest = [(n, e) for t, n, e in after if t >= t_release + 6.0]
+    end = [sum(x) / len(rest) for x in zip(*rest)]
+    along = lambda n, e: (n - p[0]) * d[0] + (e - p[1]) * d[1]  # noqa: E731
+    past = max(along(n, e) for _, n, e in after)
+    moving = [t for t, n, e in after if math.hypot(n - end[0], e - end[1]) > 0.03]
+    return {"speed_m_s": speed, "past_m": past, "back_m": past - along(*end),
+            "rest_after_s": (moving[-1] - t_release) if moving else 0.0}
+
+
+def excursion(states, index, t_release, until):
+    """The largest excursion of a truth state past its value at the release, the way it went,
+    and how far it ended from there (the heading unwrapped)."""
+    track = [(t, x[index - 1]) for t, *x in states if t_release - 1.0 <= t <= until]
+    values = [track[0][1]]
+    for _, x in track[1:]:
+        values.append(values[-1] + (x - values[-1] + 180.0) % 360.0 - 180.0 if index == 2 else x)
+    times = [t for t, _ in track]
+    k = next(i for i, t in enumerate(times) if t >= t_release)
+    sign = math.copysign(1.0, values[k] - values[0])
+    along = [sign * (v - values[k]) for v in values[k:]]
+    past = max(along)
+    return {"past": past, "back": past - along[-1]}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fitted") / "fitted"
+    pinc_fit(GPS_RECORDING, out)
+    return out / "model.pinc"
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory, fitted):
+    tmp = tmp_path_factory.mktemp("pilot")
+    poshold = ("--model", fitted, "--autopilot-hold", "poshold")
+    # POSHOLD's stick for the same speed, measured on this firmware: 0.46 flew 0.42 m/s surge, 0.55 0.60 m/s
+    # and 1.0 flew 1.52 m/s (the current along); 0.3 flew 0.10 m/s sway and 0.5 flew 0.50 m/s.
+    runs = {
+        "pinc, surge 0.5": ((tmp / "pinc_surge", sticks(0, 1.0), "--model", fitted, *pinc(0.5)), {}),
+        "POSHOLD, surge 0.5": ((tmp / "poshold_surge", sticks(0, 0.50), *poshold), {}),
+        "pinc, surge 0.9": ((tmp / "pinc_fast", sticks(0, 1.0), "--model", fitted, *pinc(0.9)), {}),
+        "POSHOLD, surge 0.9": ((tmp / "poshold_fast", sticks(0, 0.70), *poshold), {}),
+        "pinc, sway 0.3": ((tmp / "pinc_sway", sticks(1, 1.0), "--model", fitted, *pinc(0.5)), {}),
+        "POSHOLD, sway 0.3": ((tmp / "poshold_sway", sticks(1, 0.4), *poshold), {}),
+    }
+    for who, ((out, *_), _) in runs.items():
+        out.mkdir()
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = {who: pool.submit(fly, *args, **kw) for who, (args, kw) in runs.items()}
+        return {who: f.result() for who, f in futures.items()}
+
+
+def figures(who, r, s):
+    assert s["stopped"] is None and r.returncode == 0, (who, r.stderr[-3000:])
+    positions, states = truth_track(s)
+    out = {"release": release(positions, RELEASE_S),
+           "turn": excursion(states, 2, TURN_RELEASE_S, DURATION_S - 0.5),
+           "dive": excursion(states, 1, 6.0, 11.5)}
+    print(f"{who:20s} {json.dumps(out)}")
+    return out
+
+
+def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(flights):
+    f = {who: figures(who, *flights[who]) for who in flights}
+    # Measured in three batches (the first two with other settings, said in docs/PILOT.md):
+    # past the release point pinc 0.078-0.123 / 0.201-0.202 / 0.047-0.075 m against POSHOLD
+    # 0.279-0.313 / 0.738-0.749 / 0.186 m at the same speeds over the ground (0.27-0.40x); back
+    # from the farthest point at 0.5 m/s pinc 0.023-0.028 m, POSHOLD 0.033 m (the GPS's own
+    # wander of the hold is in both); at rest 3.4-3.8 s after the release.
+    for case, speed, target in (("surge 0.5", 0.5, 0.17), ("surge 0.9", 0.9, 0.34), ("sway 0.3", 0.3, 0.08)):
+        pinc, poshold = f[f"pinc, {case}"]["release"], f[f"POSHOLD, {case}"]["release"]
+        print(f"{case}: pinc {pinc['past_m']:.3f} m past, POSHOLD {poshold['past_m']:.3f} m: "
+              f"{pinc['past_m'] / poshold['past_m']:.2f}x")
+        # Both flew the speed asked for (POSHOLD's stick set for it), within 10 %.
+        for who, r in (("pinc", pinc), ("POSHOLD", poshold)):
+            assert abs(r["speed_m_s"] - speed) <= 0.1 * speed + 0.01, (case, who, r)
+        assert pinc["past_m"] <= 0.5 * poshold["past_m"], (case, pinc, poshold)
+        assert pinc["rest_after_s"] <= 5.0, (case, pinc)
+        if case != "sway 0.3":
+            assert pinc["past_m"] <= target, (case, pinc)
+    assert f["pinc, surge 0.5"]["release"]["back_m"] <= 0.035, f["pinc, surge 0.5"]
+    for who in flights:
+        if who.startswith("pinc"):
+            # The turn (15 deg/s) and the dive (0.25 m/s) let go: back 0.43-0.73 deg and
+            # 0.04-0.05 m (the truth's depth comes in steps of 0.01 m).
+            assert f[who]["turn"]["back"] <= 1.0 and f[who]["dive"]["back"] <= 0.06, (who, f[who])
