@@ -4,14 +4,15 @@
 //! flight leaves the vehicle to the autopilot's own failsafe (pilot input lost: neutral in 3 s)
 //! and the recording as `.partial`. STOP interrupts the child (it sends neutral and disarms,
 //! as on Ctrl-C) beside the server's own neutral and disarm; a child still running 5 s later is
-//! killed.
+//! killed. A flight on the page's gamepad takes the sticks on its standard input; the page gone
+//! quiet for [`PAGE_GONE`] stops it the same way.
 
 use serde_json::{Value, json};
 use std::collections::VecDeque;
 use std::ffi::OsString;
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -20,6 +21,9 @@ use std::time::{Duration, Instant};
 const KEPT_LINES: usize = 400;
 /// A child still running this long after STOP is killed.
 const KILL_AFTER: Duration = Duration::from_secs(5);
+/// A flight on the page's sticks with none from the page for this long is stopped (neutral
+/// and disarm): the page was closed or lost its link. The flight itself holds after 0.5 s.
+pub const PAGE_GONE: Duration = Duration::from_secs(3);
 
 /// What a job does.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -80,6 +84,10 @@ pub struct Job {
     pub error: Option<String>,
     pub exit_code: Option<i32>,
     child: Option<u32>,
+    /// The child's standard input, where it takes the pilot's sticks.
+    sticks_in: Option<ChildStdin>,
+    /// When the page last sent sticks (a flight on them: from its start).
+    sticks_at: Option<Instant>,
     stop_asked: Option<Instant>,
     interrupt: Arc<AtomicBool>,
 }
@@ -104,6 +112,7 @@ impl Job {
             "error": self.error,
             "exit_code": self.exit_code,
             "stop_asked_s_ago": self.stop_asked.map(|t| t.elapsed().as_secs_f64()),
+            "takes_sticks": self.state == State::Running && self.sticks_in.is_some(),
         })
     }
 
@@ -126,6 +135,8 @@ pub struct Jobs {
 pub struct Step {
     pub program: PathBuf,
     pub args: Vec<OsString>,
+    /// The child takes the page's sticks on its standard input.
+    pub sticks: bool,
 }
 
 impl Step {
@@ -186,6 +197,8 @@ impl Jobs {
             error: None,
             exit_code: None,
             child: None,
+            sticks_in: None,
+            sticks_at: None,
             stop_asked: None,
             interrupt: interrupt.clone(),
         });
@@ -195,7 +208,7 @@ impl Jobs {
             let outcome = work(&handle);
             handle.update(|j| {
                 j.ended = Some(Instant::now());
-                j.child = None;
+                (j.child, j.sticks_in) = (None, None);
                 match outcome {
                     Ok(result) => {
                         j.result = Some(result);
@@ -224,6 +237,26 @@ impl Jobs {
         }
         j.say("STOP asked".into());
         true
+    }
+
+    /// One line of sticks to the running flight that takes them.
+    ///
+    /// # Errors
+    /// No such flight runs, or its input is closed.
+    pub fn send_sticks(&self, line: &str) -> Result<(), String> {
+        let mut current = self.current.lock().expect("jobs");
+        let j = current
+            .as_mut()
+            .filter(|j| j.state == State::Running && j.sticks_in.is_some())
+            .ok_or("no flight on the gamepad is running: start one first")?;
+        let input = j.sticks_in.as_mut().expect("checked");
+        input
+            .write_all(line.as_bytes())
+            .and_then(|()| input.write_all(b"\n"))
+            .and_then(|()| input.flush())
+            .map_err(|e| format!("the flight no longer takes sticks: {e}"))?;
+        j.sticks_at = Some(Instant::now());
+        Ok(())
     }
 
     /// Whether a job runs.
@@ -279,7 +312,13 @@ impl Handle {
         }
         self.say(format!("$ {}", step.shown()));
         let mut child = spawn(step).map_err(|e| format!("cannot start {}: {e}", step.program.display()))?;
-        self.update(|j| j.child = Some(child.id()));
+        let sticks_in = child.stdin.take();
+        self.update(|j| {
+            j.child = Some(child.id());
+            if step.sticks {
+                (j.sticks_in, j.sticks_at) = (sticks_in, Some(Instant::now()));
+            }
+        });
         // A STOP that came while the child was starting found none to interrupt.
         if self.interrupt.load(Ordering::Relaxed) {
             signal(child.id(), libc::SIGINT);
@@ -331,7 +370,18 @@ fn wait(child: &mut Child, handle: &Handle) -> Result<std::process::ExitStatus, 
             return Ok(status);
         }
         let mut overdue = false;
-        handle.update(|j| overdue = j.stop_asked.is_some_and(|t| t.elapsed() > KILL_AFTER));
+        let mut page_gone = false;
+        handle.update(|j| {
+            overdue = j.stop_asked.is_some_and(|t| t.elapsed() > KILL_AFTER);
+            page_gone = j.stop_asked.is_none() && j.sticks_at.is_some_and(|t| t.elapsed() > PAGE_GONE);
+        });
+        if page_gone {
+            handle.say(format!(
+                "no sticks from the page for {} s (closed, or its link lost): stopped (neutral and disarm)",
+                PAGE_GONE.as_secs()
+            ));
+            handle.jobs.stop();
+        }
         if overdue {
             handle.say(format!("still running {} s after STOP: killed", KILL_AFTER.as_secs()));
             let _ = child.kill();
@@ -343,7 +393,8 @@ fn wait(child: &mut Child, handle: &Handle) -> Result<std::process::ExitStatus, 
 /// The child, its output piped, killed by the kernel if the server dies.
 fn spawn(step: &Step) -> std::io::Result<Child> {
     let mut command = Command::new(&step.program);
-    command.args(&step.args).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    let stdin = if step.sticks { Stdio::piped() } else { Stdio::null() };
+    command.args(&step.args).stdin(stdin).stdout(Stdio::piped()).stderr(Stdio::piped());
     #[cfg(target_os = "linux")]
     {
         use std::os::unix::process::CommandExt;
@@ -388,7 +439,7 @@ mod tests {
     fn one_job_at_a_time_and_samples_apart_from_the_rest() {
         let jobs = Jobs::default();
         let script = "echo '{\"t\": 0.08, \"depth_m\": 1}'; echo 'said' >&2; sleep 0.3; echo '{\"summary\": 1}'";
-        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()] };
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()], sticks: false };
         jobs.start(Kind::Fly, "test".into(), move |h| {
             let ran = h.run(&step)?;
             Ok(json!({"rest": ran.stdout, "code": ran.code}))
@@ -409,7 +460,7 @@ mod tests {
         let jobs = Jobs::default();
         // Traps SIGINT (says so and goes on): only the kill after 5 s ends it.
         let script = "trap 'echo interrupted >&2' INT; echo trapped >&2; for i in $(seq 100); do sleep 0.1; done";
-        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()] };
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()], sticks: false };
         jobs.start(Kind::Excite, "stubborn".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
         // STOP once the trap is set (a loaded machine may take longer than any fixed wait).
         let said = |what: &str| jobs.to_json(0)["lines"].as_array().is_some_and(|l| l.iter().any(|l| l == what));
@@ -430,5 +481,41 @@ mod tests {
         let lines = j["lines"].as_array().unwrap();
         assert!(lines.iter().any(|l| l == "interrupted"), "{lines:?}");
         assert!(!jobs.stop(), "nothing runs any more");
+    }
+
+    #[test]
+    fn sticks_reach_the_flight_and_a_quiet_page_stops_it() {
+        let jobs = Jobs::default();
+        assert!(jobs.send_sticks("{}").unwrap_err().contains("no flight on the gamepad"));
+        // Says each line it takes; SIGINT ends it as a flight's Ctrl-C does.
+        let script = "trap 'echo interrupted >&2; exit 3' INT; while read line; do echo \"got $line\" >&2; done";
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()], sticks: true };
+        let started = Instant::now();
+        jobs.start(Kind::Fly, "sticks".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
+        let said = |what: &str| jobs.to_json(0)["lines"].as_array().is_some_and(|l| l.iter().any(|l| l == what));
+        for _ in 0..400 {
+            if jobs.send_sticks(r#"{"surge": 0.5}"#).is_ok() && said(r#"got {"surge": 0.5}"#) {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(25));
+        }
+        assert!(said(r#"got {"surge": 0.5}"#), "{}", jobs.to_json(0));
+        // Then nothing from the page: stopped PAGE_GONE later, the child interrupted.
+        let last = Instant::now();
+        let j = wait_for_end(&jobs);
+        assert_eq!(j["state"], "stopped", "{j}");
+        let took = last.elapsed();
+        assert!(
+            took >= PAGE_GONE && took < PAGE_GONE + Duration::from_secs(2),
+            "{took:?} ({:?} in all)",
+            started.elapsed()
+        );
+        let lines = j["lines"].as_array().unwrap();
+        assert!(
+            lines.iter().any(|l| l.as_str().is_some_and(|l| l.starts_with("no sticks from the page for 3 s"))),
+            "{lines:?}"
+        );
+        assert!(lines.iter().any(|l| l == "interrupted"), "{lines:?}");
+        assert!(jobs.send_sticks("{}").is_err(), "nothing takes sticks any more");
     }
 }

@@ -69,6 +69,12 @@ pub enum References {
     Station,
     /// A lawnmower from the start: width, length, spacing (m), speed (m/s), depth (m).
     Survey { width: f64, length: f64, spacing: f64, speed: f64, depth: f64 },
+    /// The page's gamepad: what full sticks ask for, surge, sway, heave (m/s), yaw (deg/s)
+    /// (none: the model's default share).
+    Pilot {
+        #[serde(default)]
+        speeds: Option<[f64; 4]>,
+    },
 }
 
 fn finite(field: &str, v: f64) -> Result<f64, String> {
@@ -147,6 +153,12 @@ impl FlyOrder {
                 }
             }
             References::Station => {}
+            References::Pilot { speeds: Some(speeds) } => {
+                for (field, v) in ["surge", "sway", "heave", "yaw"].into_iter().zip(speeds) {
+                    positive(&format!("speeds {field}"), *v)?;
+                }
+            }
+            References::Pilot { speeds: None } => {}
             References::Survey { width, length, spacing, speed, depth: d } => {
                 for (field, v) in [("width", width), ("length", length), ("spacing", spacing), ("speed", speed)] {
                     positive(field, *v)?;
@@ -210,6 +222,10 @@ mod tests {
         assert!(e.contains("reaches 41.2 m from the start, past the vehicle's limit of 20 m"), "{e}");
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,2],"depth_at":40,"heading":[0,90],"heading_at":20}}"#).unwrap_err();
         assert!(e.contains("depth_at 40 s must be within the flight"), "{e}");
+        let e =
+            fly(r#"{"model":"m","duration":30,"references":{"kind":"pilot","speeds":[0.5,0,0.3,20]}}"#).unwrap_err();
+        assert_eq!(e, "speeds sway must be above 0, got 0");
+        fly(r#"{"model":"m","duration":600,"references":{"kind":"pilot"}}"#).unwrap();
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"orbit"}}"#).unwrap_err();
         assert!(e.contains("unknown variant `orbit`"), "{e}");
         let band = |b: &str| {

@@ -171,6 +171,13 @@ impl App {
             "/api/excite" => self.excite(parse(&body)?),
             "/api/fit" => self.fit(parse(&body)?),
             "/api/fly" => self.fly(parse(&body)?),
+            "/api/sticks" => {
+                // Checked here too: a refusal reaches the page at once, and nothing bad reaches
+                // the flight (which checks again and holds).
+                pinc::pilot::Sticks::from_json(&body).map_err(|e| Refused(400, format!("{e}: refused, holding")))?;
+                self.jobs.send_sticks(body.trim()).map_err(|e| Refused(409, e))?;
+                Ok(json_reply(200, &json!({"taken": true})))
+            }
             "/api/delete" => {
                 let order: DeleteOrder = parse(&body)?;
                 if self.jobs.running() {
@@ -230,6 +237,7 @@ impl App {
                 "--axes".into(),
                 order.axes.join(","),
             ]),
+            sticks: false,
         };
         let mut args = vec![
             "vehicle".to_string(),
@@ -251,7 +259,7 @@ impl App {
             args.push("--keep-going".into());
         }
         args.extend(self.run_args.iter().cloned());
-        let excite = Step { program: self.pinc.clone(), args: os_args(args) };
+        let excite = Step { program: self.pinc.clone(), args: os_args(args), sticks: false };
         let data = self.data.clone();
         self.started(Kind::Excite, format!("{name} ({} s at most, {top}-{bottom} m)", order.duration), move |h| {
             let designed = h.run(&design)?;
@@ -343,9 +351,16 @@ impl App {
             References::Survey { width, length, spacing, speed, depth } => {
                 args.push(format!("--survey={width},{length},{spacing},{speed},{depth}"));
             }
+            References::Pilot { speeds } => {
+                args.extend(["--pilot".into(), "-".into()]);
+                if let Some([u, v, w, r]) = speeds {
+                    args.push(format!("--pilot-speeds={u},{v},{w},{r}"));
+                }
+            }
         }
         args.extend(self.run_args.iter().cloned());
-        let step = Step { program: self.mpc_track.clone(), args: os_args(args) };
+        let sticks = matches!(order.references, References::Pilot { .. });
+        let step = Step { program: self.mpc_track.clone(), args: os_args(args), sticks };
         self.started(Kind::Fly, format!("{name} on {}", order.model), move |h| {
             let ran = h.run(&step)?;
             let summary: Option<Value> = serde_json::from_str(ran.stdout.trim()).ok();
