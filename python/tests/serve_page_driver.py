@@ -1,6 +1,7 @@
 """Drives `pinc serve`'s page in a real browser (Debian's chromium, headless, through
 chromedriver and selenium) against ArduSub's simulator, as an owner would: the status, an
-excitation until the watch stops it, a fit, a 30 s flight, and STOP during a second flight. Meant
+excitation until the watch stops it, a fit, a 30 s flight, STOP during a second flight, and a
+flight on a gamepad (injected through the Gamepad API) ended by closing the page. Meant
 to run inside run_in_netns.sh's namespace (everything on its loopback):
 
 - an independent observer (pymavlink) is the firmware's first client (on 5760: it starts the
@@ -96,6 +97,14 @@ class Observer:
     def outputs_after(self, t, span=1.0):
         with self.lock:
             return [(round(o[0] - t, 3), o[1]) for o in self.outputs if t - 0.2 <= o[0] <= t + span]
+
+
+# A gamepad as the Gamepad API gives one (standard mapping), its axes set by the test.
+INJECTED_GAMEPAD = """
+window.__pad = {id: "pinc test pad", index: 0, connected: true, mapping: "standard", axes: [0, 0, 0, 0],
+                buttons: [], timestamp: 0};
+navigator.getGamepads = () => [window.__pad.connected ? window.__pad : null];
+"""
 
 
 def wait(what, ok, timeout, every=0.2):
@@ -258,6 +267,52 @@ def main():
         result["files"] = [(r.get_attribute("data-kind"), r.get_attribute("data-name"))
                            for r in browser.find_elements(By.CSS_SELECTOR, "#files tr")]
         shot("reloaded")
+
+        # 6b. A flight on the gamepad, injected through the Gamepad API as a browser sees one:
+        # the heave stick held down takes the vehicle down, centred it holds, unplugged mid-stick
+        # it holds, and the page closed stops the flight (neutral and disarm) 3 s later.
+        browser.execute_script(INJECTED_GAMEPAD)
+        Select(browser.find_element(By.ID, "fly-kind")).select_by_value("pilot")
+        field("fly-pw", 0.3)
+        field("fly-duration", 120)
+        click("fly-start")
+        wait("the gamepad's flight", lambda: text("job-kind") == "fly" and text("job-state") == "running"
+             or (text("job-state") == "failed" and (_ for _ in ()).throw(AssertionError(text("job-log")))), 10)
+        wait("armed, and control running", lambda: observer.armed() and len(state()["job"]["samples"]) >= 25, 90)
+        wait("the page's gamepad", lambda: text("pad-state") == "pinc test pad", 5)
+
+        def last_sample():
+            s = state()["job"]["samples"][-1]
+            return {"t": s["t"], "depth_m": s["depth_m"], "depth_ref_m": s["depth_ref_m"]}
+
+        def sticks(axes):
+            browser.execute_script(f"window.__pad.axes = {json.dumps(axes)};")
+
+        pilot = {"start": last_sample()}
+        sticks([0, 0.5, 0, 0])  # left stick down: heave down at half of 0.3 m/s
+        time.sleep(5.0)
+        pilot["held_5_s"] = last_sample()
+        sticks([0, 0, 0, 0])
+        time.sleep(4.0)
+        pilot["centred_4_s"] = last_sample()
+        time.sleep(2.0)
+        pilot["centred_6_s"] = last_sample()
+        sticks([0, 0.5, 0, 0])
+        time.sleep(2.0)
+        browser.execute_script("window.__pad.connected = false;")
+        time.sleep(1.5)
+        pilot["unplugged_1_5_s"] = last_sample()
+        time.sleep(2.0)
+        pilot["unplugged_3_5_s"] = last_sample()
+        shot("gamepad")
+        closed = time.monotonic()
+        browser.get("about:blank")
+        wait("disarmed after the page closed", lambda: observer.disarmed_after(closed) is not None, 10, every=0.05)
+        pilot["disarmed_after_close_s"] = observer.disarmed_after(closed)
+        browser.get(f"http://127.0.0.1:{PORT}/")
+        pilot["state"] = job_done(15)
+        pilot["log_tail"] = [line for line in text("job-log").splitlines() if "sticks" in line][-6:]
+        result["pilot"] = pilot
 
         # 7. The autopilot reboots: the server's link comes back by itself.
         links = state()["vehicle"]["links_opened"]

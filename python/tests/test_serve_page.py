@@ -116,6 +116,22 @@ def test_a_reload_and_a_second_tab_see_the_flight_going_on(clicked):
     assert result["second_tab"]["job-samples"] >= 100
 
 
+def test_the_gamepad_moves_the_vehicle_centred_and_unplugged_holds_and_a_closed_page_disarms(clicked):
+    _, result = clicked
+    p = result["pilot"]
+    print(json.dumps(p, indent=1))
+    # Half the heave stick (0.15 m/s) for 5 s: down by more than 0.4 m.
+    assert p["held_5_s"]["depth_m"] - p["start"]["depth_m"] >= 0.4, p
+    # Centred: the depth held where it came to rest (the reference unchanged, the depth near it).
+    assert abs(p["centred_6_s"]["depth_ref_m"] - p["centred_4_s"]["depth_ref_m"]) < 1e-6, p
+    assert abs(p["centred_6_s"]["depth_m"] - p["centred_6_s"]["depth_ref_m"]) < 0.15, p
+    # Unplugged mid-stick: the page sends centred sticks at once, the flight holds within 1.5 s.
+    assert abs(p["unplugged_3_5_s"]["depth_ref_m"] - p["unplugged_1_5_s"]["depth_ref_m"]) < 1e-6, p
+    # The page closed: the server stops the flight 3 s later, the vehicle disarmed.
+    assert 3.0 <= p["disarmed_after_close_s"] <= 4.5, p
+    assert p["state"] == "stopped" and any("no sticks from the page for 3 s" in line for line in p["log_tail"]), p
+
+
 def test_the_link_comes_back_after_the_autopilot_reboots(clicked):
     _, result = clicked
     assert result["reboot"]["links_opened"] >= 2 and result["reboot"]["page"].startswith("connected"), result["reboot"]

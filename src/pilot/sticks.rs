@@ -138,8 +138,10 @@ impl StickLimits {
     /// rest at full thrust one way and the other), or `wanted` where given (surge, sway, heave
     /// m/s, yaw rate rad/s) up to that steady speed.
     ///
+    /// An axis the model cannot move (its bounds zero there) gets 0: its stick does nothing.
+    ///
     /// # Errors
-    /// The model fails on the run, or an axis cannot move at all (bounds of zero).
+    /// The model fails on the run.
     pub fn of_model<M: DiscreteModel>(
         model: &M,
         (lo, hi): (Input, Input),
@@ -165,8 +167,10 @@ impl StickLimits {
                 }
                 *speed = speed.min(x[5 + axis].abs());
             }
+            // An axis the model never learned (a fit of heave and yaw alone: its bounds are
+            // zero there) does not move: its stick asks for nothing.
             if !(speed.is_finite() && *speed > 1e-3) {
-                return Err(format!("the model does not move in {} at full thrust: no stick speed for it", AXES[axis]));
+                *speed = 0.0;
             }
         }
         // An owner's cap may ask for up to the steady speed itself (a current along helps; one
@@ -228,7 +232,8 @@ mod tests {
         // Heave: buoyancy helps one way and hinders the other; the slower is taken.
         let slower = terminal_speed(70.0 - p.net_buoyancy().abs(), p.z_w, p.z_ww);
         approx::assert_relative_eq!(l.heave, STEADY_SPEED_SHARE * slower, max_relative = 1e-3);
+        // No surge force in the bounds: the surge stick asks for nothing.
         let none = (Input::from_column_slice(&[0.0, -60.0, -70.0, -20.0]), hi);
-        assert!(StickLimits::of_model(&v, none, [None; 4]).unwrap_err().contains("surge"));
+        assert_eq!(StickLimits::of_model(&v, none, [Some(0.5), None, None, None]).unwrap().surge, 0.0);
     }
 }

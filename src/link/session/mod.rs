@@ -337,6 +337,11 @@ fn pilot_feed<M: DiscreteModel>(flyer: &Flyer<M>, o: &SessionOptions) -> Result<
     };
     let limits = crate::pilot::StickLimits::of_model(mpc.model(), mpc.bounds(), p.speeds)?;
     let band = (0.0, o.drive.max_depth.unwrap_or(f64::INFINITY));
+    let still: Vec<&str> =
+        crate::pilot::AXES.into_iter().zip(limits.axes()).filter(|(_, l)| *l == 0.0).map(|(a, _)| a).collect();
+    if !still.is_empty() {
+        eprintln!("pilot assist: the model cannot move in {}: those sticks ask for nothing", still.join(", "));
+    }
     eprintln!(
         "pilot assist: full sticks ask for {:.2} m/s surge, {:.2} m/s sway, {:.2} m/s heave, {:.1} deg/s yaw; \
          centred sticks hold where the vehicle comes to rest; none for {} s counts as centred",
