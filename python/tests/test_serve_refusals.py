@@ -188,3 +188,139 @@ def test_another_sites_page_can_neither_read_the_token_nor_command(server, brows
     assert out["simple"] == "opaque"
     assert any("refused POST /api/excite: missing or wrong token" in line for line in log), log
     assert not any("STOP (neutral" in line for line in log), log
+
+
+# Cockpit's extras, as its own source types them (bluerobotics/cockpit, src/libs/blueos/schemas.ts
+# and src/types: checked there with zod, where one wrong field drops the extension's whole file).
+HTTP_METHODS = {"GET", "POST", "PUT", "DELETE", "PATCH"}
+ACTION_TYPES = {"http-request", "mavlink-message", "javascript"}
+MODIFIER_KEYS = {"regular", "shift"}
+
+
+def check_cockpit_extras(x):
+    """Every field Cockpit's types require, of the type they require; what is wrong, by path."""
+    def has(obj, where, field, kind, optional=False):
+        if field not in obj:
+            assert optional, f"{where}.{field} is missing"
+            return None
+        assert isinstance(obj[field], kind) and not (kind is int and isinstance(obj[field], bool)), \
+            f"{where}.{field} is {obj[field]!r}, not {kind}"
+        return obj[field]
+
+    has(x, "extras", "targetCockpitApiVersion", str)
+    has(x, "extras", "targetSystem", str)
+    for i, w in enumerate(has(x, "extras", "widgets", list, optional=True) or []):
+        where = f"widgets[{i}]"
+        has(w, where, "name", str)
+        has(w, where, "iframeUrl", str)
+        assert "iconUrl" in w or "iframeIcon" in w, f"{where}: either iconUrl or iframeIcon"
+        for f, kind in (("iconUrl", str), ("iframeIcon", str), ("collapsibleContainerName", str), ("version", str),
+                        ("startCollapsed", bool), ("useExtensionPathAsBaseUrl", bool),
+                        ("contentZoom", (int, float)), ("scaleContentWithWidget", bool)):
+            has(w, where, f, kind, optional=True)
+    ids = set()
+    for i, a in enumerate(has(x, "extras", "actions", list, optional=True) or []):
+        where = f"actions[{i}]"
+        ids.add(has(a, where, "id", str))
+        has(a, where, "name", str)
+        assert has(a, where, "type", str) in ACTION_TYPES, f"{where}.type"
+        has(a, where, "version", str, optional=True)
+        c = has(a, where, "config", dict)
+        has(c, where + ".config", "name", str)
+        assert has(c, where + ".config", "method", str) in HTTP_METHODS, f"{where}.config.method"
+        has(c, where + ".config", "url", str)
+        has(c, where + ".config", "body", str)
+        for f in ("headers", "urlParams"):
+            d = has(c, where + ".config", f, dict, optional=f == "urlParams") or {}
+            assert all(isinstance(k, str) and isinstance(v, str) for k, v in d.items()), f"{where}.config.{f}"
+    for i, g in enumerate(has(x, "extras", "joystickSuggestions", list, optional=True) or []):
+        where = f"joystickSuggestions[{i}]"
+        has(g, where, "id", str)
+        has(g, where, "name", str)
+        has(g, where, "description", str, optional=True)
+        assert all(isinstance(t, str) for t in has(g, where, "targetVehicleTypes", list, optional=True) or [])
+        for j, s in enumerate(has(g, where, "buttonMappingSuggestions", list)):
+            w = f"{where}.buttonMappingSuggestions[{j}]"
+            for f in ("id", "actionProtocol", "actionName", "actionId"):
+                has(s, w, f, str)
+            has(s, w, "button", int)
+            assert has(s, w, "modifierKey", str) in MODIFIER_KEYS, f"{w}.modifierKey"
+            assert s["actionProtocol"] != "cockpit-action" or s["actionId"] in ids, f"{w}: no action {s['actionId']}"
+
+
+def test_cockpit_finds_the_page_as_a_widget_and_hold_and_stop_as_actions(server, tmp_path):
+    base, token, data, log = server
+    registered = json.loads(urllib.request.urlopen(base + "/register_service").read())
+    assert registered["works_in_relative_paths"] is True
+    path = registered["extras"]["cockpit"]
+    assert path.startswith("/"), "Cockpit appends it to the extension's address"
+    extras = json.loads(urllib.request.urlopen(base + path).read())
+    check_cockpit_extras(extras)
+    # The checker itself refuses what Cockpit refuses (its docs' own `modifier` spelling, a
+    # lower-case method, a widget without an icon).
+    for broken in ("modifier", "post", "no icon"):
+        bad = json.loads(json.dumps(extras))
+        if broken == "modifier":
+            s = bad["joystickSuggestions"][0]["buttonMappingSuggestions"][0]
+            s["modifier"] = s.pop("modifierKey")
+        elif broken == "post":
+            bad["actions"][0]["config"]["method"] = "post"
+        else:
+            del bad["widgets"][0]["iconUrl"]
+        with pytest.raises(AssertionError):
+            check_cockpit_extras(bad)
+    widget = extras["widgets"][0]
+    assert widget["iframeUrl"] == "/" and urllib.request.urlopen(base + widget["iconUrl"]).status == 200
+    # Each action as Cockpit sends it: its URL under BlueOS's extension path, its headers
+    # (the page's token) and body.
+    actions = {a["id"]: a["config"] for a in extras["actions"]}
+    for c in actions.values():
+        assert c["url"].startswith("http://{{ vehicle-address }}/extensionv2/pinc/api/"), c["url"]
+        assert c["headers"]["X-Pinc-Token"] == token
+    def send(c):
+        local = base + c["url"].split("/extensionv2/pinc", 1)[1]
+        req = urllib.request.Request(local, data=c["body"].encode(), headers=c["headers"], method=c["method"])
+        try:
+            with urllib.request.urlopen(req) as r:
+                return r.status, json.loads(r.read())
+        except urllib.error.HTTPError as e:
+            return e.code, json.loads(e.read())
+    assert send(actions["pinc-hold-here"]) == (409, {"error": "no fitted model to hold with: excite and fit first"})
+    status, reply = send(actions["pinc-stop"])
+    assert status == 200 and reply["stopped"] is True, reply
+    # The token outlives a restart (Cockpit keeps the headers it copied): the data folder's.
+    proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
+                             "--data", str(data), "--port", "0", "--vehicle", str(VEHICLE)],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        again = "http://" + re.search(r"http://(127\.0\.0\.1:\d+)", proc.stderr.readline()).group(1)
+        assert json.loads(urllib.request.urlopen(again + path).read())["actions"][0]["config"]["headers"] == \
+            extras["actions"][0]["config"]["headers"]
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert (data / ".token").stat().st_mode & 0o077 == 0, "the token file is the owner's alone"
+
+
+def test_the_page_works_inside_cockpits_iframe(server, browser, tmp_path):
+    # Cockpit shows an extension's widget as an iframe of its page; here the frame sits on
+    # another origin's page, the strictest case (from BlueOS's menu they share one).
+    from selenium.webdriver.common.by import By
+    base, _, _, log = server
+    (tmp_path / "cockpit.html").write_text(
+        f'<!doctype html><html><body><iframe id="pinc" src="{base}/" width="1200" height="900"></iframe></body></html>')
+    handler = lambda *a, **k: http.server.SimpleHTTPRequestHandler(*a, directory=str(tmp_path), **k)  # noqa: E731
+    site = http.server.ThreadingHTTPServer(("127.0.0.2", 0), handler)
+    threading.Thread(target=site.serve_forever, daemon=True).start()
+    try:
+        browser.get(f"http://127.0.0.2:{site.server_address[1]}/cockpit.html")
+        browser.switch_to.frame(browser.find_element(By.ID, "pinc"))
+        wait_for("the page's status in the frame", lambda: browser.find_element(By.ID, "link-state").text != "", browser)
+        browser.find_element(By.ID, "stop").click()
+        message = lambda: browser.find_element(By.ID, "message").text  # noqa: E731
+        wait_for("STOP from inside the frame", lambda: message().startswith("STOP sent"), browser)
+        browser.save_screenshot(str(tmp_path / "in_cockpit.png"))
+    finally:
+        browser.switch_to.default_content()
+        site.shutdown()
+    assert any("STOP (neutral" in line for line in log), log

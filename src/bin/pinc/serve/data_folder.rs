@@ -83,6 +83,38 @@ impl DataFolder {
         if path.symlink_metadata().is_ok() { Ok(path) } else { Err(DataError::Missing(shown)) }
     }
 
+    /// The newest entry of `kind` (by modification time) that holds `file`.
+    pub fn newest(&self, kind: &str, file: &str) -> Option<String> {
+        let read = std::fs::read_dir(self.dir(kind).ok()?).ok()?;
+        read.flatten()
+            .filter(|e| e.path().join(file).is_file())
+            .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.file_name().to_string_lossy().into_owned())))
+            .filter(|(_, name)| check_name("name", name).is_ok())
+            .max()
+            .map(|(_, name)| name)
+    }
+
+    /// The page's token: kept in the folder (`.token`, owner-only), made on the first start, so
+    /// what a ground station copied of it (Cockpit's actions) still works after a restart.
+    pub fn token(&self) -> Result<String, DataError> {
+        let path = self.root.join(".token");
+        match std::fs::read_to_string(&path) {
+            Ok(t) if t.trim().len() == 32 && t.trim().bytes().all(|b| b.is_ascii_hexdigit()) => {
+                Ok(t.trim().to_string())
+            }
+            Ok(_) | Err(_) => {
+                let token = format!("{:032x}", rand::random::<u128>());
+                let mut options = std::fs::OpenOptions::new();
+                options.write(true).create(true).truncate(true);
+                #[cfg(unix)]
+                std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+                let mut f = options.open(&path).map_err(|e| io(&path, e))?;
+                std::io::Write::write_all(&mut f, token.as_bytes()).map_err(|e| io(&path, e))?;
+                Ok(token)
+            }
+        }
+    }
+
     /// A name `PREFIX-YYYYmmdd-HHMMSS` (UTC) not yet taken in `kind` (with `-2`, `-3`... if it is).
     pub fn new_name(&self, kind: &str, prefix: &str, extension: &str) -> Result<String, DataError> {
         let base = format!("{prefix}-{}", chrono::Utc::now().format("%Y%m%d-%H%M%S"));

@@ -6,8 +6,10 @@
 //! reboot, STOP's neutral and disarm), `jobs` (one job at a time: excite and fly as child
 //! processes, fit in a thread), `orders` (what the page asks, checked against the vehicle's
 //! limits), `data_folder` (what is listed, downloaded, deleted), `routes` (HTTP, the token,
-//! each refusal), and the page itself (`page.html`, no outside resources).
+//! each refusal), `cockpit` (the extras Cockpit reads: the page as a widget, hold and STOP as
+//! actions), and the page itself (`page.html`, no outside resources).
 
+mod cockpit;
 mod data_folder;
 mod jobs;
 mod orders;
@@ -75,11 +77,12 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
     }
     let watcher = vehicle_watch::Watcher::default();
     watcher.start(a.link.connect.clone(), a.link.options.clone());
+    let token = data.token().map_err(|e| e.to_string())?;
     let app = routes::App {
         data,
         watcher,
         jobs: jobs::Jobs::default(),
-        token: format!("{:032x}", rand::random::<u128>()),
+        token,
         limits,
         vehicle: a.vehicle.clone(),
         flight_connect: a.flight_connect.clone().unwrap_or_else(|| a.link.connect.clone()),

@@ -96,8 +96,12 @@ impl App {
                     "webpage": env!("CARGO_PKG_REPOSITORY"),
                     "api": "",
                     "works_in_relative_paths": true,
+                    "extras": {"cockpit": super::cockpit::EXTRAS_PATH},
                 }),
             )),
+            super::cockpit::EXTRAS_PATH => Ok(json_reply(200, &super::cockpit::extras(&self.token))),
+            "/icon.svg" => Ok(Response::from_data(super::cockpit::ICON_SVG.as_bytes().to_vec())
+                .with_header(header("Content-Type", "image/svg+xml"))),
             "/api/state" => {
                 let since = arg("since").and_then(|s| s.parse().ok()).unwrap_or(0);
                 let vehicle = self.watcher.view.lock().expect("view").to_json();
@@ -171,6 +175,14 @@ impl App {
             "/api/excite" => self.excite(parse(&body)?),
             "/api/fit" => self.fit(parse(&body)?),
             "/api/fly" => self.fly(parse(&body)?),
+            // Cockpit's "hold here": the newest fitted model holds where the vehicle is.
+            "/api/hold" => {
+                let model = self
+                    .data
+                    .newest("models", "model.pinc")
+                    .ok_or_else(|| Refused(409, "no fitted model to hold with: excite and fit first".to_string()))?;
+                self.fly(FlyOrder { model, references: References::Station, duration: self.limits.max_duration })
+            }
             "/api/sticks" => {
                 // Checked here too: a refusal reaches the page at once, and nothing bad reaches
                 // the flight (which checks again and holds).
