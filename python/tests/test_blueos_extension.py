@@ -80,7 +80,8 @@ def test_plain_labels():
     assert re.fullmatch(r"\d+\.\d+\.\d+", found.get("version", "")), found.get("version")
     assert found.get("type") in EXTENSION_TYPES
     assert re.fullmatch(r"core >= \d+\.\d+(\.\d+)?", found.get("requirements", "")), found.get("requirements")
-    assert found["requirements"] == "core >= 1.1"
+    # BlueOS 1.4 is the first whose register_service carries extras (Cockpit's widget and actions).
+    assert found["requirements"] == "core >= 1.4"
     # BlueOS fills in {tag} with the image tag it installs.
     assert re.fullmatch(r"https://\S+\.md", found.get("readme", "")), found.get("readme")
 
@@ -186,3 +187,24 @@ def test_one_stage_per_published_platform_and_no_run():
             arch = current.removeprefix("platform-")
             want = {"amd64": "dist/linux-amd64/", "arm64": "dist/linux-arm64/", "armv7": "dist/linux-arm-v7/"}[arch]
             assert all(a.startswith(want) for a in shlex.split(rest)[:-1]), (current, rest)
+
+
+ENTRY = ROOT / "blueos" / "extensions_repository" / "pinc"
+
+
+def test_the_extension_store_entry_is_complete():
+    # bluerobotics/BlueOS-Extensions-Repository reads repos/<company>/<extension>/metadata.json
+    # (name, website, docker, description: a missing one skips the entry), the extension's logo
+    # beside it and the company's logo one folder up; the rest comes from the image's labels.
+    meta = json.loads((ENTRY / "pinc" / "metadata.json").read_text())
+    assert set(meta) == {"name", "website", "docker", "description"}, meta
+    assert all(isinstance(v, str) and v for v in meta.values()), meta
+    assert re.fullmatch(r"[\w.-]+/[\w.-]+", meta["docker"]), meta["docker"]
+    for logo in (ENTRY / "pinc" / "extension_logo.png", ENTRY / "company_logo.png"):
+        head = logo.read_bytes()[:24]
+        assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR", logo
+        width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        assert width == height >= 64, (logo, width, height)
+    # The store keeps at most 10 tags of lower-case letters, digits and dashes.
+    tags = json_label("tags")
+    assert len(tags) <= 10 and all(re.fullmatch(r"[a-z0-9-]+", t) for t in tags), tags
