@@ -346,10 +346,8 @@ fn evaluate<'py>(
         .iter()
         .map(|p| PincModel::load(p).map_err(|e| PincError::new_err(format!("{}: {e}", p.display()))))
         .collect::<PyResult<Vec<_>>>()?;
-    let params = vehicle
-        .as_ref()
-        .map(|p| VehicleParams::load(p).map_err(|e| PincError::new_err(e.to_string())))
-        .transpose()?;
+    let params =
+        vehicle.as_ref().map(|p| VehicleParams::load(p).map_err(|e| PincError::new_err(e.to_string()))).transpose()?;
     let refs: Vec<&PincModel> = loaded.iter().collect();
     let evaluation = py
         .detach(|| pinc::eval::evaluate_recorded(&dataset, set, &refs, params.as_ref(), start, start_history))

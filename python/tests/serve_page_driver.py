@@ -336,7 +336,9 @@ def main():
         serve.kill()
         serve.wait()
         time.sleep(6.0)
-        left = subprocess.run(["pgrep", "-f", "vehicle excite"], capture_output=True, text=True).stdout.split()
+        # This server's children only (another test may run its own excitation meanwhile).
+        running = subprocess.run(["pgrep", "-af", "vehicle excite"], capture_output=True, text=True).stdout
+        left = [line.split()[0] for line in running.splitlines() if str(a.data) in line]
         result["killed"] = {"outputs": observer.outputs_after(killed, span=6.0), "children_left": left,
                             "armed_after_6_s": observer.armed()}
         serve = start_serve()
