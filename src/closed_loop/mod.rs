@@ -13,11 +13,13 @@ pub mod path_plan;
 mod run;
 mod scenario;
 mod summary;
+mod track;
 
 pub use log::{CHUNK_INTERVAL_NS, Level, LogError, LogStats, McapLog, RunInfo, file_sha256};
 pub use run::{Sample, run, run_on, run_with};
-pub use scenario::{FOUR_AXIS_CURRENT, Plant, ReferenceFileError, Scenario, Track};
+pub use scenario::{FOUR_AXIS_CURRENT, Plant, ReferenceFileError, Scenario};
 pub use summary::{
     HOLD_LEAD_S, HOLD_SETTLE_S, HorizontalFigures, PATH_FINISHED_WITHIN_M, STATION_SETTLE_S, Summary,
     horizontal_figures, summarise,
 };
+pub use track::Track;

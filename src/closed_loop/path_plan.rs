@@ -4,7 +4,7 @@
 //! whole before anything moves: a bad number, a time going back, a leg faster than the
 //! vehicle can go or a point past the distance limit names its line.
 
-use super::scenario::Track;
+use super::track::Track;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
