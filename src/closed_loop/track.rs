@@ -68,3 +68,18 @@ impl Track {
         self.points.last().map_or(0.0, |p| p.0)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tracks_are_linear_between_points_and_step_at_shared_times() {
+        let t = Track::from_points(vec![(1.0, 0.0), (3.0, 2.0), (3.0, 5.0), (4.0, 5.0)]);
+        assert_eq!(t.at(0.0), 0.0);
+        assert!((t.at(2.0) - 1.0).abs() < 1e-12);
+        assert!((t.at(2.999) - 1.999).abs() < 1e-9);
+        assert_eq!(t.at(3.0), 5.0);
+        assert_eq!(t.at(10.0), 5.0);
+    }
+}
