@@ -169,3 +169,23 @@ def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(fligh
             # The turn (15 deg/s) and the dive (0.25 m/s) let go: back 0.43-0.73 deg and
             # 0.04-0.05 m (the truth's depth comes in steps of 0.01 m).
             assert f[who]["turn"]["back"] <= 1.0 and f[who]["dive"]["back"] <= 0.06, (who, f[who])
+
+
+TWO_STATIONS = Path(__file__).resolve().parent / "two_ground_stations.py"
+
+
+def test_two_ground_stations_sending_sticks_take_turns_unless_one_is_not_the_autopilots(tmp_path):
+    # What the firmware does with two MANUAL_CONTROL streams (Cockpit's joystick and pinc's
+    # commands): from the same system id as SYSID_MYGCS (255) each message wins until the next,
+    # the outputs alternating every 50 ms; from another id the second is ignored. So exactly one
+    # source commands the thrusters only when pinc's is the one the autopilot takes
+    # (docs/PILOT.md).
+    def run(system):
+        r = run_on_firmware(tmp_path / str(system), [], [sys.executable, TWO_STATIONS, str(system)], timeout=120)
+        assert r.returncode == 0, r.stderr[-2000:]
+        return json.loads(r.stdout.strip().splitlines()[-1])
+    with ThreadPoolExecutor(2) as pool:
+        same, other = pool.map(run, (255, 254))
+    print(same["forward_share"], other["forward_share"])
+    assert 0.35 <= same["forward_share"] <= 0.65 and same["samples"] >= 100, same
+    assert other["forward_share"] == 1.0 and other["samples"] >= 100, other
