@@ -324,3 +324,29 @@ def test_the_page_works_inside_cockpits_iframe(server, browser, tmp_path):
         browser.switch_to.default_content()
         site.shutdown()
     assert any("STOP (neutral" in line for line in log), log
+
+
+def test_a_run_the_data_folder_has_no_room_for_is_refused_before_it_starts(tmp_path):
+    # A 10 MB limit with 8 MB held: a 30 s flight (about 6 MB) is refused, and the page's state
+    # says what the folder holds.
+    data = tmp_path / "data"
+    (data / "recordings").mkdir(parents=True)
+    (data / "recordings" / "old.mcap").write_bytes(b"\0" * 8_000_000)
+    proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
+                             "--data", str(data), "--port", "0", "--vehicle", str(VEHICLE), "--max-data-mb", "10"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        base = "http://" + re.search(r"http://(127\.0\.0\.1:\d+)", proc.stderr.readline()).group(1)
+        token = re.search(r'const TOKEN = "([0-9a-f]{32})"', urllib.request.urlopen(base + "/").read().decode()).group(1)
+        (data / "models" / "m").mkdir(parents=True)
+        (data / "models" / "m" / "model.pinc").write_bytes(b"x")
+        status, reply = call(base, "/api/fly", {"model": "m", "duration": 30, "references": {"kind": "station"}},
+                             token=token)
+        assert status == 507 and reply["error"].startswith(
+            "refused: the data folder holds 8 MB of its 10 MB (pinc serve --max-data-mb) and a 30 s run needs about 6 MB"), reply
+        state = call(base, "/api/state")[1]
+        assert state["job"] is None and state["server"]["limits"]["max_data_mb"] == 10
+        assert abs(state["server"]["data_mb"] - 8.0) < 0.1 and state["server"]["disk_free_mb"] > 0, state["server"]
+    finally:
+        proc.terminate()
+        proc.wait(10)

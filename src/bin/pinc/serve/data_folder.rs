@@ -83,6 +83,34 @@ impl DataFolder {
         if path.symlink_metadata().is_ok() { Ok(path) } else { Err(DataError::Missing(shown)) }
     }
 
+    /// What the folder holds (bytes): every file under it.
+    pub fn size(&self) -> u64 {
+        fn walk(dir: &Path) -> u64 {
+            let Ok(read) = std::fs::read_dir(dir) else { return 0 };
+            read.flatten()
+                .map(|e| match e.metadata() {
+                    Ok(m) if m.is_dir() => walk(&e.path()),
+                    Ok(m) => m.len(),
+                    Err(_) => 0,
+                })
+                .sum()
+        }
+        walk(&self.root)
+    }
+
+    /// The free space of the folder's disk for this user (bytes), where the system says.
+    pub fn free(&self) -> Option<u64> {
+        use std::os::unix::ffi::OsStrExt;
+        let path = std::ffi::CString::new(self.root.as_os_str().as_bytes()).ok()?;
+        // SAFETY: statvfs(3) writes one plain struct through the pointer; the path is a valid C
+        // string for the call's length.
+        let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+        if unsafe { libc::statvfs(path.as_ptr(), &mut st) } != 0 {
+            return None;
+        }
+        Some(st.f_bavail as u64 * st.f_frsize as u64)
+    }
+
     /// The newest entry of `kind` (by modification time) that holds `file`.
     pub fn newest(&self, kind: &str, file: &str) -> Option<String> {
         let read = std::fs::read_dir(self.dir(kind).ok()?).ok()?;

@@ -53,6 +53,10 @@ pub struct ServeArgs {
     /// refused, and crossing it stops the flight.
     #[arg(long, default_value_t = 30.0)]
     max_distance: f64,
+    /// The most the data folder may hold (MB): a run that would take it past this is refused
+    /// before it starts (delete old runs on the page); the page shows what it holds.
+    #[arg(long, default_value_t = 1024.0)]
+    max_data_mb: f64,
     /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
     /// --run-arg=1`, or the estimator's sensor noise).
     #[arg(long = "run-arg", value_name = "ARG", allow_hyphen_values = true)]
@@ -60,10 +64,18 @@ pub struct ServeArgs {
 }
 
 pub fn run_serve(a: ServeArgs) -> Result<(), String> {
-    let limits = orders::Limits { max_depth: a.max_depth, max_duration: a.max_duration, max_distance: a.max_distance };
-    for (flag, v) in
-        [("--max-depth", a.max_depth), ("--max-duration", a.max_duration), ("--max-distance", a.max_distance)]
-    {
+    let limits = orders::Limits {
+        max_depth: a.max_depth,
+        max_duration: a.max_duration,
+        max_distance: a.max_distance,
+        max_data_bytes: a.max_data_mb * 1e6,
+    };
+    for (flag, v) in [
+        ("--max-depth", a.max_depth),
+        ("--max-duration", a.max_duration),
+        ("--max-distance", a.max_distance),
+        ("--max-data-mb", a.max_data_mb),
+    ] {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{flag} must be a positive number, got {v}"));
         }

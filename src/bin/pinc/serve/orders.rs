@@ -13,6 +13,43 @@ pub struct Limits {
     pub max_duration: f64,
     /// The farthest a path may go from the start (m).
     pub max_distance: f64,
+    /// The most the data folder may hold (bytes).
+    pub max_data_bytes: f64,
+}
+
+/// What a run writes per second, at most (bytes): a flight's MCAP log is about 21 kB/s (the
+/// firmware tests' 60 s flights: 1.29 MB), doubled for its plots and a margin.
+pub const RUN_BYTES_PER_S: f64 = 40e3;
+/// What any run writes besides (bytes): summaries, plots, a fit's report.
+pub const RUN_BYTES_FIXED: f64 = 5e6;
+
+/// The room a run of `duration` s needs, checked against what the data folder holds
+/// (`used`, bytes), its limit and the disk's free space (`free`, bytes).
+///
+/// # Errors
+/// Past the limit, or more than the disk has, in words with the figures.
+pub fn room_for(duration: f64, used: u64, free: Option<u64>, limits: &Limits) -> Result<(), String> {
+    let needed = RUN_BYTES_FIXED + RUN_BYTES_PER_S * duration;
+    let mb = |b: f64| b / 1e6;
+    if used as f64 + needed > limits.max_data_bytes {
+        return Err(format!(
+            "refused: the data folder holds {:.0} MB of its {:.0} MB (pinc serve --max-data-mb) and a {duration:.0} s \
+             run needs about {:.0} MB more: delete old runs first",
+            mb(used as f64),
+            mb(limits.max_data_bytes),
+            mb(needed)
+        ));
+    }
+    if let Some(free) = free
+        && (free as f64) < needed
+    {
+        return Err(format!(
+            "refused: the data folder's disk has {:.0} MB free and a {duration:.0} s run needs about {:.0} MB",
+            mb(free as f64),
+            mb(needed)
+        ));
+    }
+    Ok(())
 }
 
 /// The designed excitation's axes.
@@ -206,7 +243,7 @@ impl FlyOrder {
 mod tests {
     use super::*;
 
-    const LIMITS: Limits = Limits { max_depth: 3.0, max_duration: 600.0, max_distance: 20.0 };
+    const LIMITS: Limits = Limits { max_depth: 3.0, max_duration: 600.0, max_distance: 20.0, max_data_bytes: 1e9 };
 
     fn fly(json: &str) -> Result<(), String> {
         serde_json::from_str::<FlyOrder>(json).map_err(|e| e.to_string())?.check(&LIMITS)
@@ -253,5 +290,21 @@ mod tests {
             o.reference_csv().unwrap(),
             "t,depth_m,heading_deg\n0,1,0\n10,1,0\n10,2,0\n20,2,0\n20,2,90\n30,2,90\n"
         );
+    }
+
+    #[test]
+    fn a_run_past_the_data_folders_limit_or_its_disk_is_refused_with_the_figures() {
+        let limits = Limits { max_data_bytes: 100e6, ..LIMITS };
+        // 600 s: 5 MB + 24 MB.
+        room_for(600.0, 70_000_000, Some(1_000_000_000), &limits).unwrap();
+        let e = room_for(600.0, 80_000_000, Some(1_000_000_000), &limits).unwrap_err();
+        assert_eq!(
+            e,
+            "refused: the data folder holds 80 MB of its 100 MB (pinc serve --max-data-mb) and a 600 s run needs \
+             about 29 MB more: delete old runs first"
+        );
+        let e = room_for(600.0, 0, Some(20_000_000), &limits).unwrap_err();
+        assert_eq!(e, "refused: the data folder's disk has 20 MB free and a 600 s run needs about 29 MB");
+        room_for(600.0, 0, None, &limits).unwrap();
     }
 }

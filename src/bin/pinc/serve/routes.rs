@@ -6,7 +6,7 @@
 
 use super::data_folder::DataFolder;
 use super::jobs::{Handle, Jobs, Kind, Step};
-use super::orders::{ExciteOrder, FitOrder, FlyOrder, Limits, References};
+use super::orders::{self, ExciteOrder, FitOrder, FlyOrder, Limits, References};
 use super::vehicle_watch::Watcher;
 use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
@@ -115,7 +115,10 @@ impl App {
                             "flight_connect": self.flight_connect,
                             "vehicle_file": self.vehicle_file().ok().map(|p| p.display().to_string()),
                             "limits": {"max_depth": self.limits.max_depth, "max_duration": self.limits.max_duration,
-                                       "max_distance": self.limits.max_distance},
+                                       "max_distance": self.limits.max_distance,
+                                       "max_data_mb": self.limits.max_data_bytes / 1e6},
+                            "data_mb": self.data.size() as f64 / 1e6,
+                            "disk_free_mb": self.data.free().map(|b| b as f64 / 1e6),
                             "trainer": cfg!(feature = "train"),
                         },
                     }),
@@ -225,8 +228,15 @@ impl App {
         Ok(json_reply(200, &json!({"job": id, "what": what})))
     }
 
+    /// Refuses a run of `duration` s that the data folder has no room for (its limit, its
+    /// disk), before anything is sent.
+    fn room_for(&self, duration: f64) -> Result<(), Refused> {
+        orders::room_for(duration, self.data.size(), self.data.free(), &self.limits).map_err(|e| Refused(507, e))
+    }
+
     fn excite(&self, order: ExciteOrder) -> Reply {
         order.check(&self.limits).map_err(|e| Refused(400, e))?;
+        self.room_for(order.duration)?;
         let vehicle = self.vehicle_file()?;
         let name = self.data.new_name("recordings", "excite", ".mcap").map_err(|e| Refused(500, e.to_string()))?;
         let base = name.trim_end_matches(".mcap").to_string();
@@ -330,6 +340,7 @@ impl App {
 
     fn fly(&self, order: FlyOrder) -> Reply {
         order.check(&self.limits).map_err(|e| Refused(400, e))?;
+        self.room_for(order.duration)?;
         let model =
             self.data.existing("models", &order.model, Some("model.pinc")).map_err(|e| Refused(400, e.to_string()))?;
         let name = self.data.new_name("flights", "fly", "").map_err(|e| Refused(500, e.to_string()))?;
