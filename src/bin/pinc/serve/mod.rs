@@ -101,6 +101,7 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         run_args: a.run_args.clone(),
         pinc: here,
         mpc_track,
+        storage: Default::default(),
     };
     let server = tiny_http::Server::http((a.bind.as_str(), a.port))
         .map_err(|e| format!("cannot listen on {}:{}: {e}", a.bind, a.port))?;

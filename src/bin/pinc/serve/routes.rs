@@ -32,6 +32,9 @@ pub struct App {
     pub run_args: Vec<String>,
     pub pinc: PathBuf,
     pub mpc_track: PathBuf,
+    /// What the data folder holds and its disk's free space (bytes), and when they were read:
+    /// the state is polled five times a second per page, the folder walked at most every 2 s.
+    pub storage: std::sync::Mutex<Option<(std::time::Instant, u64, Option<u64>)>>,
 }
 
 /// A refusal: status and message.
@@ -105,6 +108,7 @@ impl App {
             "/api/state" => {
                 let since = arg("since").and_then(|s| s.parse().ok()).unwrap_or(0);
                 let vehicle = self.watcher.view.lock().expect("view").to_json();
+                let (used, free) = self.storage();
                 Ok(json_reply(
                     200,
                     &json!({
@@ -117,8 +121,8 @@ impl App {
                             "limits": {"max_depth": self.limits.max_depth, "max_duration": self.limits.max_duration,
                                        "max_distance": self.limits.max_distance,
                                        "max_data_mb": self.limits.max_data_bytes / 1e6},
-                            "data_mb": self.data.size() as f64 / 1e6,
-                            "disk_free_mb": self.data.free().map(|b| b as f64 / 1e6),
+                            "data_mb": used as f64 / 1e6,
+                            "disk_free_mb": free.map(|b| b as f64 / 1e6),
                             "trainer": cfg!(feature = "train"),
                         },
                     }),
@@ -226,6 +230,19 @@ impl App {
         let id = self.jobs.start(kind, what.clone(), work).map_err(|e| Refused(409, e))?;
         eprintln!("serve: job {id}: {} {what}", kind.name());
         Ok(json_reply(200, &json!({"job": id, "what": what})))
+    }
+
+    /// What the data folder holds and its disk's free space, read again when 2 s old.
+    fn storage(&self) -> (u64, Option<u64>) {
+        let mut cached = self.storage.lock().expect("storage");
+        match *cached {
+            Some((at, used, free)) if at.elapsed() < std::time::Duration::from_secs(2) => (used, free),
+            _ => {
+                let (used, free) = (self.data.size(), self.data.free());
+                *cached = Some((std::time::Instant::now(), used, free));
+                (used, free)
+            }
+        }
     }
 
     /// Refuses a run of `duration` s that the data folder has no room for (its limit, its
