@@ -22,8 +22,8 @@ from pathlib import Path
 
 import pytest
 
-from test_ardusub_fit import GPS_RECORDING, pinc_fit
-from test_ardusub_position import GPS_CURRENT, WAIT
+# `fitted`: the four-axis model the position tests fly, made the same way here.
+from test_ardusub_position import GPS_CURRENT, WAIT, fitted  # noqa: F401
 from test_ardusub_sitl import run_on_firmware
 from test_vehicle_drive import mpc_track_binary
 from test_vehicle_link import read_mcap
@@ -105,13 +105,6 @@ def excursion(states, index, t_release, until):
     along = [sign * (v - values[k]) for v in values[k:]]
     past = max(along)
     return {"past": past, "back": past - along[-1]}
-
-
-@pytest.fixture(scope="module")
-def fitted(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fitted") / "fitted"
-    pinc_fit(GPS_RECORDING, out)
-    return out / "model.pinc"
 
 
 @pytest.fixture(scope="module")

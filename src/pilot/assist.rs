@@ -67,10 +67,10 @@ impl<const N: usize> Axis<N> {
         Self { phase: Phase::Holding, hold: here, way: [0.0; N], released: f64::NEG_INFINITY }
     }
 
-    /// `velocity`'s part along the way the axis went.
-    fn along(&self, velocity: [f64; N]) -> f64 {
+    /// The unit vector of the way the axis went.
+    fn direction(&self) -> [f64; N] {
         let norm = self.way.iter().map(|w| w * w).sum::<f64>().sqrt().max(1e-12);
-        self.way.iter().zip(velocity).map(|(w, v)| w / norm * v).sum()
+        self.way.map(|w| w / norm)
     }
 
     /// The phase after this cycle; `Some` with the new phase when it changed.
@@ -91,14 +91,14 @@ impl<const N: usize> Axis<N> {
                 (self.phase, self.released, self.hold) = (Phase::Stopping, t, here);
             }
             (Phase::Stopping, None) => {
-                let along = self.along(velocity);
-                let norm = self.way.iter().map(|w| w * w).sum::<f64>().sqrt().max(1e-12);
+                let d = self.direction();
+                let along: f64 = d.iter().zip(velocity).map(|(d, v)| d * v).sum();
                 if along <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
                     (self.phase, self.hold) = (Phase::Holding, here);
                 } else {
                     // Where the vehicle would have been `lead` ago at this speed: the MPC brakes
                     // harder than for where it is, and the hold is taken at rest.
-                    self.hold = std::array::from_fn(|i| here[i] - stop.lead * along * self.way[i] / norm);
+                    self.hold = std::array::from_fn(|i| here[i] - stop.lead * along * d[i]);
                 }
             }
             (Phase::Holding, None) => {}

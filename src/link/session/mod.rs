@@ -117,7 +117,8 @@ pub struct SessionOptions<'a> {
     /// One JSON line per control cycle on stdout (the time, depth, heading and position with
     /// their references): what `pinc serve` plots live.
     pub stream_samples: bool,
-    /// Fly the pilot's sticks instead of the scenario's references (pinc's MPC only).
+    /// Fly the pilot's sticks instead of the scenario's references (pinc's MPC), or pass them
+    /// to the autopilot's POSHOLD or ALT_HOLD.
     pub pilot: Option<&'a PilotOptions>,
 }
 
@@ -195,6 +196,8 @@ pub fn run<M: DiscreteModel + Clone>(
     log: &mut McapLog,
 ) -> Result<LiveRun, String> {
     let setup = Setup::new(&flyer, o, scenario.horizontal.is_some())?;
+    // Refused before the link opens (a hold that ignores sticks, a model that fails).
+    let mut pilot = pilot_feed(&flyer, o)?;
     let (link, autopilot, mut assembler) = connect(o)?;
     assembler.set_fix_latency(o.estimator.fix_latency);
     let mut flight = flight::Flight::new(&setup, log);
@@ -205,7 +208,6 @@ pub fn run<M: DiscreteModel + Clone>(
         MavMessage::SIMSTATE(s) => truths.borrow_mut().positions.push(truth::position_of(t, s)),
         _ => {}
     };
-    let mut pilot = pilot_feed(&flyer, o)?;
     let stop = ctrl_c_flag()?;
     let Setup { commander, settings, estimator_model, noise, dead_reckoning_bound, .. } = setup;
     let mut drive = match Drive::start(link, autopilot, assembler, commander, settings, stop, seen) {
