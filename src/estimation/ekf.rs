@@ -406,18 +406,20 @@ impl<M: DiscreteModel> Ekf<M> {
             self.x[sim_i] = next[net_i];
         }
         self.x[3] = sim[3] + wrap_angle(s.atan2(c) - sim[3]);
-        // A held horizontal disturbance does not decay: dead reckoning keeps the current.
+        // The horizontal disturbance does not decay: estimated, something observes it (a decay
+        // would leave it short of the current by what the velocity's corrections make up, a
+        // bias dead reckoning would then fly on); held, dead reckoning keeps the current.
         let held = self.horizontal_disturbance == HorizontalDisturbance::Held;
         let every = self.decay;
-        let decay = |i: usize| if held && i < 2 { 1.0 } else { every };
+        let decay = |i: usize| if i < 2 && self.horizontal_disturbance != HorizontalDisturbance::Off { 1.0 } else { every };
         let mut f = FilterCovariance::zeros();
         for i in 0..NU {
             self.x[NS + i] *= decay(i);
             f[(NS + i, NS + i)] = decay(i);
         }
-        if held {
-            // A held current keeps its direction over the ground: its body-frame force turns
-            // against the vehicle's turn (its coupling to the heading's own error left out).
+        if self.horizontal_disturbance != HorizontalDisturbance::Off {
+            // A current keeps its direction over the ground: its body-frame force turns against
+            // the vehicle's turn (its coupling to the heading's own error left out).
             let (s, c) = (self.x[3] - sim[3]).sin_cos();
             let (dx, dy) = (self.x[NS], self.x[NS + 1]);
             self.x[NS] = c * dx + s * dy;

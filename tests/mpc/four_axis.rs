@@ -145,9 +145,10 @@ fn a_dvl_lost_for_20_s_mid_station_is_dead_reckoned_without_a_runaway() {
     // The controller on pinc's estimator, fed what a vehicle with a DVL measures of the true
     // state (heading, yaw rate, depth, the body velocity over the ground: the water's plus the
     // current's), the DVL gone from 25 to 45 s of the station (after the turn, through the depth
-    // step); judged by the true state's distance from the point. Measured: 0.021 m at the loss,
-    // 0.108 m 10 s into it, 0.228 m when the DVL comes back (the target is 0.1 m: the
-    // current here is a drift of the position, which the estimate holds as a force). Before the
+    // step); judged by the true state's distance from the point. Measured: 0.018 m at the loss,
+    // 0.047 m 10 s into it, 0.088 m when the DVL comes back (target 0.1 m). While the current's
+    // force decayed as it was estimated (60 s) and was not turned with the vehicle's turn before
+    // the gap, it was 6 % short at the loss and the same run ended the gap 0.228 m off. Before the
     // yaw rate was kept off the dead-reckoned position, a reading moved it 0.6 m 15 s into the
     // gap and the vehicle ended 4.1 m off.
     use pinc::closed_loop::run_on;
@@ -201,7 +202,7 @@ fn a_dvl_lost_for_20_s_mid_station_is_dead_reckoned_without_a_runaway() {
     println!(
         "from the point: {at_loss:.3} m at the loss, {ten:.3} 10 s in, {twenty:.3} at the return; largest {largest:.3}"
     );
-    assert!(ten <= 0.15 && largest <= 0.3 && twenty <= 0.3, "{ten} {largest} {twenty}");
+    assert!(ten <= 0.07 && largest <= 0.1 && twenty <= 0.1, "{ten} {largest} {twenty}");
     // Dead reckoning from a second after the loss until the DVL is back, within its bound.
     let reckoning: Vec<f64> =
         navigation.iter().filter(|(_, n)| matches!(n, Navigation::DeadReckoning { .. })).map(|(t, _)| *t).collect();
