@@ -155,16 +155,26 @@ Riccati solver on the oracle: time per interior-point iteration (median of 200 c
     }
 }
 
-/// One estimator sample: the model step with its Jacobians and three scalar updates.
-fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M) {
+/// One estimator sample: the model step with its Jacobians and three scalar updates; with
+/// `navigation`, pinc's own navigation beside them: a DVL's body velocity every sample and a
+/// USBL's fix, half a second late, every third (4 Hz), fused at the time it was measured.
+fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M, navigation: bool) {
     let mut tracker = Estimator::new(model, NoiseSettings::default());
     let x0 = SimState::from([0.3, -0.2, 0.8, 0.4, 0.3, 0.02, 0.15, 0.1]);
     let u = Input::new(10.0, 0.0, 20.0, 1.0);
     let mut t = 0.0;
-    let feed = |tracker: &mut Estimator<M>, t: f64| {
+    let mut k = 0u64;
+    let mut feed = |tracker: &mut Estimator<M>, t: f64| {
         tracker.measure(Measurement::Depth { t, z: x0[2] });
         tracker.measure(Measurement::Heading { t, psi: x0[3] });
         tracker.measure(Measurement::YawRate { t, r: x0[7] });
+        if navigation {
+            tracker.measure(Measurement::VelocityBody { t, u: x0[4], v: x0[5], w: x0[6] });
+            if k.is_multiple_of(3) && t >= 0.5 {
+                tracker.measure(Measurement::Fix { t: t - 0.5, x: x0[0], y: x0[1], std: 0.25 });
+            }
+        }
+        k += 1;
     };
     feed(&mut tracker, t);
     tracker.advance(t).unwrap().expect("the filter starts");
@@ -180,9 +190,11 @@ fn bench_estimator<M: DiscreteModel>(c: &mut Criterion, id: &str, model: M) {
 
 fn estimator_update(c: &mut Criterion) {
     let shipped = load("mpc_pinc_thrust.pinc");
-    bench_estimator(c, "estimator_update", Predictor::reference(&shipped));
-    bench_estimator(c, "estimator_update_oracle", Rk4Vehicle::with_dt(shipped.dt));
-    bench_estimator(c, "estimator_update_paper", Predictor::reference(&load("paper_pinc.pinc")));
+    bench_estimator(c, "estimator_update", Predictor::reference(&shipped), false);
+    bench_estimator(c, "estimator_update_oracle", Rk4Vehicle::with_dt(shipped.dt), false);
+    bench_estimator(c, "estimator_update_paper", Predictor::reference(&load("paper_pinc.pinc")), false);
+    bench_estimator(c, "estimator_navigation", Predictor::reference(&shipped), true);
+    bench_estimator(c, "estimator_navigation_oracle", Rk4Vehicle::with_dt(shipped.dt), true);
 }
 
 criterion_group!(benches, mpc_iteration, riccati_scaling, four_axis, estimator_update);
@@ -240,6 +252,28 @@ fn main() {
                 println!("{e:28} {:8.1} us / {:8.1} us = {:.3}", e_ns / 1e3, m_ns / 1e3, e_ns / m_ns)
             }
             _ => println!("{e:28} (not measured in this run)"),
+        }
+    }
+    // The live cycle on four axes: the MPC iteration and one estimator sample, with pinc's own
+    // navigation (a DVL and late fixes) against the estimator on depth, heading and yaw rate.
+    println!("\nfour-axis cycle (MPC N = 20 + estimator sample), navigation / without (medians of this run):");
+    for model in ["", "_oracle"] {
+        let ids = [
+            format!("four_axis_h20{model}/riccati_9"),
+            format!("estimator_navigation{model}"),
+            format!("estimator_update{model}"),
+        ];
+        match (median_ns(&ids[0]), median_ns(&ids[1]), median_ns(&ids[2])) {
+            (Some(m), Some(n), Some(e)) => println!(
+                "{:28} ({:.1} + {:.1}) us / ({:.1} + {:.1}) us = {:.3}",
+                ids[0],
+                m / 1e3,
+                n / 1e3,
+                m / 1e3,
+                e / 1e3,
+                (m + n) / (m + e)
+            ),
+            _ => println!("{:28} (not measured in this run)", ids[0]),
         }
     }
 }

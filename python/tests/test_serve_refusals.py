@@ -286,6 +286,8 @@ def test_cockpit_finds_the_page_as_a_widget_and_hold_and_stop_as_actions(server,
         except urllib.error.HTTPError as e:
             return e.code, json.loads(e.read())
     assert send(actions["pinc-hold-here"]) == (409, {"error": "no fitted model to hold with: excite and fit first"})
+    assert send(actions["pinc-resume"]) == (
+        409, {"error": "nothing to resume: no flight was ordered from the page since pinc serve started"})
     status, reply = send(actions["pinc-stop"])
     assert status == 200 and reply["stopped"] is True, reply
     # The token outlives a restart (Cockpit keeps the headers it copied): the data folder's.

@@ -162,6 +162,11 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[arg(long, requires = "connect")]
     stream_samples: bool,
+    /// With --connect: the figures of a longer flight are those of its last S seconds (the log
+    /// holds it all), so that an hour of pilot assist keeps its memory flat.
+    #[cfg(feature = "vehicle")]
+    #[arg(long, value_name = "S", default_value_t = pinc::link::session::DEFAULT_HISTORY_S, requires = "connect")]
+    history: f64,
     /// With --connect: fly the pilot's sticks instead of the scenario's references: one JSON
     /// object per line {"surge","sway","heave","yaw"} (each -1..1: forward, starboard, down, a
     /// turn to starboard) from this file, `-` for stdin (docs/PILOT.md). On four axes (the
@@ -444,6 +449,13 @@ fn print_live(l: &serde_json::Value) {
             _ => "none (no cycle ran)".into(),
         }
     };
+    let h = &l["history"];
+    if let Some(n) = h["cycles_forgotten"].as_u64().filter(|&n| n > 0) {
+        println!(
+            "figures over            the last {} s; {n} cycles before (in the log), {} deadline misses among them",
+            h["kept_s"], h["deadline_misses_forgotten"]
+        );
+    }
     println!("state age at command    {}", ms("state_age_ms"));
     println!("arrival to command      {}", ms("latency_ms"));
     let e = &l["estimate_rms_error"];
@@ -763,6 +775,7 @@ fn live(
         estimator: &a.estimator,
         max_distance: a.max_distance,
         stream_samples: a.stream_samples,
+        history_s: a.history,
         pilot: pilot.as_ref(),
     };
     let mpc = mpc.map_err(|e| e.to_string())?;

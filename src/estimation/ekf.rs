@@ -95,7 +95,13 @@ pub struct Ekf<M: DiscreteModel> {
     health: Health,
     /// Factor on each state's process variance, adapted to the innovations (1: as set).
     q_scale: [f64; NS],
+    /// When a body velocity over the ground (a DVL) was last fused: while it comes, the
+    /// horizontal disturbance is observed directly.
+    ground_velocity_at: Option<f64>,
 }
+
+/// A DVL's velocity fused within this long (s) counts as observing the current directly.
+const GROUND_VELOCITY_FRESH_S: f64 = 1.0;
 
 /// What the filter does with the horizontal disturbance `dX dY`, the input-equivalent of a
 /// water current and of what the model misses of the horizontal thrust.
@@ -180,6 +186,7 @@ impl<M: DiscreteModel> Ekf<M> {
             rejected_run: [0; NS],
             last_f: FilterCovariance::identity(),
             horizontal_disturbance: HorizontalDisturbance::Estimated,
+            ground_velocity_at: None,
             health: Health::default(),
             q_scale: [1.0; NS],
         }
@@ -406,18 +413,26 @@ impl<M: DiscreteModel> Ekf<M> {
             self.x[sim_i] = next[net_i];
         }
         self.x[3] = sim[3] + wrap_angle(s.atan2(c) - sim[3]);
-        // The horizontal disturbance does not decay: estimated, something observes it (a decay
-        // would leave it short of the current by what the velocity's corrections make up, a
-        // bias dead reckoning would then fly on); held, dead reckoning keeps the current.
+        // The horizontal disturbance is a current, kept over the ground: held (dead reckoning),
+        // and estimated on a DVL's velocities, it does not decay and turns against the vehicle's
+        // turns. With the decay it settled short of the current by what the velocity's
+        // corrections made up every step, a bias dead reckoning then flew on (a simulated 20 s
+        // gap ended 0.228 m off the point, 0.088 m without). On positions alone (a GPS, a USBL)
+        // the decay stays: it steadies a current read from positions twice differentiated (on
+        // the firmware, without it the GPS's loss was dead reckoned 1.3 m off the truth rather
+        // than 0.3, and the USBL's station went from 0.57 to 0.68 of GUIDED's).
         let held = self.horizontal_disturbance == HorizontalDisturbance::Held;
+        let on_ground_velocity = self.horizontal_disturbance == HorizontalDisturbance::Estimated
+            && self.ground_velocity_at.is_some_and(|t| self.t - t <= GROUND_VELOCITY_FRESH_S);
+        let current = held || on_ground_velocity;
         let every = self.decay;
-        let decay = |i: usize| if i < 2 && self.horizontal_disturbance != HorizontalDisturbance::Off { 1.0 } else { every };
+        let decay = |i: usize| if i < 2 && current { 1.0 } else { every };
         let mut f = FilterCovariance::zeros();
         for i in 0..NU {
             self.x[NS + i] *= decay(i);
             f[(NS + i, NS + i)] = decay(i);
         }
-        if self.horizontal_disturbance != HorizontalDisturbance::Off {
+        if current {
             // A current keeps its direction over the ground: its body-frame force turns against
             // the vehicle's turn (its coupling to the heading's own error left out).
             let (s, c) = (self.x[3] - sim[3]).sin_cos();
@@ -576,6 +591,9 @@ impl<M: DiscreteModel> Ekf<M> {
                 let a = self.scalar(u - self.x[4], &Self::row(&[(4, 1.0)]), sb * sb, v_, true);
                 let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb, v_, true);
                 let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb, v_, true);
+                if a && b {
+                    self.ground_velocity_at = Some(self.t);
+                }
                 a && b && c
             }
         };

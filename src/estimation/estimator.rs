@@ -243,6 +243,12 @@ impl<M: DiscreteModel> Estimator<M> {
         self.last_horizontal.is_some_and(|l| t - l <= HORIZONTAL_FRESH_S)
     }
 
+    /// The horizontal position's standard deviation now (m): the larger of the `x y`
+    /// covariance's axes.
+    pub fn horizontal_std(&self) -> f64 {
+        self.horizontal_variance().max(0.0).sqrt()
+    }
+
     fn horizontal_variance(&self) -> f64 {
         let p = self.ekf.covariance();
         larger_variance(p[(0, 0)], p[(0, 1)], p[(1, 1)])

@@ -21,7 +21,7 @@ use crate::runtime::EnvelopeStatus;
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NU, SimState};
 use crate::vehicle::to_network;
-use serde_json::json;
+use serde_json::{Value, json};
 use std::cell::RefCell;
 use std::time::{Duration, Instant};
 
@@ -146,7 +146,17 @@ pub(super) struct Flight<'l> {
     max_distance: Option<f64>,
     dead_reckoning_bound: f64,
     stream_samples: bool,
+    /// How much of the flight its figures keep (s), and the cycles let go before that (the log
+    /// holds them) with their deadline misses.
+    pub(super) history_s: f64,
+    pub(super) forgotten_cycles: usize,
+    pub(super) forgotten_deadline_misses: usize,
 }
+
+/// A flight keeps its last 5 minutes of cycles, estimates and truth for its figures by default
+/// (`--history`); the log holds the whole flight. An hour of pilot assist so holds its memory
+/// flat.
+pub const DEFAULT_HISTORY_S: f64 = 300.0;
 
 /// The state to control on, or why not yet.
 pub(super) struct Estimated {
@@ -216,6 +226,9 @@ impl<'l> Flight<'l> {
             max_distance: setup.max_distance,
             dead_reckoning_bound: setup.dead_reckoning_bound,
             stream_samples: setup.stream_samples,
+            history_s: setup.history_s,
+            forgotten_cycles: 0,
+            forgotten_deadline_misses: 0,
         }
     }
 
@@ -955,15 +968,74 @@ impl<'l> Flight<'l> {
             self.log_error = self.log.record(&sample).err();
         }
         if self.stream_samples {
-            stream_line(&sample);
+            stream_line(&sample, &self.navigation_line(now, estimator));
         }
+        // The prediction is in the log; the figures never read it again (20 states a cycle).
+        sample.prediction = Vec::new();
         self.samples.push(sample);
+        self.forget_before(t - self.history_s);
+    }
+
+    /// Lets go of what came before scenario time `cut`, a tenth of the history at a time. The truth's
+    /// positions up to the start stay: the figures measure from there.
+    fn forget_before(&mut self, cut: f64) {
+        if self.samples.first().is_none_or(|s| s.t >= cut - 0.1 * self.history_s) {
+            return;
+        }
+        let start = self.t0.unwrap_or(0.0);
+        let n = self.samples.partition_point(|s| s.t < cut);
+        self.forgotten_cycles += n;
+        self.forgotten_deadline_misses += self.samples[..n].iter().filter(|s| s.cycle.deadline_missed).count();
+        self.samples.drain(..n);
+        // One of each per recorded cycle, as the samples.
+        self.ages.drain(..n.min(self.ages.len()));
+        self.latencies.drain(..n.min(self.latencies.len()));
+        let at = start + cut;
+        fn drain_before<T>(v: &mut Vec<T>, before: impl Fn(&T) -> bool) {
+            let n = v.partition_point(before);
+            v.drain(..n);
+        }
+        drain_before(&mut self.estimates, |e| e.t < at);
+        drain_before(&mut self.truths, |tr| tr.t < at);
+        drain_before(&mut self.raw_depths, |d| d.0 < at);
+        drain_before(&mut self.raw_positions, |p| p.0 < cut);
+        let head = self.truth_positions.partition_point(|p| p.t <= start + 1.0);
+        let upto = self.truth_positions.partition_point(|p| p.t < at);
+        if upto > head {
+            self.truth_positions.drain(head..upto);
+        }
+    }
+}
+
+impl Flight<'_> {
+    /// The navigation this cycle, for the line each cycle streams (the page shows it): its
+    /// standing, the position's uncertainty, and what each horizontal source gave so far, used
+    /// or left out (the filter's gate counts apart from the sources' own).
+    fn navigation_line<M: DiscreteModel>(&self, now: &Estimated, estimator: &AnyEstimator<M>) -> Value {
+        use crate::estimation::Sensor;
+        let std = each!(estimator, tr => tr.horizontal_std());
+        let (position, velocity) = each!(estimator, tr => {
+            let h = tr.ekf().health();
+            (*h.sensor(Sensor::Position), *h.sensor(Sensor::Velocity))
+        });
+        let added = match now.navigation {
+            Navigation::DeadReckoning { std, .. } => Some(std),
+            _ => None,
+        };
+        json!({
+            "mode": now.navigation.name(), "std_m": std.is_finite().then_some(std), "added_std_m": added,
+            "gate": {"positions": position.count, "positions_rejected": position.rejected,
+                     "velocities": velocity.count, "velocities_rejected": velocity.rejected},
+            "dvl": {"fused": self.dvl_fused, "left_out": self.dvl_left_out, "noise_m_s": self.dvl_velocities.noise()},
+            "fixes": {"received": self.fixes.count(), "noise_m": self.fixes.noise(), "own": self.own_fixes_since.is_some()},
+            "autopilot": {"left_out": self.autopilot_left_out},
+        })
     }
 }
 
 /// One cycle as a JSON line on stdout, flushed (a reader on a pipe sees it at once); missing
 /// values are nulls.
-fn stream_line(s: &Sample) {
+fn stream_line(s: &Sample, navigation: &Value) {
     use std::io::Write;
     let r = &s.reference;
     let (north_ref, east_ref) = r.horizontal.as_ref().map_or((None, None), |h| (Some(h.north), Some(h.east)));
@@ -972,7 +1044,7 @@ fn stream_line(s: &Sample) {
         "depth_m": s.state[2], "depth_ref_m": r.depth,
         "heading_deg": s.state[3].to_degrees(), "heading_ref_deg": r.heading.to_degrees(),
         "north_m": s.state[0], "east_m": s.state[1], "north_ref_m": north_ref, "east_ref_m": east_ref,
-        "input": s.cycle.input.as_slice(),
+        "input": s.cycle.input.as_slice(), "navigation": navigation,
     });
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "{line}");

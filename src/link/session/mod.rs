@@ -117,6 +117,9 @@ pub struct SessionOptions<'a> {
     /// One JSON line per control cycle on stdout (the time, depth, heading and position with
     /// their references): what `pinc serve` plots live.
     pub stream_samples: bool,
+    /// The figures of a longer flight are those of its last this many seconds (the log holds
+    /// it all): an hour's dive keeps its memory flat.
+    pub history_s: f64,
     /// Fly the pilot's sticks instead of the scenario's references (pinc's MPC), or pass them
     /// to the autopilot's POSHOLD or ALT_HOLD.
     pub pilot: Option<&'a PilotOptions>,
@@ -170,6 +173,7 @@ macro_rules! each {
     };
 }
 
+pub use flight::DEFAULT_HISTORY_S;
 pub use navigation_plot::NavigationTrack;
 
 // After the macro: the stages use it.
@@ -244,6 +248,7 @@ struct Setup<M> {
     /// The dead reckoning's bound (m): `--dead-reckoning-bound`.
     dead_reckoning_bound: f64,
     stream_samples: bool,
+    history_s: f64,
 }
 
 impl<M: DiscreteModel + Clone> Setup<M> {
@@ -304,6 +309,9 @@ impl<M: DiscreteModel + Clone> Setup<M> {
         {
             return Err(format!("--max-distance must be a positive number of metres, got {d}"));
         }
+        if !(o.history_s.is_finite() && o.history_s >= 10.0) {
+            return Err(format!("--history must be at least 10 s, got {}", o.history_s));
+        }
         Ok(Self {
             commander,
             settings,
@@ -317,6 +325,7 @@ impl<M: DiscreteModel + Clone> Setup<M> {
             max_distance: o.max_distance,
             dead_reckoning_bound: o.estimator.dead_reckoning_bound,
             stream_samples: o.stream_samples,
+            history_s: o.history_s,
         })
     }
 }

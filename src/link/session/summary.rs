@@ -67,6 +67,9 @@ pub(super) fn end<M: DiscreteModel>(
         "stop_trigger": stopped.trigger.as_ref().map(|t| t.key()),
         "stop_autopilot_s": stopped.trigger.as_ref().map(|_| stopped.t),
         "neutral_autopilot_s": stopped.neutral_t,
+        // A flight longer than this: its figures are those of its last part (the log has all).
+        "history": {"kept_s": f.history_s, "cycles_forgotten": f.forgotten_cycles,
+                    "deadline_misses_forgotten": f.forgotten_deadline_misses},
     });
     if let (Value::Object(live), Value::Object(extra)) = (&mut live, extra) {
         live.extend(extra);

@@ -9,7 +9,7 @@ use serde_json::{Value, json};
 /// Where `register_service` says the extras are.
 pub const EXTRAS_PATH: &str = "/cockpit_extras.json";
 
-/// The extras: the page as an iframe widget, STOP and "hold here" as HTTP actions carrying the
+/// The extras: the page as an iframe widget, "hold here", "resume" and STOP as HTTP actions carrying the
 /// page's token (stable across restarts: the data folder's), and a joystick suggestion for
 /// them. Cockpit checks the file as a whole: one field wrong and it drops all of it.
 pub fn extras(token: &str) -> Value {
@@ -54,16 +54,18 @@ pub fn extras(token: &str) -> Value {
         }],
         "actions": [
             action("pinc-hold-here", "pinc: hold here", "hold", "{}"),
+            action("pinc-resume", "pinc: resume", "resume", "{}"),
             action("pinc-stop", "pinc: STOP", "stop", "{}"),
         ],
         "joystickSuggestions": [{
             "id": "pinc-buttons",
-            "name": "pinc: hold here and STOP",
-            "description": "pinc's hold and STOP on two buttons with shift",
+            "name": "pinc: hold here, resume and STOP",
+            "description": "pinc's hold, resume and STOP on three buttons with shift",
             "targetVehicleTypes": ["MAV_TYPE_SUBMARINE"],
             "version": version,
             "buttonMappingSuggestions": [
                 suggestion("pinc-suggest-hold", "pinc-hold-here", "pinc: hold here", 2, "hold where the vehicle is"),
+                suggestion("pinc-suggest-resume", "pinc-resume", "pinc: resume", 3, "the last flight again"),
                 suggestion("pinc-suggest-stop", "pinc-stop", "pinc: STOP", 1, "neutral and disarm"),
             ],
         }],

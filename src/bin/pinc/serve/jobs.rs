@@ -19,6 +19,9 @@ use std::time::{Duration, Instant};
 
 /// Lines of a job's output kept for the page.
 const KEPT_LINES: usize = 400;
+/// A flight's cycles kept for the page by default: as many as the flight keeps for its figures
+/// (`--history`, 5 minutes at 12.5 Hz).
+const KEPT_SAMPLES: usize = (pinc::link::session::DEFAULT_HISTORY_S / 0.08) as usize;
 /// A child still running this long after STOP is killed.
 const KILL_AFTER: Duration = Duration::from_secs(5);
 /// A flight on the page's sticks with none from the page for this long is stopped (neutral
@@ -77,8 +80,11 @@ pub struct Job {
     /// The fit's stage, and its epochs done of all.
     pub stage: Option<String>,
     pub epochs: Option<(usize, usize)>,
-    /// A flight's cycles as its process streams them.
-    pub samples: Vec<Value>,
+    /// A flight's newest cycles as its process streams them (at most [`KEPT_SAMPLES`]), and how
+    /// many older ones were let go: an hour's dive keeps the server's memory flat.
+    samples: VecDeque<Value>,
+    samples_dropped: usize,
+    kept_samples: usize,
     /// What it made (kind, name) and its figures.
     pub result: Option<Value>,
     pub error: Option<String>,
@@ -94,7 +100,10 @@ pub struct Job {
 
 impl Job {
     /// `since`: the first sample to send (the page asks only for the new ones).
+    /// A page that fell behind the kept cycles gets them from the oldest kept (`samples_from`).
     pub fn to_json(&self, since: usize) -> Value {
+        let total = self.samples_dropped + self.samples.len();
+        let from = since.clamp(self.samples_dropped, total);
         json!({
             "id": self.id,
             "kind": self.kind.name(),
@@ -105,15 +114,23 @@ impl Job {
             "verdict": self.verdict,
             "stage": self.stage,
             "epochs": self.epochs,
-            "samples_total": self.samples.len(),
-            "samples_from": since.min(self.samples.len()),
-            "samples": self.samples.get(since..).unwrap_or(&[]),
+            "samples_total": total,
+            "samples_from": from,
+            "samples": self.samples.range(from - self.samples_dropped..).collect::<Vec<_>>(),
             "result": self.result,
             "error": self.error,
             "exit_code": self.exit_code,
             "stop_asked_s_ago": self.stop_asked.map(|t| t.elapsed().as_secs_f64()),
             "takes_sticks": self.state == State::Running && self.sticks_in.is_some(),
         })
+    }
+
+    fn add_sample(&mut self, sample: Value) {
+        if self.samples.len() >= self.kept_samples {
+            self.samples.pop_front();
+            self.samples_dropped += 1;
+        }
+        self.samples.push_back(sample);
     }
 
     fn say(&mut self, line: String) {
@@ -125,10 +142,18 @@ impl Job {
 }
 
 /// The current (or last) job, shared by the routes and the job's threads.
-#[derive(Clone, Default)]
+#[derive(Clone)]
 pub struct Jobs {
     current: Arc<Mutex<Option<Job>>>,
     next_id: Arc<Mutex<u64>>,
+    /// A flight's newest cycles kept for the page.
+    kept_samples: usize,
+}
+
+impl Default for Jobs {
+    fn default() -> Self {
+        Self::keeping(KEPT_SAMPLES)
+    }
 }
 
 /// A process to run: the program and its arguments, for the page's log too.
@@ -158,6 +183,11 @@ pub struct Ran {
 }
 
 impl Jobs {
+    /// Jobs whose flights keep their newest `kept_samples` cycles for the page.
+    pub fn keeping(kept_samples: usize) -> Self {
+        Self { current: Arc::default(), next_id: Arc::default(), kept_samples: kept_samples.max(1) }
+    }
+
     /// Starts a job unless one runs (the refusal says which); `work` runs on its own thread
     /// with a handle to report through, and returns what the job made or why it failed.
     pub fn start(
@@ -192,7 +222,9 @@ impl Jobs {
             verdict: None,
             stage: None,
             epochs: None,
-            samples: Vec::new(),
+            samples: VecDeque::new(),
+            samples_dropped: 0,
+            kept_samples: self.kept_samples,
             result: None,
             error: None,
             exit_code: None,
@@ -345,7 +377,7 @@ impl Handle {
                 let mut rest = String::new();
                 for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                     match serde_json::from_str::<Value>(&line) {
-                        Ok(v) if v.get("t").is_some_and(Value::is_number) => me.update(|j| j.samples.push(v)),
+                        Ok(v) if v.get("t").is_some_and(Value::is_number) => me.update(|j| j.add_sample(v)),
                         _ => {
                             rest.push_str(&line);
                             rest.push('\n');
@@ -453,6 +485,26 @@ mod tests {
         assert_eq!(j["result"], json!({"rest": "{\"summary\": 1}\n", "code": 0}));
         assert!(j["lines"].as_array().unwrap().iter().any(|l| l == "said"));
         assert_eq!(jobs.to_json(1)["samples"], json!([]));
+    }
+
+    #[test]
+    fn a_long_flight_keeps_its_last_cycles_and_a_page_behind_starts_from_the_oldest() {
+        let jobs = Jobs::keeping(50);
+        let n = 55;
+        let script = format!("i=0; while [ $i -lt {n} ]; do echo \"{{\\\"t\\\": $i}}\"; i=$((i+1)); done");
+        let step = Step { program: "sh".into(), args: vec!["-c".into(), script.into()], sticks: false };
+        jobs.start(Kind::Fly, "long".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
+        let j = wait_for_end(&jobs);
+        assert_eq!(j["samples_total"], json!(n));
+        assert_eq!(j["samples_from"], json!(5));
+        assert_eq!(j["samples"].as_array().unwrap().len(), 50);
+        assert_eq!(j["samples"][0], json!({"t": 5}));
+        let newest = jobs.to_json(n - 2);
+        assert_eq!(
+            (newest["samples_from"].clone(), newest["samples"].clone()),
+            (json!(n - 2), json!([{"t": n - 2}, {"t": n - 1}]))
+        );
+        assert_eq!(jobs.to_json(n + 10)["samples"], json!([]));
     }
 
     #[test]

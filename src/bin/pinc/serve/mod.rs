@@ -57,6 +57,10 @@ pub struct ServeArgs {
     /// before it starts (delete old runs on the page); the page shows what it holds.
     #[arg(long, default_value_t = 1024.0)]
     max_data_mb: f64,
+    /// A flight's figures, and the page's plots, keep its last S seconds (an hour's dive keeps
+    /// the memory flat; the flight's log holds all of it).
+    #[arg(long, value_name = "S", default_value_t = pinc::link::session::DEFAULT_HISTORY_S)]
+    history: f64,
     /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
     /// --run-arg=1`, or the estimator's sensor noise).
     #[arg(long = "run-arg", value_name = "ARG", allow_hyphen_values = true)]
@@ -75,10 +79,14 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         ("--max-duration", a.max_duration),
         ("--max-distance", a.max_distance),
         ("--max-data-mb", a.max_data_mb),
+        ("--history", a.history),
     ] {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{flag} must be a positive number, got {v}"));
         }
+    }
+    if a.history < 10.0 {
+        return Err(format!("--history must be at least 10 s, got {}", a.history));
     }
     let data = data_folder::DataFolder::open(&a.data).map_err(|e| e.to_string())?;
     let here = std::env::current_exe().map_err(|e| format!("cannot find this program: {e}"))?;
@@ -93,7 +101,11 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
     let app = routes::App {
         data,
         watcher,
-        jobs: jobs::Jobs::default(),
+        // One cycle per 0.08 s at most, the model's usual period.
+        jobs: jobs::Jobs::keeping((a.history / 0.08).ceil() as usize),
+        history_s: a.history,
+        last_flight: Default::default(),
+        holding: Default::default(),
         token,
         limits,
         vehicle: a.vehicle.clone(),

@@ -86,7 +86,7 @@ fn default_epochs() -> usize {
 }
 
 /// `POST api/fly`.
-#[derive(Deserialize, Debug)]
+#[derive(Deserialize, Debug, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct FlyOrder {
     /// A fitted model's name (its folder in `models`).
@@ -97,7 +97,7 @@ pub struct FlyOrder {
 }
 
 /// What the flight tracks.
-#[derive(Deserialize, Debug)]
+#[derive(Deserialize, Debug, Clone)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum References {
     /// Depth FROM then TO at AT (s); heading likewise (deg).

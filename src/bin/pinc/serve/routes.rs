@@ -30,6 +30,12 @@ pub struct App {
     pub vehicle: Option<PathBuf>,
     pub flight_connect: String,
     pub run_args: Vec<String>,
+    /// A flight's figures keep its last this many seconds (`--history`).
+    pub history_s: f64,
+    /// The last flight the page ordered (what "resume" flies again), and the job id of a hold
+    /// started by "hold here" (what "resume" ends first).
+    pub last_flight: std::sync::Mutex<Option<FlyOrder>>,
+    pub holding: std::sync::Mutex<Option<u64>>,
     pub pinc: PathBuf,
     pub mpc_track: PathBuf,
     /// What the data folder holds and its disk's free space (bytes), and when they were read:
@@ -181,14 +187,48 @@ impl App {
             }
             "/api/excite" => self.excite(parse(&body)?),
             "/api/fit" => self.fit(parse(&body)?),
-            "/api/fly" => self.fly(parse(&body)?),
+            "/api/fly" => {
+                let order: FlyOrder = parse(&body)?;
+                let reply = self.fly(order.clone())?;
+                *self.last_flight.lock().expect("last flight") = Some(order);
+                Ok(reply)
+            }
             // Cockpit's "hold here": the newest fitted model holds where the vehicle is.
             "/api/hold" => {
                 let model = self
                     .data
                     .newest("models", "model.pinc")
                     .ok_or_else(|| Refused(409, "no fitted model to hold with: excite and fit first".to_string()))?;
-                self.fly(FlyOrder { model, references: References::Station, duration: self.limits.max_duration })
+                let reply =
+                    self.fly(FlyOrder { model, references: References::Station, duration: self.limits.max_duration })?;
+                *self.holding.lock().expect("holding") = self.jobs.to_json(usize::MAX)["id"].as_u64();
+                Ok(reply)
+            }
+            // Cockpit's "resume": the hold "hold here" started ends (neutral, disarm), and the
+            // page's last flight flies again from where the vehicle is.
+            "/api/resume" => {
+                let order = self.last_flight.lock().expect("last flight").clone().ok_or_else(|| {
+                    Refused(
+                        409,
+                        "nothing to resume: no flight was ordered from the page since pinc serve started".into(),
+                    )
+                })?;
+                let current = self.jobs.to_json(usize::MAX);
+                let hold = *self.holding.lock().expect("holding");
+                if self.jobs.running() {
+                    if current["id"].as_u64().is_none() || current["id"].as_u64() != hold {
+                        return Err(Refused(
+                            409,
+                            format!("refused: {} is running; resume ends only a hold", current["what"]),
+                        ));
+                    }
+                    self.jobs.stop();
+                    let until = std::time::Instant::now() + std::time::Duration::from_secs(10);
+                    while self.jobs.running() && std::time::Instant::now() < until {
+                        std::thread::sleep(std::time::Duration::from_millis(50));
+                    }
+                }
+                self.fly(order)
             }
             "/api/sticks" => {
                 // Checked here too: a refusal reaches the page at once, and nothing bad reaches
@@ -374,6 +414,8 @@ impl App {
             "--max-distance".into(),
             self.limits.max_distance.to_string(),
             "--stream-samples".into(),
+            "--history".into(),
+            self.history_s.to_string(),
             "--json".into(),
             "--out-dir".into(),
             path(&dir),
