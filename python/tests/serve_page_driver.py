@@ -54,10 +54,13 @@ class Observer:
                 time.sleep(0.2)
         raise AssertionError("the simulator's 5760 did not open")
 
-    def reboot(self):
+    def reboot(self, armed=False):
         """Reboots the autopilot (the simulator starts itself again) and connects to it again:
-        the simulation waits for a client on 5760."""
-        self.m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0, 1, 0, 0, 0, 0, 0, 0)
+        the simulation waits for a client on 5760. ArduPilot refuses a reboot while armed
+        (COMMAND_ACK FAILED, measured) unless its sixth parameter is 20190226: `armed` sends it."""
+        force = 20190226 if armed else 0
+        self.m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0, 1, 0, 0, 0, 0, force,
+                                     0)
         time.sleep(1.0)
         self.m = self.connect()
         self.ask_rates()

@@ -100,8 +100,8 @@ pub struct Ekf<M: DiscreteModel> {
     ground_velocity_at: Option<f64>,
 }
 
-/// A DVL's velocity fused within this long (s) counts as observing the current directly.
-const GROUND_VELOCITY_FRESH_S: f64 = 1.0;
+/// A DVL's velocity measured within this long (s) counts as observing the current directly.
+pub const GROUND_VELOCITY_FRESH_S: f64 = 1.0;
 
 /// What the filter does with the horizontal disturbance `dX dY`, the input-equivalent of a
 /// water current and of what the model misses of the horizontal thrust.
@@ -249,6 +249,13 @@ impl<M: DiscreteModel> Ekf<M> {
     /// The transition matrix `F` of the last [`Ekf::predict`] (`d s_{k+1} / d s_k`).
     pub fn last_transition(&self) -> &FilterCovariance {
         &self.last_f
+    }
+
+    /// A velocity over the ground (a DVL's) is measured now, here or in what the autopilot's
+    /// estimate gives: while it is (within [`GROUND_VELOCITY_FRESH_S`]), the horizontal
+    /// disturbance is a current observed directly, without decay and turned with the vehicle.
+    pub fn ground_velocity_measured(&mut self) {
+        self.ground_velocity_at = Some(self.t);
     }
 
     /// Estimates, holds or clears the horizontal disturbance `dX dY` from now on.
@@ -414,7 +421,8 @@ impl<M: DiscreteModel> Ekf<M> {
         }
         self.x[3] = sim[3] + wrap_angle(s.atan2(c) - sim[3]);
         // The horizontal disturbance is a current, kept over the ground: held (dead reckoning),
-        // and estimated on a DVL's velocities, it does not decay and turns against the vehicle's
+        // and estimated while a DVL measures (its velocities fused, or the autopilot's estimate
+        // fused, which carries them), it does not decay and turns against the vehicle's
         // turns. With the decay it settled short of the current by what the velocity's
         // corrections made up every step, a bias dead reckoning then flew on (a simulated 20 s
         // gap ended 0.228 m off the point, 0.088 m without). On positions alone (a GPS, a USBL)
@@ -592,7 +600,7 @@ impl<M: DiscreteModel> Ekf<M> {
                 let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb, v_, true);
                 let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb, v_, true);
                 if a && b {
-                    self.ground_velocity_at = Some(self.t);
+                    self.ground_velocity_measured();
                 }
                 a && b && c
             }

@@ -243,6 +243,13 @@ impl<M: DiscreteModel> Estimator<M> {
         self.last_horizontal.is_some_and(|l| t - l <= HORIZONTAL_FRESH_S)
     }
 
+    /// A velocity over the ground (a DVL's) is measured now, fused here or through the
+    /// autopilot's own estimate: the horizontal disturbance is a current observed directly
+    /// ([`Ekf::ground_velocity_measured`]).
+    pub fn ground_velocity_measured(&mut self) {
+        self.ekf.ground_velocity_measured();
+    }
+
     /// The horizontal position's standard deviation now (m): the larger of the `x y`
     /// covariance's axes.
     pub fn horizontal_std(&self) -> f64 {

@@ -541,6 +541,9 @@ impl<'l> Flight<'l> {
                 // position is not measured; beside a measured one they are in it already.
                 Observation::Measured(Measurement::VelocityBody { t, u, v, .. }) => {
                     self.own_velocity_at = Some(t);
+                    // Fused or in the autopilot's position and velocity, a DVL measures the
+                    // velocity over the ground: the current is observed directly.
+                    each!(&mut *estimator, tr => tr.ground_velocity_measured());
                     // The DVL's noise, measured on its own readings (the filter's default is a
                     // guess): taken by the estimator as it is measured.
                     if let Some(noise) = self.dvl_velocities.push(t, u, v) {
