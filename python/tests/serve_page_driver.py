@@ -310,7 +310,7 @@ def main():
         shot("gamepad")
         closed = time.monotonic()
         browser.get("about:blank")
-        wait("disarmed after the page closed", lambda: observer.disarmed_after(closed) is not None, 10, every=0.05)
+        wait("disarmed after the page closed", lambda: observer.disarmed_after(closed) is not None, 20, every=0.05)
         pilot["disarmed_after_close_s"] = observer.disarmed_after(closed)
         browser.get(f"http://127.0.0.1:{PORT}/")
         pilot["state"] = job_done(15)

@@ -127,9 +127,9 @@ def test_the_gamepad_moves_the_vehicle_centred_and_unplugged_holds_and_a_closed_
     assert abs(p["centred_6_s"]["depth_m"] - p["centred_6_s"]["depth_ref_m"]) < 0.15, p
     # Unplugged mid-stick: the page sends centred sticks at once, the flight holds within 1.5 s.
     assert abs(p["unplugged_3_5_s"]["depth_ref_m"] - p["unplugged_1_5_s"]["depth_ref_m"]) < 1e-6, p
-    # The page closed: the server stops the flight 3 s later, the vehicle disarmed.
-    assert 3.0 <= p["disarmed_after_close_s"] <= 4.5, p
-    assert p["state"] == "stopped" and any("no sticks from the page for 3 s" in line for line in p["log_tail"]), p
+    # The page closed: the server stops the flight 10 s later, the vehicle disarmed.
+    assert 10.0 <= p["disarmed_after_close_s"] <= 11.5, p
+    assert p["state"] == "stopped" and any("no sticks from the page for 10 s" in line for line in p["log_tail"]), p
 
 
 def test_the_link_comes_back_after_the_autopilot_reboots(clicked):
