@@ -39,6 +39,10 @@ pub mod identify;
 pub mod link;
 #[cfg(feature = "cli")]
 pub mod plot;
+#[cfg(feature = "vehicle")]
+pub mod serve;
+#[cfg(feature = "cli")]
+pub mod trajectory_csv;
 
 pub use types::*;
 

@@ -83,6 +83,19 @@ pub enum Stage {
     Report,
 }
 
+/// What the fit is doing, for a terminal or a page.
+pub fn stage_text(stage: &Stage) -> String {
+    match stage {
+        Stage::Read => "reading the recordings".to_string(),
+        Stage::Estimate => "estimating the state on the starting vehicle".into(),
+        Stage::Identify => "identifying the vehicle".into(),
+        Stage::SensorLag(n) => format!("finding the depth sensor's lag ({n} candidates)"),
+        Stage::Refine => "estimating and identifying again on the fitted vehicle and sensors".into(),
+        Stage::Train(_) => "training the hybrid".into(),
+        Stage::Report => "writing the report".into(),
+    }
+}
+
 /// Why a fit stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum FitError {

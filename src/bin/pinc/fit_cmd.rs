@@ -1,7 +1,7 @@
 //! `pinc fit`: recordings of a vehicle to a model that flies it, with its report (docs/FIT.md).
 
 use indicatif::{ProgressBar, ProgressStyle};
-use pinc::fit::{FitSettings, Stage, fit, report};
+use pinc::fit::{FitSettings, Stage, fit, report, stage_text};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -64,19 +64,6 @@ pub struct FitArgs {
     /// Print the report as JSON (no progress display).
     #[arg(long)]
     pub json: bool,
-}
-
-/// What the fit is doing, for a terminal or a page.
-pub fn stage_text(stage: &Stage) -> String {
-    match stage {
-        Stage::Read => "reading the recordings".to_string(),
-        Stage::Estimate => "estimating the state on the starting vehicle".into(),
-        Stage::Identify => "identifying the vehicle".into(),
-        Stage::SensorLag(n) => format!("finding the depth sensor's lag ({n} candidates)"),
-        Stage::Refine => "estimating and identifying again on the fitted vehicle and sensors".into(),
-        Stage::Train(_) => "training the hybrid".into(),
-        Stage::Report => "writing the report".into(),
-    }
 }
 
 pub fn run_fit(a: FitArgs) -> Result<(), String> {

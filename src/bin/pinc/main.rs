@@ -11,7 +11,7 @@ use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
-use trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
+use pinc::trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
 
 mod estimate_cmd;
 mod eval_cmd;
@@ -19,13 +19,10 @@ mod eval_cmd;
 mod fit_cmd;
 mod identify_cmd;
 mod import_cmd;
-#[cfg(feature = "vehicle")]
-mod serve;
 mod sweep_cmd;
 mod thrusters_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
-mod trajectory_csv;
 #[cfg(feature = "vehicle")]
 mod vehicle_cmd;
 
@@ -211,7 +208,7 @@ enum Command {
     /// The web page that takes an owner from an excitation to a fitted flight: the vehicle
     /// live, excite, fit, fly, STOP, the data folder (BlueOS's page for pinc; docs/BLUEOS.md).
     #[cfg(feature = "vehicle")]
-    Serve(Box<serve::ServeArgs>),
+    Serve(Box<pinc::serve::ServeArgs>),
 }
 
 #[derive(Subcommand)]
@@ -337,7 +334,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "vehicle")]
         Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
         #[cfg(feature = "vehicle")]
-        Command::Serve(args) => serve::run_serve(*args),
+        Command::Serve(args) => pinc::serve::run_serve(*args),
         #[cfg(not(feature = "vehicle"))]
         Command::Vehicle { .. } => {
             eprintln!(

@@ -26,7 +26,7 @@ struct Plan {
 fn plan(a: &ExciteArgs) -> Result<Plan, String> {
     let dt = positive("--dt", a.dt)?.as_secs_f64();
     let file = std::fs::File::open(&a.inputs).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
-    let inputs = crate::trajectory_csv::read_inputs(file).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
+    let inputs = pinc::trajectory_csv::read_inputs(file).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
     if inputs.is_empty() {
         return Err(format!("{}: no input rows", a.inputs.display()));
     }

@@ -3,9 +3,9 @@
 //! whatever a flight's own process does, so that the vehicle stops even if that process hangs).
 
 use mavlink::dialects::ardupilotmega::MavMessage;
-use pinc::link::cli::{LinkOptions, open};
-use pinc::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
-use pinc::link::{Autopilot, EkfStatus, SubMode};
+use crate::link::cli::{LinkOptions, open};
+use crate::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
+use crate::link::{Autopilot, EkfStatus, SubMode};
 use serde_json::{Value, json};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -128,9 +128,9 @@ impl Watcher {
     /// Reads the autopilot until the link fails or goes quiet; why it ended.
     fn watch(
         &self,
-        mut link: pinc::link::VehicleLink,
+        mut link: crate::link::VehicleLink,
         autopilot: &Autopilot,
-        mut assembler: pinc::link::StateAssembler,
+        mut assembler: crate::link::StateAssembler,
     ) -> String {
         let rates = link
             .set_message_rate(EKF_STATUS_REPORT_ID, EKF_RATE_HZ)

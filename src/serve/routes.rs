@@ -233,7 +233,7 @@ impl App {
             "/api/sticks" => {
                 // Checked here too: a refusal reaches the page at once, and nothing bad reaches
                 // the flight (which checks again and holds).
-                pinc::pilot::Sticks::from_json(&body).map_err(|e| Refused(400, format!("{e}: refused, holding")))?;
+                crate::pilot::Sticks::from_json(&body).map_err(|e| Refused(400, format!("{e}: refused, holding")))?;
                 self.jobs.send_sticks(body.trim()).map_err(|e| Refused(409, e))?;
                 Ok(json_reply(200, &json!({"taken": true})))
             }
@@ -497,16 +497,16 @@ fn fit_in_thread(
     epochs: usize,
     command: &str,
 ) -> Result<Value, String> {
-    use pinc::fit::{FitSettings, fit, report};
+    use crate::fit::{FitSettings, fit, report};
     let mut settings = FitSettings::new(vec![recording], vehicle);
     settings.epochs = epochs;
     h.say(format!("$ {command}"));
     let on_stage = |stage| {
-        let text = crate::fit_cmd::stage_text(&stage);
+        let text = crate::fit::stage_text(&stage);
         h.say(text.clone());
         h.update(|j| j.stage = Some(text));
     };
-    let on_epoch = |r: &pinc::train::EpochRecord| h.update(|j| j.epochs = Some((r.epoch, epochs)));
+    let on_epoch = |r: &crate::train::EpochRecord| h.update(|j| j.epochs = Some((r.epoch, epochs)));
     let result = fit(&settings, h.interrupt(), on_stage, on_epoch).map_err(|e| e.to_string())?;
     if h.interrupt().load(std::sync::atomic::Ordering::Relaxed) {
         return Err("stopped: nothing written".into());

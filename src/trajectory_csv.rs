@@ -1,7 +1,7 @@
 //! The CSV contracts of the command line: input sequences (`X,Y,Z,Mz`, one row per held
 //! sample interval) in, trajectories (`t,x,y,z,psi,u,v,w,r`) out.
 
-use pinc::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, SimState};
+use crate::{INPUT_NAMES, Input, NU, SIM_STATE_NAMES, SimState};
 use std::io::{Read, Write};
 
 /// What is wrong with an input CSV; every variant names the line (1-based, header = 1).

@@ -16,7 +16,7 @@ mod orders;
 mod routes;
 mod vehicle_watch;
 
-use pinc::link::cli::LinkArgs;
+use crate::link::cli::LinkArgs;
 use std::path::PathBuf;
 
 /// Arguments of `pinc serve`.
@@ -59,7 +59,7 @@ pub struct ServeArgs {
     max_data_mb: f64,
     /// A flight's figures, and the page's plots, keep its last S seconds (an hour's dive keeps
     /// the memory flat; the flight's log holds all of it).
-    #[arg(long, value_name = "S", default_value_t = pinc::link::session::DEFAULT_HISTORY_S)]
+    #[arg(long, value_name = "S", default_value_t = crate::link::session::DEFAULT_HISTORY_S)]
     history: f64,
     /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
     /// --run-arg=1`, or the estimator's sensor noise).
@@ -67,6 +67,8 @@ pub struct ServeArgs {
     run_args: Vec<String>,
 }
 
+/// Runs `pinc serve`: checks the limits, opens the data folder, watches the vehicle and serves
+/// the page until the process ends (its address on stderr).
 pub fn run_serve(a: ServeArgs) -> Result<(), String> {
     let limits = orders::Limits {
         max_depth: a.max_depth,

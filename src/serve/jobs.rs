@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 const KEPT_LINES: usize = 400;
 /// A flight's cycles kept for the page by default: as many as the flight keeps for its figures
 /// (`--history`, 5 minutes at 12.5 Hz).
-const KEPT_SAMPLES: usize = (pinc::link::session::DEFAULT_HISTORY_S / 0.08) as usize;
+const KEPT_SAMPLES: usize = (crate::link::session::DEFAULT_HISTORY_S / 0.08) as usize;
 /// A child still running this long after STOP is killed.
 const KILL_AFTER: Duration = Duration::from_secs(5);
 /// A flight on the page's sticks with none from the page for this long is stopped (neutral
