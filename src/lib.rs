@@ -43,6 +43,8 @@ pub mod plot;
 pub mod serve;
 #[cfg(feature = "cli")]
 pub mod trajectory_csv;
+#[cfg(feature = "vehicle")]
+pub mod vehicle_actions;
 
 pub use types::*;
 

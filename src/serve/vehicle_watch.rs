@@ -2,10 +2,10 @@
 //! when the autopilot goes quiet or reboots, and STOP's neutral and disarm (sent from here,
 //! whatever a flight's own process does, so that the vehicle stops even if that process hangs).
 
-use mavlink::dialects::ardupilotmega::MavMessage;
 use crate::link::cli::{LinkOptions, open};
 use crate::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
 use crate::link::{Autopilot, EkfStatus, SubMode};
+use mavlink::dialects::ardupilotmega::MavMessage;
 use serde_json::{Value, json};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};

@@ -6,12 +6,12 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pinc::dataset::{self, DatasetPreset};
 use pinc::model::{Activation, ModelError, ModelSummary, PincModel, import_state_dict};
 use pinc::runtime::{Predictor, Quantity};
+use pinc::trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
 use pinc::vehicle::{Rk4Vehicle, VehicleParams, to_network, to_simulator};
 use pinc::{Input, SimState, State};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
-use pinc::trajectory_csv::{parse_sim_state, read_inputs, write_inputs, write_record, write_trajectory};
 
 mod estimate_cmd;
 mod eval_cmd;
@@ -23,8 +23,6 @@ mod sweep_cmd;
 mod thrusters_cmd;
 #[cfg(feature = "train")]
 mod train_cmd;
-#[cfg(feature = "vehicle")]
-mod vehicle_cmd;
 
 #[derive(Parser)]
 #[command(name = "pinc", version, about = "Physics-informed neural network with control for a BlueROV2")]
@@ -195,7 +193,7 @@ enum Command {
     #[cfg(feature = "vehicle")]
     Vehicle {
         #[command(subcommand)]
-        action: vehicle_cmd::VehicleAction,
+        action: pinc::vehicle_actions::VehicleAction,
     },
     /// A live ArduSub vehicle: needs the `vehicle` feature (MAVLink), which this build does not have.
     #[cfg(not(feature = "vehicle"))]
@@ -332,7 +330,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
         #[cfg(feature = "vehicle")]
-        Command::Vehicle { action } => vehicle_cmd::run_vehicle(action),
+        Command::Vehicle { action } => pinc::vehicle_actions::run_vehicle(action),
         #[cfg(feature = "vehicle")]
         Command::Serve(args) => pinc::serve::run_serve(*args),
         #[cfg(not(feature = "vehicle"))]

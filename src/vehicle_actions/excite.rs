@@ -8,10 +8,10 @@
 
 use super::writer::{Writer, recording_estimator};
 use super::{ExciteArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
-use pinc::closed_loop::Level;
-use pinc::link::cli::{non_negative, open, positive};
-use pinc::link::{Capability, DepthBand, Drive, Fresh, InputsFromOutputs, Received, Recorder, Stopped, Trigger};
-use pinc::types::Input;
+use crate::closed_loop::Level;
+use crate::link::cli::{non_negative, open, positive};
+use crate::link::{Capability, DepthBand, Drive, Fresh, InputsFromOutputs, Received, Recorder, Stopped, Trigger};
+use crate::types::Input;
 use std::cell::RefCell;
 use std::time::{Duration, Instant};
 
@@ -26,7 +26,7 @@ struct Plan {
 fn plan(a: &ExciteArgs) -> Result<Plan, String> {
     let dt = positive("--dt", a.dt)?.as_secs_f64();
     let file = std::fs::File::open(&a.inputs).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
-    let inputs = pinc::trajectory_csv::read_inputs(file).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
+    let inputs = crate::trajectory_csv::read_inputs(file).map_err(|e| format!("{}: {e}", a.inputs.display()))?;
     if inputs.is_empty() {
         return Err(format!("{}: no input rows", a.inputs.display()));
     }
@@ -257,13 +257,13 @@ fn end_excite(
 #[cfg(feature = "train")]
 mod watch {
     use super::{ExciteArgs, Recording};
-    use pinc::closed_loop::Level;
-    use pinc::fit::FitSettings;
-    use pinc::link::{Autopilot, Received};
+    use crate::closed_loop::Level;
+    use crate::fit::FitSettings;
+    use crate::link::{Autopilot, Received};
 
     /// The watch and the autopilot whose messages it takes.
     pub(super) struct Watch {
-        inner: pinc::fit::watch::Watch,
+        inner: crate::fit::watch::Watch,
         autopilot: Autopilot,
     }
 
@@ -283,7 +283,7 @@ mod watch {
         }
         let mut settings = FitSettings::new(Vec::new(), a.vehicle.clone());
         settings.dt = dt;
-        let inner = pinc::fit::watch::Watch::new(settings, 2.0 * a.watch_every, a.watch_every);
+        let inner = crate::fit::watch::Watch::new(settings, 2.0 * a.watch_every, a.watch_every);
         let mut w = Watch { inner, autopilot: autopilot.clone() };
         for r in pending {
             w.message(r, 0.0);
@@ -321,7 +321,7 @@ mod watch {
 #[cfg(not(feature = "train"))]
 mod watch {
     use super::{ExciteArgs, Recording};
-    use pinc::link::{Autopilot, Received};
+    use crate::link::{Autopilot, Received};
 
     pub(super) struct Watch;
 

@@ -1,14 +1,14 @@
 //! `pinc vehicle status`: what the autopilot is and sends.
 
 use super::StatusArgs;
+use crate::link::cli::{open, positive};
+use crate::link::drive::{AUTOPILOT_ESTIMATE_RATE_HZ, read_autopilot_config};
+use crate::link::link::{AUTOPILOT_VERSION_ID, EKF_STATUS_REPORT_ID, is_ground_station};
+use crate::link::outputs::{OutputFunctions, function_name};
+use crate::link::{Autopilot, Capability, Part, SubMode};
+use crate::link::{EkfStatus, HeadingReference};
+use crate::vehicle::Thrusters;
 use mavlink::dialects::ardupilotmega::{AUTOPILOT_VERSION_DATA, MavMessage};
-use pinc::link::cli::{open, positive};
-use pinc::link::drive::{AUTOPILOT_ESTIMATE_RATE_HZ, read_autopilot_config};
-use pinc::link::link::{AUTOPILOT_VERSION_ID, EKF_STATUS_REPORT_ID, is_ground_station};
-use pinc::link::outputs::{OutputFunctions, function_name};
-use pinc::link::{Autopilot, Capability, Part, SubMode};
-use pinc::link::{EkfStatus, HeadingReference};
-use pinc::vehicle::Thrusters;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -67,9 +67,9 @@ struct Heard {
 /// Listens for `window`, asking for AUTOPILOT_VERSION (twice: requests travel over UDP);
 /// every message of the autopilot's goes through the state's assembler.
 fn listen(
-    link: &mut pinc::link::VehicleLink,
+    link: &mut crate::link::VehicleLink,
     autopilot: &Autopilot,
-    assembler: &mut pinc::link::StateAssembler,
+    assembler: &mut crate::link::StateAssembler,
     window: Duration,
 ) -> Result<Heard, String> {
     let mut heard =
@@ -101,13 +101,13 @@ fn listen(
 struct Status {
     autopilot: Autopilot,
     heard: Heard,
-    params: pinc::link::Params,
+    params: crate::link::Params,
     malformed: u64,
     functions: OutputFunctions,
-    ways: Vec<(pinc::link::CommandWay, Result<(), pinc::link::WayRefused>)>,
+    ways: Vec<(crate::link::CommandWay, Result<(), crate::link::WayRefused>)>,
     heading: HeadingReference,
     not_ready: Vec<String>,
-    now: pinc::link::RawState,
+    now: crate::link::RawState,
     vertical_rate: Option<f64>,
     vertical_valid: bool,
 }
@@ -152,7 +152,7 @@ pub(super) fn run_status(a: StatusArgs) -> Result<(), String> {
 }
 
 /// The message and rate each part of the state comes from.
-fn part_source(heard: &Heard, now: &pinc::link::RawState, p: Part) -> (&'static str, Option<f64>) {
+fn part_source(heard: &Heard, now: &crate::link::RawState, p: Part) -> (&'static str, Option<f64>) {
     let rate_of = |name: &str| heard.arrivals.get(name).and_then(Arrivals::rate);
     match p {
         Part::Heading | Part::YawRate => ("ATTITUDE", rate_of("ATTITUDE")),

@@ -2,10 +2,10 @@
 
 use super::writer::{Writer, recording_estimator};
 use super::{RecordArgs, SERVO_OUTPUT_RAW_ID, ctrl_c_flag, session_metadata};
-use pinc::closed_loop::Level;
-use pinc::link::cli::{open, positive};
-use pinc::link::{InputsFromOutputs, Received, Recorder};
-use pinc::vehicle::Thrusters;
+use crate::closed_loop::Level;
+use crate::link::cli::{open, positive};
+use crate::link::{InputsFromOutputs, Received, Recorder};
+use crate::vehicle::Thrusters;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 pub(super) fn run_record(a: RecordArgs) -> Result<(), String> {

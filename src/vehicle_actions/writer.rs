@@ -1,14 +1,14 @@
 //! A session's recording: every message, the state samples with their inputs, the estimate
 //! and the `/log` lines, for `record` and `excite`.
 
+use crate::closed_loop::Level;
+use crate::estimation::mavlink::Observation;
+use crate::estimation::{Estimate, Estimator, NoiseSettings};
+use crate::link::drive::{severity_level, statustext};
+use crate::link::state::message_time;
+use crate::link::{Autopilot, Capability, InputsFromOutputs, Received, Recorder, SubMode};
+use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use mavlink::dialects::ardupilotmega::{HEARTBEAT_DATA, MavMessage};
-use pinc::closed_loop::Level;
-use pinc::estimation::mavlink::Observation;
-use pinc::estimation::{Estimate, Estimator, NoiseSettings};
-use pinc::link::drive::{severity_level, statustext};
-use pinc::link::state::message_time;
-use pinc::link::{Autopilot, Capability, InputsFromOutputs, Received, Recorder, SubMode};
-use pinc::vehicle::{Rk4Vehicle, VehicleParams};
 use std::time::Instant;
 /// The state estimator of a recording: the analytic vehicle of the vehicle file, fed what
 /// every message measured; its estimate is written beside each raw state sample.
@@ -105,7 +105,7 @@ impl Writer {
     }
 
     /// A fresh state sample; the state estimate at it, once the estimator runs.
-    pub(super) fn state(&mut self, s: &pinc::link::RawState) -> Result<Option<Estimate>, String> {
+    pub(super) fn state(&mut self, s: &crate::link::RawState) -> Result<Option<Estimate>, String> {
         self.notes.note_capability(s.t, s.capability);
         let mut out = None;
         if let Some(e) = &mut self.estimation {
@@ -143,7 +143,7 @@ impl Writer {
     }
 
     /// Writes what is pending and the last line, and finishes the file.
-    pub(super) fn finish(mut self, t: f64, level: Level, line: &str) -> Result<pinc::link::RecordStats, String> {
+    pub(super) fn finish(mut self, t: f64, level: Level, line: &str) -> Result<crate::link::RecordStats, String> {
         if let Some(p) = &mut self.inputs {
             for (s, u) in p.flush() {
                 self.rec.state(&s, u.as_ref()).map_err(|e| e.to_string())?;

@@ -1,6 +1,7 @@
-//! `pinc vehicle`: `status`, `record`, `excite` and `setup-signing`: pinc as a MAVLink participant next to an
-//! ArduSub autopilot (docs/VEHICLE.md).
-
+//! `pinc vehicle`'s actions on a live vehicle: `status`, `record`, `excite` and
+//! `setup-signing`: pinc as a MAVLink participant next to an ArduSub autopilot
+//! (docs/VEHICLE.md), on the link of [`crate::link`].
+//!
 //! One module per action; the recording's writer is shared by `record` and `excite`.
 
 mod excite;
@@ -9,8 +10,8 @@ mod signing;
 mod status;
 mod writer;
 
-use pinc::link::Autopilot;
-use pinc::link::cli::{DriveArgs, LinkArgs};
+use crate::link::Autopilot;
+use crate::link::cli::{DriveArgs, LinkArgs};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -98,7 +99,7 @@ pub struct ExciteArgs {
     #[arg(long)]
     inputs: PathBuf,
     /// Sample period of the inputs file (s).
-    #[arg(long, default_value_t = pinc::DEFAULT_DT)]
+    #[arg(long, default_value_t = crate::DEFAULT_DT)]
     dt: f64,
     /// Output MCAP file (written as OUT.partial and renamed when complete).
     #[arg(long)]
@@ -127,6 +128,7 @@ pub struct ExciteArgs {
 /// Id of `SERVO_OUTPUT_RAW`.
 const SERVO_OUTPUT_RAW_ID: u32 = 36;
 
+/// Runs one `pinc vehicle` action.
 pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
     match action {
         VehicleAction::Status(a) => status::run_status(a),

@@ -1,9 +1,9 @@
 //! `pinc vehicle setup-signing`.
 
 use super::SetupSigningArgs;
+use crate::link::SigningKey;
+use crate::link::cli::open;
 use mavlink::dialects::ardupilotmega::MavMessage;
-use pinc::link::SigningKey;
-use pinc::link::cli::open;
 use std::time::Duration;
 /// `pinc vehicle setup-signing`: SETUP_SIGNING three times (it has no acknowledgement), then a
 /// second link that signs with the new key must hear the autopilot's signed heartbeat.
