@@ -12,8 +12,10 @@
 //!   from the first point (`N T` if none does), averaged over the set.
 
 mod recorded;
+mod rollout_plot;
 
 pub use recorded::{Evaluated, RecordedEvalError, RecordedEvaluation, Row, StartFrom, evaluate_recorded};
+pub use rollout_plot::plot_rollouts;
 
 use crate::dataset::{DatasetPreset, TrajectorySet, generate_set};
 use crate::model::PincModel;

@@ -98,6 +98,43 @@ fn reversal_trains(rng: &mut impl Rng, n: usize, dt: f64, largest: f64, halves: 
     v
 }
 
+/// The inputs of `pinc excitation`: `n` samples of `dt` drawn with `rng`, designed for the fit
+/// on `axes` (`kind` `fit`), or random steps, ramps and multisines drawn per `segment` seconds
+/// (`generic`: the `mpc` preset's excitation), inside `bounds` (a vehicle file's thrusters;
+/// without them the BlueROV2's).
+pub fn excitation_inputs(
+    kind: &str,
+    axes: &[String],
+    segment: f64,
+    n: usize,
+    dt: f64,
+    bounds: Option<super::InputBounds>,
+    rng: &mut impl Rng,
+) -> Result<Vec<Input>, String> {
+    Ok(match kind {
+        "fit" => {
+            let axes = axes_from_names(axes)?;
+            let (lo, hi) = bounds.unwrap_or((super::BLUEROV2_INPUT_LO, super::BLUEROV2_INPUT_HI));
+            designed_inputs(rng, n, dt, lo, hi, axes)
+        }
+        "generic" => {
+            let per = ((segment / dt).round() as usize).max(1);
+            // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
+            let excitation = match bounds {
+                Some((lo, hi)) => super::Excitation::Mixed { lo, hi },
+                None => super::DatasetPreset::mpc().sets[0].excitation.clone(),
+            };
+            let mut inputs = Vec::with_capacity(n);
+            while inputs.len() < n {
+                let len = per.min(n - inputs.len());
+                inputs.extend(super::sample_inputs(&excitation, rng, len, dt));
+            }
+            inputs
+        }
+        other => return Err(format!("--design: `{other}` is not a design (fit, generic)")),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

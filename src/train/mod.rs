@@ -3,6 +3,7 @@
 //! freezes the best weights into the `.pinc` format the runtime loads.
 
 mod config;
+pub mod curves;
 mod grad_combine;
 mod hybrid;
 mod losses;

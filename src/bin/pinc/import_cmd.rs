@@ -2,8 +2,8 @@
 
 use pinc::dataset::import::{
     ArdupilotOptions, BodyFrame, CsvMapping, ImportError, ImportOptions, InputSource, LogFile, McapTopics, Ros2Options,
-    StreamSet, WorldFrame, import_logs, load_mapping, log_dt, read_bin, read_csv, read_mapped_csv, read_mcap,
-    read_ros2, read_tlog, sha256_hex, stream_set_of,
+    StreamSet, WorldFrame, file_bytes, import_logs, load_mapping, log_dt, mcap_is_cdr, read_bin, read_csv,
+    read_mapped_csv, read_mcap, read_ros2, read_tlog, sha256_hex, stream_set_of,
 };
 use pinc::vehicle::Thrusters;
 use std::path::{Path, PathBuf};
@@ -225,32 +225,6 @@ fn format_name(f: LogFormat) -> &'static str {
         LogFormat::Bin => "bin",
         LogFormat::Tlog => "tlog",
         LogFormat::Ros2 => "ros2",
-    }
-}
-
-/// The bytes the manifest's SHA-256 covers: the file's, or for a bag folder every file in
-/// it, in name order.
-fn file_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
-    if !path.is_dir() {
-        return std::fs::read(path);
-    }
-    let mut files: Vec<PathBuf> = std::fs::read_dir(path)?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>()?;
-    files.retain(|f| f.is_file());
-    files.sort();
-    let mut bytes = Vec::new();
-    for f in files {
-        bytes.extend(std::fs::read(f)?);
-    }
-    Ok(bytes)
-}
-
-/// True if the MCAP file's summary lists a channel with CDR messages (a ROS 2 bag); a file
-/// that cannot be read says no here and gets its error from the reader.
-fn mcap_is_cdr(path: &Path) -> bool {
-    let Ok(bytes) = std::fs::read(path) else { return false };
-    match mcap::Summary::read(&bytes) {
-        Ok(Some(summary)) => summary.channels.values().any(|c| c.message_encoding == "cdr"),
-        _ => false,
     }
 }
 

@@ -284,8 +284,7 @@ fn main() -> ExitCode {
             load_vehicle(vehicle.as_deref()).and_then(|v| run_simulate(&x0, &inputs, dt, v, record))
         }
         Command::Excitation { out, duration, dt, seed, design, axes, segment, vehicle } => {
-            let design = ExcitationDesign { kind: design, axes, segment };
-            run_excitation(&out, duration, dt, seed, &design, vehicle.as_deref())
+            run_excitation(&out, duration, dt, seed, (&design, &axes, segment), vehicle.as_deref())
         }
         Command::GenData { preset, out, seed, vehicle } => load_vehicle(vehicle.as_deref()).and_then(|v| {
             // The `mpc` preset takes its input bounds from the file's thrusters when it has some.
@@ -381,26 +380,18 @@ fn thruster_bounds(path: Option<&Path>) -> Result<Option<dataset::InputBounds>, 
     path.map_or(Ok(None), |p| dataset::input_bounds_from_file(p).map_err(|e| e.to_string()))
 }
 
-/// How `pinc excitation` draws its inputs.
-struct ExcitationDesign {
-    /// `fit` or `generic`.
-    kind: String,
-    /// The axes of the designed excitation.
-    axes: Vec<String>,
-    /// The generic excitation's segment length (s).
-    segment: f64,
-}
-
+/// `pinc excitation`; `design` is the kind (`fit` or `generic`), the designed excitation's
+/// axes and the generic one's segment length (s).
 fn run_excitation(
     out: &Path,
     duration: f64,
     dt: f64,
     seed: u64,
-    design: &ExcitationDesign,
+    (kind, axes, segment): (&str, &[String], f64),
     vehicle: Option<&Path>,
 ) -> Result<(), String> {
     use rand::SeedableRng;
-    for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", design.segment)] {
+    for (name, v) in [("--duration", duration), ("--dt", dt), ("--segment", segment)] {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{name} must be a positive number of seconds, got {v}"));
         }
@@ -408,31 +399,10 @@ fn run_excitation(
     let n = (duration / dt).round() as usize;
     let bounds = thruster_bounds(vehicle)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let inputs = match design.kind.as_str() {
-        "fit" => {
-            let axes = dataset::design::axes_from_names(&design.axes)?;
-            let (lo, hi) = bounds.unwrap_or((dataset::BLUEROV2_INPUT_LO, dataset::BLUEROV2_INPUT_HI));
-            dataset::design::designed_inputs(&mut rng, n, dt, lo, hi, axes)
-        }
-        "generic" => {
-            let per = ((design.segment / dt).round() as usize).max(1);
-            // The `mpc` preset's excitation and bounds: what the controller's model is trained on.
-            let excitation = match bounds {
-                Some((lo, hi)) => dataset::Excitation::Mixed { lo, hi },
-                None => dataset::DatasetPreset::mpc().sets[0].excitation.clone(),
-            };
-            let mut inputs = Vec::with_capacity(n);
-            while inputs.len() < n {
-                let len = per.min(n - inputs.len());
-                inputs.extend(dataset::sample_inputs(&excitation, &mut rng, len, dt));
-            }
-            inputs
-        }
-        other => return Err(format!("--design: `{other}` is not a design (fit, generic)")),
-    };
+    let inputs = dataset::design::excitation_inputs(kind, axes, segment, n, dt, bounds, &mut rng)?;
     let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
     write_inputs(std::io::BufWriter::new(file), &inputs).map_err(|e| format!("{}: {e}", out.display()))?;
-    println!("{n} inputs ({duration} s at {dt} s, seed {seed}, design {}) -> {}", design.kind, out.display());
+    println!("{n} inputs ({duration} s at {dt} s, seed {seed}, design {kind}) -> {}", out.display());
     Ok(())
 }
 

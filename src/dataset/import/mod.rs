@@ -84,6 +84,33 @@ pub fn log_extension(path: &std::path::Path) -> Option<String> {
     name.rsplit_once('.').map(|(_, ext)| ext.to_string())
 }
 
+/// The bytes the manifest's SHA-256 covers: the file's, or for a bag folder every file in
+/// it, in name order.
+pub fn file_bytes(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
+    if !path.is_dir() {
+        return std::fs::read(path);
+    }
+    let mut files: Vec<std::path::PathBuf> =
+        std::fs::read_dir(path)?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>()?;
+    files.retain(|f| f.is_file());
+    files.sort();
+    let mut bytes = Vec::new();
+    for f in files {
+        bytes.extend(std::fs::read(f)?);
+    }
+    Ok(bytes)
+}
+
+/// True if the MCAP file's summary lists a channel with CDR messages (a ROS 2 bag); a file
+/// that cannot be read says no here and gets its error from the reader.
+pub fn mcap_is_cdr(path: &std::path::Path) -> bool {
+    let Ok(bytes) = std::fs::read(path) else { return false };
+    match mcap::Summary::read(&bytes) {
+        Ok(Some(summary)) => summary.channels.values().any(|c| c.message_encoding == "cdr"),
+        _ => false,
+    }
+}
+
 /// What can go wrong while importing: every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
