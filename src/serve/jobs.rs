@@ -82,10 +82,8 @@ pub struct Job {
     /// The fit's stage, and its epochs done of all.
     pub stage: Option<String>,
     pub epochs: Option<(usize, usize)>,
-    /// A flight's newest cycles as its process streams them (at most [`KEPT_SAMPLES`]), and how
-    /// many older ones were let go: an hour's dive keeps the server's memory flat.
-    samples: VecDeque<Value>,
-    samples_dropped: usize,
+    /// A flight's newest cycles as its process streams them (at most `kept_samples`).
+    samples: SampleRing,
     kept_samples: usize,
     /// What it made (kind, name) and its figures.
     pub result: Option<Value>,
@@ -100,12 +98,61 @@ pub struct Job {
     interrupt: Arc<AtomicBool>,
 }
 
+/// A flight's newest cycles, the JSON lines its process streamed, in slots that are written
+/// over in place and handed from one job to the next. Cycles allocated afresh each on the job's
+/// own thread grew the server by the kept history's size at every new flight (each thread
+/// allocates from its own arena, and the last flight's freed memory was not reused: +3 MB at the
+/// second flight of a dive, measured); written over, an hour's dive, a reboot and another
+/// flight keep it flat.
+#[derive(Default)]
+struct SampleRing {
+    slots: Vec<String>,
+    /// The oldest kept, once the ring is full; how many are kept; how many were let go.
+    start: usize,
+    len: usize,
+    dropped: usize,
+}
+
+impl SampleRing {
+    /// Empty again, the slots kept for the next flight.
+    fn reset(&mut self) {
+        (self.start, self.len, self.dropped) = (0, 0, 0);
+    }
+
+    fn push(&mut self, line: &str, kept: usize) {
+        let index = if self.len < kept {
+            if self.slots.len() == self.len {
+                // Room to grow: the next line of a flight is seldom much longer.
+                self.slots.push(String::with_capacity(line.len() + 256));
+            }
+            self.len += 1;
+            self.len - 1
+        } else {
+            let oldest = self.start;
+            self.start = (self.start + 1) % kept;
+            self.dropped += 1;
+            oldest
+        };
+        let slot = &mut self.slots[index];
+        slot.clear();
+        slot.push_str(line);
+    }
+
+    /// The kept cycles from the `from`-th of the flight (counting those let go) on.
+    fn from(&self, from: usize) -> impl Iterator<Item = &str> {
+        let first = from.saturating_sub(self.dropped);
+        (first..self.len).map(move |i| self.slots[(self.start + i) % self.len.max(1)].as_str())
+    }
+}
+
 impl Job {
     /// `since`: the first sample to send (the page asks only for the new ones).
     /// A page that fell behind the kept cycles gets them from the oldest kept (`samples_from`).
     pub fn to_json(&self, since: usize) -> Value {
-        let total = self.samples_dropped + self.samples.len();
-        let from = since.clamp(self.samples_dropped, total);
+        let total = self.samples.dropped + self.samples.len;
+        let from = since.clamp(self.samples.dropped, total);
+        // Each line was checked as JSON when it came.
+        let samples: Vec<Value> = self.samples.from(from).filter_map(|line| serde_json::from_str(line).ok()).collect();
         json!({
             "id": self.id,
             "kind": self.kind.name(),
@@ -118,7 +165,7 @@ impl Job {
             "epochs": self.epochs,
             "samples_total": total,
             "samples_from": from,
-            "samples": self.samples.range(from - self.samples_dropped..).collect::<Vec<_>>(),
+            "samples": samples,
             "result": self.result,
             "error": self.error,
             "exit_code": self.exit_code,
@@ -127,12 +174,8 @@ impl Job {
         })
     }
 
-    fn add_sample(&mut self, sample: Value) {
-        if self.samples.len() >= self.kept_samples {
-            self.samples.pop_front();
-            self.samples_dropped += 1;
-        }
-        self.samples.push_back(sample);
+    fn add_sample(&mut self, line: &str) {
+        self.samples.push(line, self.kept_samples);
     }
 
     fn say(&mut self, line: String) {
@@ -213,6 +256,9 @@ impl Jobs {
             *n
         };
         let interrupt = Arc::new(AtomicBool::new(false));
+        // The last job's cycle slots serve this one (see `SampleRing`).
+        let mut samples = current.take().map(|j| j.samples).unwrap_or_default();
+        samples.reset();
         *current = Some(Job {
             id,
             kind,
@@ -224,8 +270,7 @@ impl Jobs {
             verdict: None,
             stage: None,
             epochs: None,
-            samples: VecDeque::new(),
-            samples_dropped: 0,
+            samples,
             kept_samples: self.kept_samples,
             result: None,
             error: None,
@@ -379,7 +424,7 @@ impl Handle {
                 let mut rest = String::new();
                 for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                     match serde_json::from_str::<Value>(&line) {
-                        Ok(v) if v.get("t").is_some_and(Value::is_number) => me.update(|j| j.add_sample(v)),
+                        Ok(v) if v.get("t").is_some_and(Value::is_number) => me.update(|j| j.add_sample(&line)),
                         _ => {
                             rest.push_str(&line);
                             rest.push('\n');
@@ -507,6 +552,17 @@ mod tests {
             (json!(n - 2), json!([{"t": n - 2}, {"t": n - 1}]))
         );
         assert_eq!(jobs.to_json(n + 10)["samples"], json!([]));
+        // The next flight writes over the same slots: its own cycles only, from its first.
+        let step = Step {
+            program: "sh".into(),
+            args: vec!["-c".into(), "echo '{\"t\": 100}'; echo '{\"t\": 101}'".into()],
+            sticks: false,
+        };
+        jobs.start(Kind::Fly, "next".into(), move |h| h.run(&step).map(|r| json!(r.code))).unwrap();
+        let j = wait_for_end(&jobs);
+        assert_eq!((j["samples_total"].clone(), j["samples_from"].clone()), (json!(2), json!(0)));
+        assert_eq!(j["samples"], json!([{"t": 100}, {"t": 101}]));
+        assert_eq!(jobs.to_json(1)["samples"], json!([{"t": 101}]));
     }
 
     #[test]
