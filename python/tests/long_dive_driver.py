@@ -93,7 +93,12 @@ def main():
                              stdout=serve_log, stderr=subprocess.STDOUT)
     options = Options()
     options.binary_location = "/usr/bin/chromium"
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000"):
+    # A pilot's page is in front; a headless one counts as hidden, and Chromium throttles a
+    # hidden page's timers: twice, about 14 minutes after a page was opened, it sent no sticks
+    # for 10 s and the server stopped the flight. Not throttled, as on the pilot's screen.
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000",
+                 "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
+                 "--disable-backgrounding-occluded-windows", "--disable-features=IntensiveWakeUpThrottling"):
         options.add_argument(flag)
     browser = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
     # The gamepad stays plugged in across the reload, as a real one does: injected into every

@@ -26,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 DRIVER = HERE / "long_dive_driver.py"
 STOCK_RECORDING = HERE.parents[1] / "tests" / "fixtures" / "ardusub" / "stock_designed_60s.mcap"
 MINUTES = float(os.environ.get("PINC_LONG_DIVE_MINUTES", "5"))
-LONG = MINUTES >= 30
+LONG = MINUTES >= 20
 HISTORY_S = 300.0 if LONG else 60.0
 # Memory is judged from here on (s into the flight): the kept history full, and a tenth more.
 SETTLED_S = 300.0 if LONG else 120.0
