@@ -93,9 +93,9 @@ def main():
                              stdout=serve_log, stderr=subprocess.STDOUT)
     options = Options()
     options.binary_location = "/usr/bin/chromium"
-    # A pilot's page is in front; a headless one counts as hidden, and Chromium throttles a
-    # hidden page's timers: twice, about 14 minutes after a page was opened, it sent no sticks
-    # for 10 s and the server stopped the flight. Not throttled, as on the pilot's screen.
+    # Twice, about 14 minutes after a page was opened, it sent no sticks for 10 s and the server
+    # stopped the flight; the cause is not found (the page says it is visible). Chromium's timer
+    # throttling off, as a first step: a pilot's page is in front.
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000",
                  "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
                  "--disable-backgrounding-occluded-windows", "--disable-features=IntensiveWakeUpThrottling"):
