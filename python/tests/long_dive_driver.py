@@ -48,6 +48,33 @@ def sticks_at(t, depth):
     return [0, 0, 0, 0]
 
 
+# What the page's sticks did, counted inside it: each request to api/sticks (sent, answered,
+# failed and why, the slowest answer since the last look) and the page's own 50 ms timer (how
+# often it fired), so a gap in the sticks says whether the timer, the requests or the server
+# stalled. Injected before the page's script, beside the gamepad.
+STICKS_PROBE = """
+window.__probe = {sent: 0, answered: 0, failed: 0, errors: {}, slowest_ms: 0, ticks: 0};
+setInterval(() => window.__probe.ticks++, 50);
+const __fetch = window.fetch.bind(window);
+window.fetch = async (url, options) => {
+  if (!String(url).includes("api/sticks")) return __fetch(url, options);
+  const p = window.__probe, t0 = performance.now();
+  p.sent++;
+  try { const r = await __fetch(url, options); p.answered++; return r; }
+  catch (e) { p.failed++; p.errors[e.name] = (p.errors[e.name] || 0) + 1; throw e; }
+  finally { p.slowest_ms = Math.max(p.slowest_ms, performance.now() - t0); }
+};
+"""
+READ_PROBE = """
+const p = window.__probe;
+if (!p) return null;
+const out = Object.assign({}, p, {errors: Object.assign({}, p.errors), takes_sticks: typeof takesSticks === "undefined" ? null : takesSticks,
+                                  heap_mb: performance.memory ? performance.memory.usedJSHeapSize / 1048576 : null});
+p.slowest_ms = 0;
+return out;
+"""
+
+
 def state(since=10**9):
     """The server's state without the flight's cycles (unless asked from `since`)."""
     with urllib.request.urlopen(f"http://127.0.0.1:{PORT}/api/state?since={since}", timeout=5) as r:
@@ -103,7 +130,7 @@ def main():
     browser = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
     # The gamepad stays plugged in across the reload, as a real one does: injected into every
     # page before its own script runs (centred until the script sets its axes again).
-    browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": INJECTED_GAMEPAD})
+    browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": INJECTED_GAMEPAD + STICKS_PROBE})
     text = lambda id_: browser.find_element(By.ID, id_).text  # noqa: E731
 
     def open_page():
@@ -196,7 +223,8 @@ def main():
                     "t_s": now - began, "flight": flight, "flight_t_s": now - flight_began,
                     "serve_mb": rss_mb(serve.pid), "mpc_track_mb": rss_mb(child) if child else None,
                     "data_mb": st["server"]["data_mb"], "max_data_mb": st["server"]["limits"]["max_data_mb"],
-                    "page_data": text("s-data"), "page_cycles": int(text("job-samples"))})
+                    "page_data": text("s-data"), "page_cycles": int(text("job-samples")),
+                    "page_sticks": browser.execute_script(READ_PROBE)})
                 next_note += 10.0
                 # Written as it goes: an hour's figures outlive a run cut short.
                 Path(a.out).write_text(json.dumps(result, indent=1))
