@@ -76,11 +76,14 @@ impl<T: Real> DiscreteModel for Predictor<T> {
         self.envelope().map(|e| (Input::from(e.input_min), Input::from(e.input_max)))
     }
 
-    /// The envelope of the states the network sees; the others are unbounded (a hybrid's
-    /// physics holds everywhere, and a state the network never sees cannot take it outside
+    /// The envelope of the states the network sees (none for a hybrid whose correction is
+    /// zero); the others are unbounded (a hybrid's physics holds everywhere, and a state the network never sees cannot take it outside
     /// what it learnt: a fit without a position source trains on `u = v = 0`, whose zero-width
     /// range as a bound pinned the controller's rotation).
     fn state_bounds(&self) -> Option<(State, State)> {
+        if self.is_physics_only() {
+            return None;
+        }
         self.envelope().map(|e| {
             let (mut lo, mut hi) = (State::from(e.state_min), State::from(e.state_max));
             for i in (0..crate::NX).filter(|i| !self.state_inputs().contains(i)) {

@@ -1,7 +1,8 @@
 //! The filter on a stream of stamped measurements and applied inputs, as a controller (or a
 //! log replay) sees them: measurements are queued as they arrive and fused at the next
-//! sample, the filter steps on the model's grid with the input applied over each step (the
-//! mean of the thruster outputs reported in it, else the command sent), and it starts itself
+//! sample, the filter steps on the model's grid with the input applied over each step (each
+//! thruster output reported held from its report to the next, weighted by how long it held
+//! within the step; else the command sent), and it starts itself
 //! once heading, yaw rate and depth have been seen.
 
 use super::ekf::{Ekf, Estimate, FilterCounts, HorizontalDisturbance, Update};
@@ -39,6 +40,8 @@ pub struct Estimator<M: DiscreteModel> {
     /// report holds the newer of the two (a log replay has reports only).
     last_reported: Option<Input>,
     commanded_since_report: bool,
+    /// The reported output in force at the filter's time: the last report at or before it.
+    in_force: Option<Input>,
     last_horizontal: Option<f64>,
     /// When a velocity (a DVL's, the autopilot's) was last fused.
     last_velocity: Option<f64>,
@@ -70,6 +73,7 @@ impl<M: DiscreteModel> Estimator<M> {
             commanded: Input::zeros(),
             last_reported: None,
             commanded_since_report: false,
+            in_force: None,
             last_horizontal: None,
             last_velocity: None,
             horizontal_variance_then: 0.0,
@@ -293,24 +297,39 @@ impl<M: DiscreteModel> Estimator<M> {
         self.past_next = (self.past_next + 1) % PAST;
     }
 
-    /// The applied input over the step ending at `t_end`: the mean of the reported inputs
-    /// in it, else the newer of the last report (outputs hold) and the command.
-    fn step_input(&mut self, t_end: f64) -> Input {
-        let mut sum = Input::zeros();
-        let mut n = 0;
-        self.reported.retain(|(t, u)| {
-            if *t <= t_end + 1e-9 {
-                sum += u;
-                n += 1;
-                false
-            } else {
-                true
+    /// The applied input over the step from `t_end - dt` to `t_end`: each reported output
+    /// held from its report's time to the next, weighted by how long it held within the step
+    /// (the mean of the reports, as before, took the step's last output for the whole step:
+    /// on the firmware's 50 Hz SERVO_OUTPUT_RAW, 20 ms early on average); else the newer of
+    /// the last report (outputs hold) and the command.
+    fn step_input(&mut self, t_end: f64, dt: f64) -> Input {
+        let t_start = t_end - dt;
+        let (mut held, mut from) = (self.in_force, t_start);
+        let (mut sum, mut covered, mut n) = (Input::zeros(), 0.0, 0);
+        self.reported.retain(|&(t, u)| {
+            if t > t_end + 1e-9 {
+                return true;
             }
+            let t = t.clamp(t_start, t_end);
+            if let Some(h) = held {
+                sum += h * (t - from);
+                covered += t - from;
+            }
+            (held, from) = (Some(u), t);
+            n += 1;
+            false
         });
+        if let Some(h) = held {
+            sum += h * (t_end - from);
+            covered += t_end - from;
+        }
+        self.in_force = held;
         match (n, self.last_reported) {
-            (0, Some(held)) if !self.commanded_since_report => held,
+            (0, Some(last)) if !self.commanded_since_report => last,
             (0, _) => self.commanded,
-            _ => sum / n as f64,
+            // Reports all at the step's end (a log's coarse clock): their last.
+            _ if covered <= 1e-9 => held.unwrap_or(self.commanded),
+            _ => sum / covered,
         }
     }
 
@@ -365,6 +384,10 @@ impl<M: DiscreteModel> Estimator<M> {
         if !self.started {
             self.try_start(t);
             self.pending.retain(|m| m.t() > t); // what the start used
+            // The output in force at the start: the last reported before it.
+            if let Some(&(_, u)) = self.reported.iter().rev().find(|(tr, _)| *tr <= t + 1e-9) {
+                self.in_force = Some(u);
+            }
             self.reported.clear();
             if self.started {
                 self.record_start();
@@ -374,7 +397,7 @@ impl<M: DiscreteModel> Estimator<M> {
             return Ok(self.started.then(|| self.ekf.estimate()));
         }
         while self.ekf.t() + 0.5 * dt <= t {
-            let u = self.step_input(self.ekf.t() + dt);
+            let u = self.step_input(self.ekf.t() + dt, dt);
             self.ekf.predict(&u)?;
             self.remember_position();
             if let Some(h) = &mut self.history {

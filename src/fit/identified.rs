@@ -5,6 +5,7 @@
 
 use super::heave_gain::{HEAVE_GAIN_TOLERANCE, MAX_HEAVE_GAIN_STEPS, mean_heave_gain, with_heave_gain};
 use super::identification::coefficient;
+use super::open_loop_depth::{self, OpenLoopDepth};
 use super::sensor_model::{LagMethod, Sensors};
 use super::sensors::{self, HorizontalNoise};
 use super::{FitError, Pipeline, Stage, report};
@@ -13,6 +14,7 @@ use crate::estimation::NoiseSettings;
 use crate::estimation::replay::Replay;
 use crate::identify::Identification;
 use crate::model::SensorModel;
+use crate::vehicle::VehicleParams;
 
 /// Most estimate-and-identify passes after the first.
 const MAX_PASSES: usize = 8;
@@ -41,20 +43,31 @@ pub struct Identified {
     /// The filter's mean heave gain after the passes and after each time it was taken in.
     pub heave_gains: Vec<f64>,
     pub(super) runs: Vec<Replay>,
+    /// The replays' step (s).
+    pub(super) dt: f64,
     /// The dataset the final identification and the training used.
     pub dataset: Dataset,
 }
 
 impl Identified {
     /// The report's warnings for the axes whose identified physics misses the held-out
-    /// velocities ([`report::held_out_axes`]); none without held-out windows.
+    /// velocities ([`report::held_out_axes`]; none without held-out windows), and for a heave
+    /// whose open-loop depth misses the readings ([`open_loop_depth`]).
     pub(super) fn bias_warnings(&self) -> Vec<String> {
-        match self.dataset.set("test").filter(|s| s.count > 0) {
+        let mut warnings = match self.dataset.set("test").filter(|s| s.count > 0) {
             Some(test) => {
                 report::bias_warnings(&report::held_out_axes(&self.identification.vehicle, test, self.horizontal))
             }
             None => Vec::new(),
-        }
+        };
+        warnings.extend(open_loop_depth::warning(&self.open_loop_depth(&self.identification.vehicle)));
+        warnings
+    }
+
+    /// `vehicle`'s depth rolled out open loop from the recorded thrust against the depth
+    /// readings of these recordings ([`open_loop_depth::open_loop_depth`]).
+    pub fn open_loop_depth(&self, vehicle: &VehicleParams) -> OpenLoopDepth {
+        open_loop_depth::open_loop_depth(vehicle, &self.runs, self.dt, self.sensors.depth_delay)
     }
 }
 
@@ -135,6 +148,7 @@ impl Pipeline<'_> {
             passes,
             heave_gains,
             runs,
+            dt: self.settings.dt,
             dataset,
         })
     }

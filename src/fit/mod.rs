@@ -24,6 +24,7 @@
 //! Each stage is a module of its own, declared below in the order the pipeline runs them;
 //! this file holds the entry points, [`fit`] and [`determinacy`].
 
+pub mod open_loop_depth;
 pub mod report;
 pub mod sensors;
 pub mod watch;
@@ -142,6 +143,9 @@ pub struct Fit {
     pub reference: Option<(PathBuf, VehicleParams)>,
     /// Where its predictions started ([`FitSettings::start`]).
     pub start: FitStart,
+    /// The identified vehicle's depth open loop against the readings, and the reference
+    /// file's on the same segments.
+    pub open_loop_depth: (open_loop_depth::OpenLoopDepth, Option<open_loop_depth::OpenLoopDepth>),
 }
 
 /// The recordings and the starting vehicle a fit works on.
@@ -243,5 +247,18 @@ pub fn fit(
         model.provenance.metrics.remove(key);
     }
     model.fitted = Some(FittedVehicle { thrusters_toml, sensors: found.sensors, warnings: findings.warnings.clone() });
-    Ok(Fit { identified: found, model, training, recordings, report: findings, reference, start: settings.start })
+    let open_loop_depth = (
+        found.open_loop_depth(&found.identification.vehicle),
+        reference.as_ref().map(|(_, p)| found.open_loop_depth(p)),
+    );
+    Ok(Fit {
+        identified: found,
+        model,
+        training,
+        recordings,
+        report: findings,
+        reference,
+        start: settings.start,
+        open_loop_depth,
+    })
 }

@@ -489,6 +489,7 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
             "stop": fit.training.stop, "seconds": fit.training.seconds,
             "cut_by_time_cap": super::cut_by_time(&fit.training).is_some()},
         "held_out": held,
+        "open_loop_depth": {"identified": fit.open_loop_depth.0, "reference": fit.open_loop_depth.1},
         "dataset": {"train": fit.identified.dataset.set("train").map_or(0, |s| s.count),
             "dev": fit.identified.dataset.set("dev").map_or(0, |s| s.count), "test": fit.identified.dataset.set("test").map_or(0, |s| s.count)},
     })
@@ -551,6 +552,7 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
         );
     }
     md += &held_out_markdown(fit, held);
+    md += &open_loop_depth_markdown(fit);
     md += &format!(
         "\n## Training\n\n{} epochs run (best on dev: {}), {:.0} s.\n",
         fit.training.history.len(),
@@ -592,11 +594,7 @@ fn held_out_markdown(fit: &Fit, held: &HeldOut) -> String {
         100.0 * MAX_GAIN_ERROR
     );
     for a in &held.axes {
-        let verdict = match (a.judged, a.biased) {
-            (false, _) => "no",
-            (true, false) => "yes: within",
-            (true, true) => "yes: BIASED",
-        };
+        let verdict = judged_text(a.judged, a.biased);
         md += &format!(
             "| {} | {:.4} | {:.4} | {:+.1} % | {verdict} |\n",
             a.axis,
@@ -604,6 +602,41 @@ fn held_out_markdown(fit: &Fit, held: &HeldOut) -> String {
             a.rms_velocity,
             100.0 * a.gain_error
         );
+    }
+    md
+}
+
+/// A check's verdict in a report's table.
+fn judged_text(judged: bool, biased: bool) -> &'static str {
+    match (judged, biased) {
+        (false, _) => "no",
+        (true, false) => "yes: within",
+        (true, true) => "yes: BIASED",
+    }
+}
+
+/// The report's open-loop depth section: the identified vehicle's and the reference file's.
+fn open_loop_depth_markdown(fit: &Fit) -> String {
+    let (identified, reference) = &fit.open_loop_depth;
+    let mut md = format!(
+        "\n## Depth open loop ({} segments of {:.0} s, {} readings)\n\nEach segment rolled out from its start on the \
+         recorded thrust alone, against the depth sensor's readings (not the estimate): the gain error is the error \
+         regressed on the rollout's own move, how much too far (or too little, if negative) the vehicle is predicted to \
+         move in depth; judged where the rollouts moved {} m or more, at most {:.0} % either way.\n\n| vehicle | RMS \
+         error (m) | RMS move (m) | gain error | judged |\n|---|---|---|---|---|\n",
+        identified.segments,
+        identified.segment_s,
+        identified.readings,
+        super::open_loop_depth::MIN_DEPTH_MOVED_M,
+        100.0 * super::open_loop_depth::MAX_DEPTH_GAIN_ERROR
+    );
+    let mut row = |name: String, c: &super::open_loop_depth::OpenLoopDepth| {
+        let verdict = judged_text(c.judged, c.biased);
+        md += &format!("| {name} | {:.3} | {:.3} | {:+.1} % | {verdict} |\n", c.rms_m, c.moved_m, 100.0 * c.gain_error);
+    };
+    row("identified".into(), identified);
+    if let (Some(r), Some((file, _))) = (reference, &fit.reference) {
+        row(format!("reference `{}` (compared only)", file.display()), r);
     }
     md
 }

@@ -347,6 +347,16 @@ impl PincModel {
         })
     }
 
+    /// Whether this is a hybrid whose network adds nothing (its output layer, and any output
+    /// scaling's mean, zero): the model is its physics everywhere, as a fit writes it when no
+    /// correction beat the identified physics.
+    pub fn correction_is_zero(&self) -> bool {
+        let out = &self.weights.output;
+        self.hybrid.is_some()
+            && out.weight.iter().chain(&out.bias).all(|v| *v == 0.0)
+            && self.output_scaling.as_ref().is_none_or(|s| s.mean.iter().all(|m| *m == 0.0))
+    }
+
     /// The input that holds this model's vehicle still: the heave force that cancels its net
     /// buoyancy (what a hybrid anchored at rest is anchored at).
     pub fn rest_input(&self) -> crate::types::Input {

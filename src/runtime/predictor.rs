@@ -61,6 +61,9 @@ pub struct Predictor<T: Real = f32> {
     pub(crate) rest: Option<(f64, NetOut)>,
     /// The input at rest (the heave force that holds the vehicle still).
     pub(crate) rest_input: Input,
+    /// A hybrid whose correction is zero ([`PincModel::correction_is_zero`]): its physics
+    /// everywhere, the training envelope no bound on where it may be used.
+    pub(crate) physics_only: bool,
     /// Set where the CPU has AVX2 + FMA and the portable kernels were not asked for.
     pub(crate) cpu: Option<Avx2Fma>,
 }
@@ -104,6 +107,7 @@ impl<T: Real> Predictor<T> {
             physics: model.hybrid_vehicle(),
             rest: None,
             rest_input: model.rest_input(),
+            physics_only: model.correction_is_zero(),
             cpu: Avx2Fma::detect(),
         };
         if model.hybrid.is_some_and(|h| h.rest_anchored) {
@@ -163,6 +167,11 @@ impl<T: Real> Predictor<T> {
     /// Whether this is a hybrid model (the vehicle's step plus the network's correction).
     pub fn is_hybrid(&self) -> bool {
         self.physics.is_some()
+    }
+
+    /// Whether this is a hybrid whose correction is zero: its physics alone.
+    pub fn is_physics_only(&self) -> bool {
+        self.physics_only
     }
 
     /// A hybrid model's physics: its vehicle and RK4 sub-steps over the model's period.

@@ -87,6 +87,25 @@ fn a_stock_recording_fits_the_same_model_twice_and_says_what_it_determined() {
     assert!(model.hybrid.unwrap().rest_anchored);
     // The vehicle file stands alone: it loads with its thrusters from anywhere.
     pinc::vehicle::Thrusters::load(a.join("vehicle.toml")).unwrap();
+    // The depth rolled out open loop from the recorded thrust against the readings (not the
+    // estimate): judged, within, and in the Markdown beside the held-out table.
+    let depth = &report["open_loop_depth"]["identified"];
+    assert_eq!((depth["judged"].as_bool(), depth["biased"].as_bool()), (Some(true), Some(false)), "{depth}");
+    assert!(depth["segments"].as_u64().unwrap() >= 4 && depth["gain_error"].as_f64().unwrap().abs() < 0.05, "{depth}");
+    assert!(md.contains("## Depth open loop") && md.contains("| identified | "), "{md}");
+    // Three epochs on 60 s: no correction beat the physics, so the model is its physics (the
+    // network's output zero), and the MPC is bounded by the thrusters it carries, not by the
+    // forces the excitation happened to use (a fifth of the heave's reach).
+    assert!(report["notes"].to_string().contains("the model is its physics"), "{}", report["notes"]);
+    assert!(model.correction_is_zero());
+    let campaign = pinc::closed_loop::campaign::Campaign::new(&pinc::closed_loop::campaign::Settings {
+        model: a.join("model.pinc"),
+        ..Default::default()
+    })
+    .unwrap();
+    assert_eq!(campaign.bounds, thrusters.input_bounds());
+    let envelope = model.envelope.as_ref().unwrap();
+    assert!(campaign.bounds.1[2] > 4.0 * envelope.input_max[2], "{:?} {:?}", campaign.bounds, envelope.input_max);
 }
 
 /// Cut at two thirds (a session killed), the recording is fitted from its whole chunks, and
