@@ -121,8 +121,9 @@ def main():
     options = Options()
     options.binary_location = "/usr/bin/chromium"
     # Twice, about 14 minutes after a page was opened, it sent no sticks for 10 s and the server
-    # stopped the flight; the cause is not found (the page says it is visible). Chromium's timer
-    # throttling off, as a first step: a pilot's page is in front.
+    # stopped the flight. With Chromium's timer throttling off (a pilot's page is in front) and the
+    # page reading each sticks answer (giving a request up after 1 s), the hour ran with every
+    # request answered; which of the two did it is not isolated.
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,2000",
                  "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
                  "--disable-backgrounding-occluded-windows", "--disable-features=IntensiveWakeUpThrottling"):
