@@ -18,10 +18,11 @@ pub const SEGMENT_S: f64 = 10.0;
 /// The largest depth gain error ([`OpenLoopDepth::gain_error`]) before the report calls the
 /// heave biased. Measured on the firmware's two recordings (stock, GPS): the simulator's own
 /// file -0.001 and +0.015, the fits +0.020 and +0.009; that file with its quadratic heave drag
-/// 20 % weaker +0.097 and +0.118, 20 % stronger -0.090 and -0.079 (the test below). Without
-/// the drift taken out, the file's net buoyancy (0.37 N more than the simulator's) alone gave
-/// it -0.10 and +0.57.
-pub const MAX_DEPTH_GAIN_ERROR: f64 = 0.05;
+/// 20 % weaker +0.097 and +0.118, 20 % stronger -0.090 and -0.079 (the test below); on eight
+/// fresh recordings at full pilot gain the fits -0.054 to +0.029 and the file -0.046 to +0.030
+/// (at 0.05 one good fit was refused and its watch recorded 600 s). Without the drift taken out,
+/// the file's net buoyancy (0.37 N more than the simulator's) alone gave it -0.10 and +0.57.
+pub const MAX_DEPTH_GAIN_ERROR: f64 = 0.07;
 
 /// The rollouts must move the depth at least this much (RMS over the readings, m) for the
 /// gain to be judged.
