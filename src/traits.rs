@@ -77,9 +77,10 @@ impl<T: Real> DiscreteModel for Predictor<T> {
     }
 
     /// The envelope of the states the network sees (none for a hybrid whose correction is
-    /// zero); the others are unbounded (a hybrid's physics holds everywhere, and a state the network never sees cannot take it outside
-    /// what it learnt: a fit without a position source trains on `u = v = 0`, whose zero-width
-    /// range as a bound pinned the controller's rotation).
+    /// zero); the others are unbounded (a hybrid's physics holds everywhere, and a state the
+    /// network never sees cannot take it outside what it learnt: a fit without a position
+    /// source trains on `u = v = 0`, whose zero-width range as a bound pinned the controller's
+    /// rotation).
     fn state_bounds(&self) -> Option<(State, State)> {
         if self.is_physics_only() {
             return None;
