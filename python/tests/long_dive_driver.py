@@ -25,7 +25,7 @@ from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select
 
-from serve_page_driver import INJECTED_GAMEPAD, PORT, Observer, _answers, wait
+from serve_page_driver import INJECTED_GAMEPAD, PORT, Observer, _answers, shut_down, wait
 
 # Heave and yaw sticks over each minute (s from the minute's start, the axes' values; None:
 # the heave stick half down or half up, towards DEPTH): 0.75 m of heave, a turn, 0.75 m, the
@@ -142,8 +142,15 @@ def main():
         """Starts a pilot flight from the page; returns when control runs (the clock's zero)."""
         wait("the model in the list", lambda: "dive" in [o.text for o in Select(browser.find_element(
             By.ID, "fly-model")).options], 20)
-        Select(browser.find_element(By.ID, "fly-model")).select_by_visible_text("dive")
-        Select(browser.find_element(By.ID, "fly-kind")).select_by_value("pilot")
+
+        def choose():
+            # The page rebuilds its lists when the data folder changes (the last flight's files
+            # written): an element read while it is replaced is stale, and the choice is made again.
+            Select(browser.find_element(By.ID, "fly-model")).select_by_visible_text("dive")
+            Select(browser.find_element(By.ID, "fly-kind")).select_by_value("pilot")
+            return True
+
+        wait("the model and the pilot flight chosen", choose, 10)
         e = browser.find_element(By.ID, "fly-duration")
         e.clear()
         e.send_keys(str(int(seconds)))
@@ -233,11 +240,7 @@ def main():
         finished_flight("its duration")
         result["page_navigation"] = text("job-nav")
     finally:
-        result["serve_exit"] = serve.poll()
-        browser.quit()
-        serve.terminate()
-        serve.wait(10)
-        Path(a.out).write_text(json.dumps(result, indent=1))
+        shut_down(browser, serve, result, a.out)
 
 
 if __name__ == "__main__":

@@ -360,11 +360,17 @@ def main():
         result["partial_fit"] = {"passed": _maybe(browser, "fit-passed"), "error": _maybe(browser, "job-error")}
         shot("partial_fitted")
     finally:
-        result["serve_exit"] = serve.poll()
-        browser.quit()
-        serve.terminate()
-        serve.wait(10)
-        Path(a.out).write_text(json.dumps(result, indent=1))
+        shut_down(browser, serve, result, a.out)
+
+
+def shut_down(browser, serve, result, out):
+    """The browser and the server stopped, and `result` written to `out` with the server's exit
+    code (None: it was still running, as it should be)."""
+    result["serve_exit"] = serve.poll()
+    browser.quit()
+    serve.terminate()
+    serve.wait(10)
+    Path(out).write_text(json.dumps(result, indent=1))
 
 
 def state():

@@ -45,6 +45,9 @@ pub struct Identified {
     pub(super) runs: Vec<Replay>,
     /// The replays' step (s).
     pub(super) dt: f64,
+    /// The identified vehicle's depth open loop against the readings, computed once for the
+    /// warnings and the report.
+    pub open_loop_depth: OpenLoopDepth,
     /// The dataset the final identification and the training used.
     pub dataset: Dataset,
 }
@@ -60,13 +63,13 @@ impl Identified {
             }
             None => Vec::new(),
         };
-        warnings.extend(open_loop_depth::warning(&self.open_loop_depth(&self.identification.vehicle)));
+        warnings.extend(open_loop_depth::warning(&self.open_loop_depth));
         warnings
     }
 
     /// `vehicle`'s depth rolled out open loop from the recorded thrust against the depth
     /// readings of these recordings ([`open_loop_depth::open_loop_depth`]).
-    pub fn open_loop_depth(&self, vehicle: &VehicleParams) -> OpenLoopDepth {
+    pub fn open_loop_depth_of(&self, vehicle: &VehicleParams) -> OpenLoopDepth {
         open_loop_depth::open_loop_depth(vehicle, &self.runs, self.dt, self.sensors.depth_delay)
     }
 }
@@ -137,6 +140,12 @@ impl Pipeline<'_> {
         } else {
             (runs, dataset)
         };
+        let open_loop_depth = open_loop_depth::open_loop_depth(
+            &identification.vehicle,
+            &runs,
+            self.settings.dt,
+            sensors.model.depth_delay,
+        );
         Ok(Identified {
             identification,
             sensors: sensors.model,
@@ -149,18 +158,36 @@ impl Pipeline<'_> {
             heave_gains,
             runs,
             dt: self.settings.dt,
+            open_loop_depth,
             dataset,
         })
     }
 }
 
+/// A firmware fixture (tests/fixtures/ardusub) by name.
+#[cfg(test)]
+pub(super) fn fixture(name: &str) -> std::path::PathBuf {
+    std::path::PathBuf::from(format!("{}/tests/fixtures/ardusub/{name}", env!("CARGO_MANIFEST_DIR")))
+}
+
+/// Stages 1-5 on one of the firmware's recordings, from the simulator's thrusters and a
+/// BlueROV2's hull (`sitl_vectored.toml`), as `pinc fit` runs them.
+#[cfg(test)]
+pub(super) fn identified_on_fixture(recording: &str) -> Identified {
+    use super::FitSettings;
+    use super::inputs::{Log, read_recording, starting_vehicle};
+    let rec = fixture(recording);
+    let settings = FitSettings::new(vec![rec.clone()], fixture("sitl_vectored.toml"));
+    let (base, thrusters, _) = starting_vehicle(&settings).unwrap();
+    let (content, _) = read_recording(&rec, &thrusters, settings.water_density).unwrap();
+    let log = Log { path: rec, sha256: "0".repeat(64), content, cut: None };
+    let pipeline = Pipeline { settings: &settings, base, thrusters, logs: vec![log] };
+    pipeline.identified(&mut |_| {}).unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::FitSettings;
-    use crate::fit::inputs::{Log, read_recording, starting_vehicle};
-    use crate::vehicle::VehicleParams;
-    use std::path::PathBuf;
 
     /// On the firmware's GPS recording the fit measures the position source's noise (at its
     /// floor: the autopilot's position is smooth) and identifies surge and sway near the
@@ -168,15 +195,7 @@ mod tests {
     /// the drag of a biased fit, on surge and sway only.
     #[test]
     fn a_biased_surge_and_sway_show_in_the_held_out_velocities() {
-        let dir = env!("CARGO_MANIFEST_DIR");
-        let fixture = |name: &str| PathBuf::from(format!("{dir}/tests/fixtures/ardusub/{name}"));
-        let rec = fixture("gps_designed_90s.mcap");
-        let settings = FitSettings::new(vec![rec.clone()], fixture("sitl_vectored.toml"));
-        let (base, thrusters, _) = starting_vehicle(&settings).unwrap();
-        let (content, _) = read_recording(&rec, &thrusters, settings.water_density).unwrap();
-        let log = Log { path: rec, sha256: "0".repeat(64), content, cut: None };
-        let pipeline = Pipeline { settings: &settings, base, thrusters, logs: vec![log] };
-        let found = pipeline.identified(&mut |_| {}).unwrap();
+        let found = identified_on_fixture("gps_designed_90s.mcap");
         let noise = found.horizontal_noise.unwrap();
         assert_eq!((noise.position_std, noise.velocity_std), (0.01, 0.01));
         // Quadratic drag against the simulator's 48.3 and 62.1 (measured 50.3 and 56.3 with

@@ -247,10 +247,7 @@ pub fn fit(
         model.provenance.metrics.remove(key);
     }
     model.fitted = Some(FittedVehicle { thrusters_toml, sensors: found.sensors, warnings: findings.warnings.clone() });
-    let open_loop_depth = (
-        found.open_loop_depth(&found.identification.vehicle),
-        reference.as_ref().map(|(_, p)| found.open_loop_depth(p)),
-    );
+    let open_loop_depth = (found.open_loop_depth.clone(), reference.as_ref().map(|(_, p)| found.open_loop_depth_of(p)));
     Ok(Fit {
         identified: found,
         model,

@@ -164,10 +164,7 @@ pub fn warning(check: &OpenLoopDepth) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::FitSettings;
-    use crate::fit::Pipeline;
-    use crate::fit::inputs::{Log, read_recording, starting_vehicle};
-    use std::path::PathBuf;
+    use crate::fit::identified::{fixture, identified_on_fixture};
 
     /// On the firmware's recordings (stock, and with the GPS) the simulator's own file and the
     /// fit's vehicle roll the depth out within the limit; the simulator's file with its heave
@@ -175,30 +172,17 @@ mod tests {
     /// those files +4.6 to +6.5 % and -6.4 to -6.6 %, inside their 10 %: not flagged).
     #[test]
     fn a_heave_drag_20_percent_off_is_flagged_open_loop() {
-        let dir = env!("CARGO_MANIFEST_DIR");
-        let fixture = |name: &str| PathBuf::from(format!("{dir}/tests/fixtures/ardusub/{name}"));
         let truth = VehicleParams::load(fixture("sitl_truth.toml")).unwrap();
         for rec in ["stock_designed_60s.mcap", "gps_designed_90s.mcap"] {
-            let rec = fixture(rec);
-            let settings = FitSettings::new(vec![rec.clone()], fixture("sitl_vectored.toml"));
-            let (base, thrusters, _) = starting_vehicle(&settings).unwrap();
-            let (content, _) = read_recording(&rec, &thrusters, settings.water_density).unwrap();
-            let log = Log { path: rec.clone(), sha256: "0".repeat(64), content, cut: None };
-            let pipeline = Pipeline { settings: &settings, base, thrusters, logs: vec![log] };
-            let found = pipeline.identified(&mut |_| {}).unwrap();
-            let check = |v: &VehicleParams| found.open_loop_depth(v);
-            let (fitted, own) = (check(&found.identification.vehicle), check(&truth));
+            let found = identified_on_fixture(rec);
+            let check = |v: &VehicleParams| found.open_loop_depth_of(v);
+            let (fitted, own) = (found.open_loop_depth.clone(), check(&truth));
             let weaker = check(&VehicleParams { z_ww: 0.8 * truth.z_ww, ..truth });
             let stronger = check(&VehicleParams { z_ww: 1.2 * truth.z_ww, ..truth });
             for (who, c) in [("fitted", &fitted), ("file", &own), ("z_ww x0.8", &weaker), ("z_ww x1.2", &stronger)] {
                 eprintln!(
-                    "{}: {who}: {} segments, {} readings, RMS {:.3} m, moved {:.3} m, gain error {:+.3}",
-                    rec.display(),
-                    c.segments,
-                    c.readings,
-                    c.rms_m,
-                    c.moved_m,
-                    c.gain_error
+                    "{rec}: {who}: {} segments, {} readings, RMS {:.3} m, moved {:.3} m, gain error {:+.3}",
+                    c.segments, c.readings, c.rms_m, c.moved_m, c.gain_error
                 );
             }
             assert!(fitted.judged && !fitted.biased && own.judged && !own.biased, "{fitted:?} {own:?}");
