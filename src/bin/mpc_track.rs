@@ -169,12 +169,16 @@ struct Args {
     history: f64,
     /// With --connect: fly the pilot's sticks instead of the scenario's references: one JSON
     /// object per line {"surge","sway","heave","yaw"} (each -1..1: forward, starboard, down, a
-    /// turn to starboard) from this file, `-` for stdin (docs/PILOT.md). On four axes (the
-    /// station's set-up) wherever a position is known; centred sticks hold where the vehicle
-    /// comes to rest; none for 0.5 s counts as centred. Runs --duration s [default: 3600].
-    /// With --autopilot-hold poshold or althold the sticks go to the autopilot instead.
+    /// turn to starboard) from this file, `-` for stdin (docs/PILOT.md); `mavlink:SYSID`: the
+    /// joystick of the ground station with that system id (Cockpit: 255), read from the
+    /// MANUAL_CONTROL it sends the autopilot, whose SYSID_MYGCS pinc sets to its own
+    /// --gcs-sysid for the flight (so the autopilot ignores that joystick) and back at every
+    /// stop. On four axes (the station's set-up) wherever a position is known; centred sticks
+    /// hold where the vehicle comes to rest; none for 0.5 s counts as centred. Runs --duration
+    /// s [default: 3600]. With --autopilot-hold poshold or althold the sticks go to the
+    /// autopilot instead.
     #[cfg(feature = "vehicle")]
-    #[arg(long, value_name = "FILE|-", requires = "connect",
+    #[arg(long, value_name = "FILE|-|mavlink:SYSID", requires = "connect",
           conflicts_with_all = ["reference", "path", "survey"])]
     pilot: Option<String>,
     /// What full sticks ask for: SURGE,SWAY,HEAVE (m/s),YAW (deg/s), each up to the model's

@@ -189,6 +189,7 @@ impl DriveArgs {
             js_gain_from_autopilot: self.js_gain.is_none(),
             sensor_silence: positive("--max-sensor-silence", self.max_sensor_silence)?.as_secs_f64(),
             frozen_depth: positive("--max-frozen", self.max_frozen)?.as_secs_f64(),
+            replaces_ground_station: None,
         })
     }
 

@@ -11,6 +11,7 @@ use super::link::{
     is_ground_station,
 };
 use super::outputs::{OutputFunctions, function_params};
+use super::ground_station::GroundStationPlace;
 use super::params::{Params, read_params};
 use super::safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 use super::state::{RawState, StateAssembler, message_time};
@@ -96,6 +97,8 @@ pub struct Drive {
     /// Silence (s) of depth or heading, and how long (s) a live depth reading may stay the same.
     sensor_silence: f64,
     frozen_depth: f64,
+    /// The ground station's place pinc took for the session, given back at the stop.
+    ground_station: Option<GroundStationPlace>,
 }
 
 /// How often the EKF origin is asked for while fixes come without it.
@@ -159,6 +162,10 @@ pub struct DriveSettings {
     pub sensor_silence: f64,
     /// A live depth reading unchanged this long (s) stops the session.
     pub frozen_depth: f64,
+    /// The ground station whose place pinc takes for the session (its system id): the
+    /// autopilot's `SYSID_MYGCS` is set to pinc's own id before anything is commanded, so the
+    /// autopilot takes pilot axes from pinc alone, and set back to this id at every stop.
+    pub replaces_ground_station: Option<u8>,
 }
 
 impl Default for DriveSettings {
@@ -171,6 +178,7 @@ impl Default for DriveSettings {
             js_gain_from_autopilot: false,
             sensor_silence: 0.5,
             frozen_depth: 1.0,
+            replaces_ground_station: None,
         }
     }
 }
@@ -259,6 +267,7 @@ impl Drive {
             watch: SensorWatch::default(),
             sensor_silence: settings.sensor_silence,
             frozen_depth: settings.frozen_depth,
+            ground_station: None,
         };
         // The autopilot's configuration first: nothing is sent to the thrusters unless its
         // outputs take commands the way asked.
@@ -304,6 +313,11 @@ impl Drive {
                 return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
             }
         }
+        if let Some(ground) = settings.replaces_ground_station
+            && let Err(t) = d.take_ground_station_place(ground, &mut seen)
+        {
+            return Err(d.stop_with_trigger(t));
+        }
         if let Err(e) = d.link.set_mode(SubMode::Manual) {
             return Err(d.stop_with_trigger(Trigger::Link(e.to_string())));
         }
@@ -318,6 +332,34 @@ impl Drive {
             }
         }
         Ok(d)
+    }
+
+    /// Makes pinc the autopilot's ground station in place of `ground` (whose `MANUAL_CONTROL`
+    /// the autopilot then ignores; pinc reads it as the pilot's sticks); [`Drive::stop`] gives
+    /// the place back.
+    fn take_ground_station_place(&mut self, ground: u8, seen: &mut impl FnMut(&Received, f64)) -> Result<(), Trigger> {
+        let t = self.now_t();
+        let mut heard = Vec::new();
+        let taken = GroundStationPlace::take(&mut self.link, &self.autopilot, ground, |r| heard.push(r.clone()));
+        for r in &heard {
+            if self.autopilot.sent(r) {
+                self.read(r);
+            }
+            let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
+            seen(r, t);
+        }
+        match taken {
+            Ok((place, said)) => {
+                self.announce(t, Level::Info, said);
+                self.ground_station = Some(place);
+                Ok(())
+            }
+            Err((place, trigger)) => {
+                // The stop that follows sets back what may have been set.
+                self.ground_station = place;
+                Err(trigger)
+            }
+        }
     }
 
     /// Asks the autopilot to arm until a heartbeat says armed, repeating while it refuses.
@@ -372,6 +414,15 @@ impl Drive {
 
     fn note(&mut self, t: f64, level: Level, text: String) {
         self.push_note(Note { t, level, text, from_autopilot: false });
+    }
+
+    /// A note said on stderr whatever its level (with the notes echoed): what the session
+    /// changed on the autopilot, and whether it was undone.
+    fn announce(&mut self, t: f64, level: Level, text: String) {
+        if self.echo_notes && level < Level::Warning {
+            eprintln!("{text}");
+        }
+        self.note(t, level, text);
     }
 
     fn push_note(&mut self, note: Note) {
@@ -641,14 +692,8 @@ impl Drive {
     /// The pilot's `sticks` as `MANUAL_CONTROL`'s pilot axes (the autopilot's own holds take
     /// them as a ground station's joystick): full deflection 1000, heave down below 500.
     pub fn send_sticks(&mut self, fresh: &Fresh, sticks: crate::pilot::Sticks) -> Result<Sent, Trigger> {
-        let axis = |a: f64, full: f64| (a.clamp(-1.0, 1.0) * full).round() as i16;
-        let command = Command::Manual {
-            x: axis(sticks.surge, 1000.0),
-            y: axis(sticks.sway, 1000.0),
-            z: 500 - axis(sticks.heave, 500.0),
-            r: axis(sticks.yaw, 1000.0),
-        };
-        self.send_command(fresh, command)
+        let (x, y, z, r) = sticks.to_manual_control();
+        self.send_command(fresh, Command::Manual { x, y, z, r })
     }
 
     fn send_command(&mut self, fresh: &Fresh, command: Command) -> Result<Sent, Trigger> {
@@ -697,6 +742,14 @@ impl Drive {
         let _ = self.commander.send(&self.link, &self.commander.neutral());
         if self.armed_by_us {
             let _ = self.link.arm(false);
+        }
+        if let Some(place) = self.ground_station.take() {
+            let (level, said) = match place.give_back(&mut self.link, &self.autopilot) {
+                Ok(said) => (Level::Info, said),
+                Err(said) => (Level::Error, said),
+            };
+            let t = self.now_t();
+            self.announce(t, level, said);
         }
         Stopped { trigger, t, neutral_t, disarm_sent, notes: std::mem::take(&mut self.notes) }
     }

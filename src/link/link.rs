@@ -315,6 +315,11 @@ impl VehicleLink {
         &self.address
     }
 
+    /// The system id pinc sends from.
+    pub fn system_id(&self) -> u8 {
+        self.config.gcs_system_id
+    }
+
     /// The header pinc's messages go out with.
     fn header(&self) -> MavHeader {
         MavHeader {

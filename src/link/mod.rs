@@ -10,6 +10,7 @@ pub mod cli;
 pub mod command;
 pub mod depth_band;
 pub mod drive;
+pub mod ground_station;
 #[allow(clippy::module_inception)]
 pub mod link;
 pub mod outputs;
@@ -27,7 +28,8 @@ pub use depth_band::{BandHeave, DepthBand};
 pub use drive::{Drive, DriveSettings, Fresh, Note, Sent, Stopped};
 pub use link::{Autopilot, LinkConfig, LinkError, Received, SubMode, VehicleLink};
 pub use outputs::{OutputFunctions, WayRefused};
-pub use params::{Params, read_params};
+pub use ground_station::GroundStationPlace;
+pub use params::{Params, read_params, write_param};
 pub use record::{InputsFromOutputs, RecordError, RecordStats, Recorder};
 pub use safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 pub use signing::{SigningError, SigningKey};

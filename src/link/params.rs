@@ -1,9 +1,10 @@
 //! The autopilot's parameters, read by name (`PARAM_REQUEST_READ`, answered by
 //! `PARAM_VALUE`): what pinc must know of the autopilot's configuration before it commands
-//! anything (its outputs, its pilot gain, its compass declination).
+//! anything (its outputs, its pilot gain, its compass declination); and the one it changes for a
+//! flight (`PARAM_SET`, confirmed by the `PARAM_VALUE` that answers it).
 
 use super::link::{Autopilot, LinkError, Received, VehicleLink};
-use mavlink::dialects::ardupilotmega::{MavMessage, PARAM_REQUEST_READ_DATA};
+use mavlink::dialects::ardupilotmega::{MavMessage, MavParamType, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
@@ -79,6 +80,51 @@ pub fn read_params(
         seen(&r);
     }
     Ok(params)
+}
+
+/// Sets the integer parameter `name` to `value` on the autopilot and waits until it says so: the
+/// `PARAM_SET` is sent again every half second until a `PARAM_VALUE` of `name` reports `value`
+/// or `timeout` passes. ArduPilot answers every `PARAM_SET` with the value it then holds (and
+/// keeps it across reboots). Every message received meanwhile goes to `seen`.
+///
+/// Returns the value the autopilot last reported for `name` (`None`: no answer), which is
+/// `value` when it took it.
+///
+/// # Errors
+/// The link breaks.
+pub fn write_param(
+    link: &mut VehicleLink,
+    autopilot: &Autopilot,
+    name: &str,
+    value: i32,
+    timeout: Duration,
+    mut seen: impl FnMut(&Received),
+) -> Result<Option<f64>, LinkError> {
+    let start = Instant::now();
+    let mut next_ask = start;
+    let mut reported = None;
+    while reported != Some(f64::from(value)) && start.elapsed() < timeout {
+        if Instant::now() >= next_ask {
+            link.send(&MavMessage::PARAM_SET(PARAM_SET_DATA {
+                param_value: value as f32,
+                target_system: autopilot.system_id,
+                target_component: autopilot.component_id,
+                param_id: name.into(),
+                // ArduPilot stores by its own type and converts; SYSID_MYGCS is an integer.
+                param_type: MavParamType::MAV_PARAM_TYPE_INT32,
+            }))?;
+            next_ask = Instant::now() + RETRY;
+        }
+        let Some(r) = link.recv_timeout(Duration::from_millis(20))? else { continue };
+        if let MavMessage::PARAM_VALUE(p) = &r.message
+            && r.header.system_id == u32::from(autopilot.system_id)
+            && param_name(p.param_id.as_slice()) == name
+        {
+            reported = Some(f64::from(p.param_value));
+        }
+        seen(&r);
+    }
+    Ok(reported)
 }
 
 #[cfg(test)]

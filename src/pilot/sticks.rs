@@ -106,6 +106,25 @@ impl Sticks {
         Self::new(axes)
     }
 
+    /// The reading as `MANUAL_CONTROL`'s pilot axes `(x, y, z, r)`, ArduSub's convention: `x`
+    /// forward, `y` right, `r` a turn to the right in -1000..=1000, `z` 0..=1000 with 500
+    /// neutral and above 500 up (full deflection is 1000 either way, 500 for `z`).
+    pub fn to_manual_control(&self) -> (i16, i16, i16, i16) {
+        let axis = |a: f64, full: f64| (a.clamp(-1.0, 1.0) * full).round() as i16;
+        (axis(self.surge, 1000.0), axis(self.sway, 1000.0), 500 - axis(self.heave, 500.0), axis(self.yaw, 1000.0))
+    }
+
+    /// A ground station's joystick (`MANUAL_CONTROL`'s `x, y, z, r`, as
+    /// [`Sticks::to_manual_control`] writes them) as a reading, checked. An axis at `i16::MAX`
+    /// is one the sender does not use (MAVLink's mark): centred.
+    ///
+    /// # Errors
+    /// An axis outside its range (past full deflection).
+    pub fn from_manual_control(x: i16, y: i16, z: i16, r: i16) -> Result<Self, StickError> {
+        let axis = |v: i16, centre: f64, full: f64| if v == i16::MAX { 0.0 } else { (f64::from(v) - centre) / full };
+        Self::new([axis(x, 0.0, 1000.0), axis(y, 0.0, 1000.0), -axis(z, 500.0, 500.0), axis(r, 0.0, 1000.0)])
+    }
+
     /// Whether every axis lies within `deadband` of the centre.
     pub fn centred(&self, deadband: f64) -> bool {
         self.axes().iter().all(|a| a.abs() <= deadband)
@@ -210,6 +229,29 @@ mod tests {
         assert!(matches!(Sticks::from_json("[1, 2]"), Err(StickError::Malformed(_))));
         assert!(matches!(Sticks::from_json(r#"{"surge": "1""#), Err(StickError::Malformed(_))));
         assert_eq!(Sticks::new([0.0, f64::NAN, 0.0, 0.0]), Err(StickError::NotFinite { axis: "sway" }));
+    }
+
+    #[test]
+    fn a_joystick_reads_back_as_the_sticks_it_was_sent_as() {
+        // Up on the left stick is MANUAL_CONTROL's z above 500: the sticks' heave is down +.
+        assert_eq!(Sticks::from_manual_control(0, 0, 1000, 0), Ok(Sticks { heave: -1.0, ..Sticks::CENTRED }));
+        assert_eq!(Sticks::from_manual_control(0, 0, 500, 0), Ok(Sticks::CENTRED));
+        assert_eq!(Sticks::from_manual_control(i16::MAX, -1000, i16::MAX, 250).map(|s| s.axes()), Ok([0.0, -1.0, 0.0, 0.25]));
+        for s in [
+            Sticks { surge: 0.5, sway: -0.3, heave: 0.25, yaw: -1.0 },
+            Sticks { surge: -1.0, sway: 1.0, heave: -1.0, yaw: 0.002 },
+        ] {
+            let (x, y, z, r) = s.to_manual_control();
+            let back = Sticks::from_manual_control(x, y, z, r).unwrap();
+            for (a, b) in s.axes().into_iter().zip(back.axes()) {
+                approx::assert_abs_diff_eq!(a, b, epsilon = 1e-3);
+            }
+        }
+        assert_eq!(
+            Sticks::from_manual_control(1200, 0, 500, 0).unwrap_err().to_string(),
+            "stick surge is 1.2: outside -1..1"
+        );
+        assert_eq!(Sticks::from_manual_control(0, 0, -20, 0), Err(StickError::OutOfRange { axis: "heave", value: 1.04 }));
     }
 
     #[test]

@@ -128,7 +128,8 @@ pub struct SessionOptions<'a> {
 /// Where the pilot's sticks come from and what full deflection asks for.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PilotOptions {
-    /// A file or named pipe of one JSON object per line; `-` for stdin.
+    /// A file or named pipe of one JSON object per line; `-` for stdin; `mavlink:SYSID` for
+    /// the joystick of the ground station with that system id (its `MANUAL_CONTROL`).
     pub source: String,
     /// Caps on full deflection: surge, sway, heave (m/s), yaw rate (rad/s); `None` leaves
     /// [`StickLimits::of_model`](crate::pilot::StickLimits::of_model)'s share of the model's
@@ -207,9 +208,15 @@ pub fn run<M: DiscreteModel + Clone>(
     let mut flight = flight::Flight::new(&setup, log);
     flight.say_start(o, &setup, &autopilot);
     let truths: RefCell<truth::Feed> = RefCell::new(truth::Feed::default());
+    let joystick = RefCell::new(pilot.as_mut().and_then(|p| p.joystick_tap(autopilot.system_id)));
     let seen = |r: &Received, t: f64| match &r.message {
         MavMessage::SIM_STATE(s) => truths.borrow_mut().states.push(truth::truth_of(t, s)),
         MavMessage::SIMSTATE(s) => truths.borrow_mut().positions.push(truth::position_of(t, s)),
+        MavMessage::MANUAL_CONTROL(_) => {
+            if let Some(tap) = joystick.borrow_mut().as_mut() {
+                tap.see(r);
+            }
+        }
         _ => {}
     };
     let stop = ctrl_c_flag()?;
@@ -281,7 +288,13 @@ impl<M: DiscreteModel + Clone> Setup<M> {
         let commander = drive_args.commander_of(thrusters.0, &thrusters.1)?;
         // The session arms and waits in MANUAL; the autopilot's own controller takes over when
         // control starts (GUIDED needs the position that may come only after arming).
-        let settings = drive_args.settings()?;
+        let mut settings = drive_args.settings()?;
+        // A ground station's joystick as the sticks: pinc takes that station's place as the one
+        // whose pilot axes the autopilot obeys, so exactly one source commands the thrusters.
+        settings.replaces_ground_station = match o.pilot {
+            Some(p) => pilot_feed::ground_station_of(&p.source)?,
+            None => None,
+        };
         let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
         // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
         let give_up = if wait_position.is_zero() { Duration::from_secs(30) } else { wait_position };
