@@ -188,15 +188,18 @@ COCKPIT = Path(__file__).resolve().parent / "cockpit_joystick.py"
 JOYSTICK_RELEASE_S = 14.0
 
 
-def fly_cockpit(out_dir, fitted, route):
-    """pinc flying Cockpit's joystick (`--pilot mavlink:255`, itself system 254) through the
-    router stand-in routing `route`'s way: a dive on the heave stick (2-5 s), the surge stick
-    full from 8 s to the release at 14 s."""
+MAVLINK2REST = "http://127.0.0.1:6040/v1/mavlink/vehicles/255/components/240/messages/MANUAL_CONTROL"
+
+
+def fly_cockpit(out_dir, fitted, route, source):
+    """pinc flying Cockpit's joystick (`--pilot SOURCE`, itself system 254) through the router
+    stand-in routing `route`'s way: a dive on the heave stick (2-5 s), the surge stick full from
+    8 s to the release at 14 s."""
     out_dir.mkdir()
     client = [mpc_track_binary(), "--connect", "tcp:127.0.0.1:5777", "--arm", "--sim-truth", "--json",
               "--out-dir", out_dir, "--timeout", "30", "--duration", "24", *WAIT, "--model", fitted, *pinc(0.5),
-              "--pilot", "mavlink:255", "--gcs-sysid", "254"]
-    wrapped = [sys.executable, COCKPIT, "--record", out_dir / "cockpit.json", "--route", route,
+              "--pilot", source, "--gcs-sysid", "254"]
+    wrapped = [sys.executable, COCKPIT, "--record", out_dir / "cockpit.json", "--route", route, "--rest", "6040",
                "--stick", "2,5,0,0,1,0", "--stick", f"8,{JOYSTICK_RELEASE_S},1,0,0,0", "--", *client]
     r = run_on_firmware(out_dir, GPS_CURRENT, wrapped, timeout=300)
     assert r.stdout.strip(), f"mpc_track printed no summary (exit {r.returncode}): {r.stderr[-3000:]}"
@@ -204,40 +207,36 @@ def fly_cockpit(out_dir, fitted, route):
 
 
 def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_path, fitted):
+    # On pinc's link where the router hands every message on (BlueOS's MAVLink Server), through
+    # mavlink2rest where it routes by target (mavlink-router, BlueOS 1.4's default: Cockpit's
+    # MANUAL_CONTROL for system 1 never reaches pinc's link there).
+    ways = {"link, broadcast": ("broadcast", "mavlink:255"), "mavlink2rest, by target": ("target", MAVLINK2REST)}
     with ThreadPoolExecutor(2) as pool:
-        shared, routed = pool.map(lambda route: fly_cockpit(tmp_path / route, fitted, route), ("broadcast", "target"))
-    r, s, cockpit = shared
-    assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
-    assert "MAV_GCS_SYSID = 254 (pinc; it was 255)" in r.stderr, r.stderr[-3000:]
-    assert "MAV_GCS_SYSID = 255 again" in r.stderr, r.stderr[-3000:]
-    # The autopilot's own word, asked by Cockpit: pinc's place during the flight, Cockpit's after.
-    mygcs = cockpit["mygcs"]
-    # (Every PARAM_VALUE reaches Cockpit: those answering pinc's own reads and sets too.)
-    assert [v for t, v in mygcs if t is not None and 4.0 <= t <= 20.0] == [254.0], mygcs
-    assert mygcs[-1][1] == 255.0 and mygcs[-1][0] > cockpit["ended_t"], mygcs
-    positions, states = truth_track(s)
-    # Known motions: Cockpit's z below 500 took the vehicle down, its x forward along the heading.
-    assert at(states, 6.0)[0] - at(states, 1.5)[0] >= 0.4, (at(states, 1.5), at(states, 6.0))
-    p0, p1 = at(positions, 9.5), at(positions, JOYSTICK_RELEASE_S)
-    heading = math.radians(at(states, 11.0)[1])
-    moved = [p1[0] - p0[0], p1[1] - p0[1]]
-    assert moved[0] * math.cos(heading) + moved[1] * math.sin(heading) >= 0.9 * math.hypot(*moved), (moved, heading)
-    let_go = release(positions, JOYSTICK_RELEASE_S)
-    print("Cockpit's joystick, released:", json.dumps(let_go))
-    assert abs(let_go["speed_m_s"] - 0.5) <= 0.06 and let_go["past_m"] <= 0.17, let_go
-    # Exactly one source on the thrusters: Cockpit's full forward (x 1000 at the full pilot gain)
-    # would put the four horizontal outputs 400 us off neutral whenever the autopilot took it.
-    held = [o for o in cockpit["outputs"] if 9.0 <= o[0] <= JOYSTICK_RELEASE_S]
-    full = sum(1 for o in held if min(abs(v - 1500) for v in o[1:]) >= 350)
-    print(f"outputs while the stick was held: {len(held)}, at Cockpit's full forward: {full}")
-    assert len(held) >= 150 and full == 0, (len(held), full)
-
-    # Routed by target (mavlink-router, BlueOS 1.4's default): the joystick never reaches pinc,
-    # which says so and holds; the autopilot still ignores it; the place is given back.
-    r, s, cockpit = routed
-    assert s["stopped"] is None and r.returncode == 0, r.stderr[-3000:]
-    assert "no MANUAL_CONTROL from system 255 in 3 s" in r.stderr, r.stderr[-3000:]
-    assert cockpit["mygcs"][-1][1] == 255.0, cockpit["mygcs"]
-    positions, _ = truth_track(s)
-    start, end = at(positions, 1.0), at(positions, 23.0)
-    assert math.hypot(end[0] - start[0], end[1] - start[1]) <= 0.3, (start, end)
+        runs = dict(zip(ways, pool.map(lambda w: fly_cockpit(tmp_path / w[0], fitted, *w), ways.values())))
+    for way, (r, s, cockpit) in runs.items():
+        assert s["stopped"] is None and r.returncode == 0, (way, r.stderr[-3000:])
+        assert "MAV_GCS_SYSID = 254 (pinc; it was 255)" in r.stderr, (way, r.stderr[-3000:])
+        assert "MAV_GCS_SYSID = 255 again" in r.stderr, (way, r.stderr[-3000:])
+        # The autopilot's own word, asked by Cockpit: pinc's place during the flight, Cockpit's after.
+        # (Every PARAM_VALUE reaches Cockpit: those answering pinc's own reads and sets too.)
+        mygcs = cockpit["mygcs"]
+        assert [v for t, v in mygcs if t is not None and 4.0 <= t <= 20.0] == [254.0], (way, mygcs)
+        assert mygcs[-1][1] == 255.0 and mygcs[-1][0] > cockpit["ended_t"], (way, mygcs)
+        positions, states = truth_track(s)
+        # Known motions: Cockpit's z below 500 took the vehicle down, its x forward along the heading.
+        assert at(states, 6.0)[0] - at(states, 1.5)[0] >= 0.4, (way, at(states, 1.5), at(states, 6.0))
+        p0, p1 = at(positions, 9.5), at(positions, JOYSTICK_RELEASE_S)
+        heading = math.radians(at(states, 11.0)[1])
+        moved = [p1[0] - p0[0], p1[1] - p0[1]]
+        along = moved[0] * math.cos(heading) + moved[1] * math.sin(heading)
+        assert along >= 0.9 * math.hypot(*moved), (way, moved, heading)
+        let_go = release(positions, JOYSTICK_RELEASE_S)
+        print(f"Cockpit's joystick ({way}), released: {json.dumps(let_go)}")
+        assert abs(let_go["speed_m_s"] - 0.5) <= 0.06 and let_go["past_m"] <= 0.17, (way, let_go)
+        # Exactly one source on the thrusters: Cockpit's full forward (x 1000 at the full pilot
+        # gain) puts the four horizontal outputs at 1100, 1100, 1900, 1900 (measured on this
+        # firmware) whenever the autopilot takes it.
+        held = [o for o in cockpit["outputs"] if 9.0 <= o[0] <= JOYSTICK_RELEASE_S]
+        full = sum(1 for o in held if min(abs(v - 1500) for v in o[1:]) >= 350)
+        print(f"outputs while the stick was held: {len(held)}, at Cockpit's full forward: {full}")
+        assert len(held) >= 150 and full == 0, (way, len(held), full)

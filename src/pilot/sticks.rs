@@ -39,6 +39,9 @@ pub enum StickError {
         /// What came.
         value: f64,
     },
+    /// The source of the readings failed (a joystick's address that does not answer).
+    #[error("{0}")]
+    Source(String),
     /// A reading sooner after the last than any gamepad or joystick sends them.
     #[error("stick reading {interval_ms:.1} ms after the last: more than one per {min_ms:.0} ms is refused")]
     TooFast {

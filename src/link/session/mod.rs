@@ -179,6 +179,7 @@ pub use navigation_plot::NavigationTrack;
 
 // After the macro: the stages use it.
 mod flight;
+mod joystick;
 mod navigation_plot;
 mod noise_window;
 mod pilot_feed;
@@ -292,7 +293,7 @@ impl<M: DiscreteModel + Clone> Setup<M> {
         // A ground station's joystick as the sticks: pinc takes that station's place as the one
         // whose pilot axes the autopilot obeys, so exactly one source commands the thrusters.
         settings.replaces_ground_station = match o.pilot {
-            Some(p) => pilot_feed::ground_station_of(&p.source)?,
+            Some(p) => joystick::Joystick::of(&p.source)?.map(|j| j.ground_station()),
             None => None,
         };
         let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
