@@ -6,11 +6,8 @@ right in -1000..1000, z 0..1000 with 500 centred and above 500 up), then CLIENT 
 to the router too). Each --stick FROM,TO,SURGE,SWAY,HEAVE,YAW (s after the client says "control
 starts", each axis -1..1) is held while it lasts, centred sticks between.
 
-With --rest PORT, a mavlink2rest stand-in on it: Cockpit sends through mavlink2rest, which keeps
-each sender's last message with a count (its data.rs), answering
-GET /v1/mavlink/vehicles/255/components/240/messages/MANUAL_CONTROL with
-{"message": {"type": "MANUAL_CONTROL", ...}, "status": {"time": {"counter": N, ...}}}, or None
-before the first.
+With --rest PORT, a mavlink2rest stand-in on it (mavlink2rest_stand_in.py) keeps each of
+Cockpit's messages as Cockpit sends through mavlink2rest.
 
 Cockpit's side notes, in --record (JSON): every SERVO_OUTPUT_RAW it sees (session time, outputs
 1-4), and the autopilot's ground station id (MAV_GCS_SYSID) as it answers Cockpit's PARAM_REQUEST_READ 5 s after
@@ -20,45 +17,19 @@ usage: cockpit_joystick.py --record FILE [--port P] [--route broadcast|target] [
 """
 
 import argparse
-import http.server
 import json
 import subprocess
 import sys
 import threading
 import time
 
+from mavlink2rest_stand_in import Mavlink2Rest
 from mavlink_hub import Hub
 from pymavlink import mavutil
 
 # The autopilot's ground station id (this firmware's name; older firmware calls it SYSID_MYGCS).
 PARAM = "MAV_GCS_SYSID"
 PARAM_ID = PARAM.encode()  # pymavlink sends a parameter name as bytes
-
-
-def mavlink2rest(port, kept):
-    """Serves `kept["message"]` (the last MANUAL_CONTROL, a dict) as mavlink2rest does."""
-    path = "/v1/mavlink/vehicles/255/components/240/messages/MANUAL_CONTROL"
-
-    class Answer(http.server.BaseHTTPRequestHandler):
-        def do_GET(self):
-            if self.path != path:
-                self.send_error(404)
-                return
-            with kept["lock"]:
-                body = "None" if kept["message"] is None else json.dumps(
-                    {"message": kept["message"], "status": {"time": {"counter": kept["counter"], "frequency": 25.0}}})
-            data = body.encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-        def log_message(self, *args):
-            pass
-
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Answer)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
 
 
 def main():
@@ -74,9 +45,7 @@ def main():
     segments = [[float(x) for x in s.split(",")] for s in a.stick]
 
     Hub(("127.0.0.1", 5760), a.port, a.route)
-    kept = {"message": None, "counter": 1, "lock": threading.Lock()}
-    if a.rest:
-        mavlink2rest(a.rest, kept)
+    rest = Mavlink2Rest(a.rest) if a.rest else None
     cockpit = mavutil.mavlink_connection(f"tcp:127.0.0.1:{a.port}", source_system=255, source_component=240)
     cockpit.wait_heartbeat(timeout=60)
     target = cockpit.target_system
@@ -114,10 +83,8 @@ def main():
                 axes = next((s[2:] for s in segments if s[0] <= t < s[1]), axes)
             surge, sway, heave, yaw = axes
             x, y, z, r = round(1000 * surge), round(1000 * sway), round(500 - 500 * heave), round(1000 * yaw)
-            with kept["lock"]:
-                kept["message"] = {"type": "MANUAL_CONTROL", "target": target, "x": x, "y": y, "z": z, "r": r,
-                                   "buttons": 0}
-                kept["counter"] += 1
+            if rest:
+                rest.keep(target, x, y, z, r)
             with sending:
                 cockpit.mav.manual_control_send(target, x, y, z, r, 0)
             state["sent"] += 1

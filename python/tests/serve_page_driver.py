@@ -1,13 +1,15 @@
 """Drives `pinc serve`'s page in a real browser (Debian's chromium, headless, through
 chromedriver and selenium) against ArduSub's simulator, as an owner would: the status, an
 excitation until the watch stops it, a fit, a 30 s flight, STOP during a second flight, and a
-flight on a gamepad (injected through the Gamepad API) ended by closing the page. Meant
+flight on a gamepad (injected through the Gamepad API) ended by closing the page, and one on
+Cockpit's joystick. Meant
 to run inside run_in_netns.sh's namespace (everything on its loopback):
 
 - an independent observer (pymavlink) is the firmware's first client (on 5760: it starts the
   simulation) and notes, on this machine's clock, every heartbeat's armed flag (asked at 10 Hz)
   and the thruster outputs;
 - `pinc serve` keeps its own link on 5762, its runs connect on 5763;
+- a flight on Cockpit's joystick reads it from a mavlink2rest stand-in (mavlink2rest_stand_in.py);
 - then the autopilot reboots (the server's link comes back), and the server is killed mid-excitation
   (the autopilot's failsafe takes over, the recording stays `.partial`; a new server fits it);
 - each step leaves a screenshot; the page's figures and the observer's times go to --out (JSON).
@@ -22,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+from mavlink2rest_stand_in import Mavlink2Rest
 from pymavlink import mavutil
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
@@ -139,6 +142,7 @@ def main():
     result = {"steps": []}
 
     observer = Observer()
+    rest = Mavlink2Rest(6040)
     serve_log = open(Path(a.out).with_suffix(".serve.log"), "w")
 
     def start_serve():
@@ -316,6 +320,36 @@ def main():
         pilot["state"] = job_done(15)
         pilot["log_tail"] = [line for line in text("job-log").splitlines() if "sticks" in line][-6:]
         result["pilot"] = pilot
+
+        # 6c. A flight on Cockpit's joystick, read where BlueOS keeps it (a mavlink2rest stand-in
+        # on 6040, pinc serve's default --joystick): the heave stick held down takes the vehicle
+        # down; pinc takes Cockpit's place as the autopilot's ground station and gives it back.
+        joystick = {"z": 500}
+        stop_joystick = threading.Event()
+
+        def cockpit():
+            while not stop_joystick.is_set():
+                rest.keep(1, 0, 0, joystick["z"], 0)
+                time.sleep(0.04)
+
+        threading.Thread(target=cockpit, daemon=True).start()
+        Select(browser.find_element(By.ID, "fly-kind")).select_by_value("joystick")
+        field("fly-pw", 0.3)
+        field("fly-duration", 20)
+        click("fly-start")
+        wait("armed, and control running on the joystick", lambda: observer.armed()
+             and text("job-kind") == "fly" and len(state()["job"]["samples"]) >= 25
+             or (text("job-state") == "failed" and (_ for _ in ()).throw(AssertionError(text("job-log")))), 90)
+        cockpit_flight = {"start": last_sample()}
+        joystick["z"] = 250  # half the heave stick down: 0.15 m/s
+        time.sleep(5.0)
+        cockpit_flight["held_5_s"] = last_sample()
+        joystick["z"] = 500
+        shot("cockpit_joystick")
+        cockpit_flight["state"] = job_done(40)
+        cockpit_flight["log_tail"] = [line for line in text("job-log").splitlines() if "MAV_GCS_SYSID" in line]
+        stop_joystick.set()
+        result["cockpit_joystick"] = cockpit_flight
 
         # 7. The autopilot reboots: the server's link comes back by itself.
         links = state()["vehicle"]["links_opened"]

@@ -132,6 +132,18 @@ def test_the_gamepad_moves_the_vehicle_centred_and_unplugged_holds_and_a_closed_
     assert p["state"] == "stopped" and any("no sticks from the page for 10 s" in line for line in p["log_tail"]), p
 
 
+def test_cockpits_joystick_flies_from_the_page_and_the_ground_station_place_is_given_back(clicked):
+    _, result = clicked
+    c = result["cockpit_joystick"]
+    print(json.dumps(c, indent=1))
+    # Half the heave stick (0.15 m/s) for 5 s: down by more than 0.4 m.
+    assert c["held_5_s"]["depth_m"] - c["start"]["depth_m"] >= 0.4, c
+    assert c["state"] == "finished", c
+    taken, given = [line for line in c["log_tail"] if "(pinc; it was 255)" in line], \
+        [line for line in c["log_tail"] if "MAV_GCS_SYSID = 255 again" in line]
+    assert taken and given, c
+
+
 def test_the_link_comes_back_after_the_autopilot_reboots(clicked):
     _, result = clicked
     assert result["reboot"]["links_opened"] >= 2 and result["reboot"]["page"].startswith("connected"), result["reboot"]

@@ -19,6 +19,9 @@ mod vehicle_watch;
 use crate::link::cli::LinkArgs;
 use std::path::PathBuf;
 
+/// Cockpit's MANUAL_CONTROL (system 255, component 240) as BlueOS's mavlink2rest keeps it.
+const DEFAULT_JOYSTICK: &str = "http://127.0.0.1:6040/v1/mavlink/vehicles/255/components/240/messages/MANUAL_CONTROL";
+
 /// Arguments of `pinc serve`.
 #[derive(clap::Args)]
 pub struct ServeArgs {
@@ -61,6 +64,16 @@ pub struct ServeArgs {
     /// the memory flat; the flight's log holds all of it).
     #[arg(long, value_name = "S", default_value_t = crate::link::session::DEFAULT_HISTORY_S)]
     history: f64,
+    /// Where a flight on the pilot's joystick in Cockpit reads it (mpc_track's --pilot):
+    /// mavlink2rest's copy of Cockpit's MANUAL_CONTROL (BlueOS's, as Cockpit sends through it),
+    /// or `mavlink:255` where the router hands Cockpit's messages to pinc's link (BlueOS's
+    /// MAVLink Server does, mavlink-router does not).
+    #[arg(long, value_name = "URL|mavlink:SYSID", default_value = DEFAULT_JOYSTICK)]
+    joystick: String,
+    /// The system id a flight on Cockpit's joystick sends as: the autopilot's ground station
+    /// in Cockpit's place for the flight (docs/PILOT.md).
+    #[arg(long, value_name = "SYSID", default_value_t = 254)]
+    joystick_flight_sysid: u8,
     /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
     /// --run-arg=1`, or the estimator's sensor noise).
     #[arg(long = "run-arg", value_name = "ARG", allow_hyphen_values = true)]
@@ -113,6 +126,8 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         vehicle: a.vehicle.clone(),
         flight_connect: a.flight_connect.clone().unwrap_or_else(|| a.link.connect.clone()),
         run_args: a.run_args.clone(),
+        joystick: a.joystick.clone(),
+        joystick_flight_sysid: a.joystick_flight_sysid,
         pinc: here,
         mpc_track,
         storage: Default::default(),

@@ -112,6 +112,11 @@ pub enum References {
         #[serde(default)]
         speeds: Option<[f64; 4]>,
     },
+    /// The pilot's joystick in Cockpit (`pinc serve --joystick`): the same speeds as the gamepad's.
+    Joystick {
+        #[serde(default)]
+        speeds: Option<[f64; 4]>,
+    },
 }
 
 fn finite(field: &str, v: f64) -> Result<f64, String> {
@@ -190,12 +195,12 @@ impl FlyOrder {
                 }
             }
             References::Station => {}
-            References::Pilot { speeds: Some(speeds) } => {
+            References::Pilot { speeds: Some(speeds) } | References::Joystick { speeds: Some(speeds) } => {
                 for (field, v) in ["surge", "sway", "heave", "yaw"].into_iter().zip(speeds) {
                     positive(&format!("speeds {field}"), *v)?;
                 }
             }
-            References::Pilot { speeds: None } => {}
+            References::Pilot { speeds: None } | References::Joystick { speeds: None } => {}
             References::Survey { width, length, spacing, speed, depth: d } => {
                 for (field, v) in [("width", width), ("length", length), ("spacing", spacing), ("speed", speed)] {
                     positive(field, *v)?;

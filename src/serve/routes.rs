@@ -30,6 +30,9 @@ pub struct App {
     pub vehicle: Option<PathBuf>,
     pub flight_connect: String,
     pub run_args: Vec<String>,
+    /// Where a flight on Cockpit's joystick reads it, and the system id that flight sends as.
+    pub joystick: String,
+    pub joystick_flight_sysid: u8,
     /// A flight's figures keep its last this many seconds (`--history`).
     pub history_s: f64,
     /// The last flight the page ordered (what "resume" flies again), and the job id of a hold
@@ -433,8 +436,14 @@ impl App {
             References::Survey { width, length, spacing, speed, depth } => {
                 args.push(format!("--survey={width},{length},{spacing},{speed},{depth}"));
             }
-            References::Pilot { speeds } => {
-                args.extend(["--pilot".into(), "-".into()]);
+            References::Pilot { speeds } | References::Joystick { speeds } => {
+                if let References::Joystick { .. } = order.references {
+                    // pinc takes Cockpit's place as the autopilot's ground station for the flight.
+                    args.extend(["--pilot".into(), self.joystick.clone()]);
+                    args.extend(["--gcs-sysid".into(), self.joystick_flight_sysid.to_string()]);
+                } else {
+                    args.extend(["--pilot".into(), "-".into()]);
+                }
                 if let Some([u, v, w, r]) = speeds {
                     args.push(format!("--pilot-speeds={u},{v},{w},{r}"));
                 }
