@@ -6,12 +6,12 @@
 
 use super::autopilot_estimate::EkfStatus;
 use super::command::{Command, CommandWay, Commander};
+use super::ground_station::GroundStationPlace;
 use super::link::{
     Autopilot, EKF_STATUS_REPORT_ID, GPS_RAW_INT_ID, LinkError, Received, SYS_STATUS_ID, SubMode, VehicleLink,
     is_ground_station,
 };
 use super::outputs::{OutputFunctions, function_params};
-use super::ground_station::GroundStationPlace;
 use super::params::{Params, read_params};
 use super::safety::{Safety, SafetyLimits, SensorWatch, Trigger};
 use super::state::{RawState, StateAssembler, message_time};

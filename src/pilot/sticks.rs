@@ -239,7 +239,10 @@ mod tests {
         // Up on the left stick is MANUAL_CONTROL's z above 500: the sticks' heave is down +.
         assert_eq!(Sticks::from_manual_control(0, 0, 1000, 0), Ok(Sticks { heave: -1.0, ..Sticks::CENTRED }));
         assert_eq!(Sticks::from_manual_control(0, 0, 500, 0), Ok(Sticks::CENTRED));
-        assert_eq!(Sticks::from_manual_control(i16::MAX, -1000, i16::MAX, 250).map(|s| s.axes()), Ok([0.0, -1.0, 0.0, 0.25]));
+        assert_eq!(
+            Sticks::from_manual_control(i16::MAX, -1000, i16::MAX, 250).map(|s| s.axes()),
+            Ok([0.0, -1.0, 0.0, 0.25])
+        );
         for s in [
             Sticks { surge: 0.5, sway: -0.3, heave: 0.25, yaw: -1.0 },
             Sticks { surge: -1.0, sway: 1.0, heave: -1.0, yaw: 0.002 },
@@ -254,7 +257,10 @@ mod tests {
             Sticks::from_manual_control(1200, 0, 500, 0).unwrap_err().to_string(),
             "stick surge is 1.2: outside -1..1"
         );
-        assert_eq!(Sticks::from_manual_control(0, 0, -20, 0), Err(StickError::OutOfRange { axis: "heave", value: 1.04 }));
+        assert_eq!(
+            Sticks::from_manual_control(0, 0, -20, 0),
+            Err(StickError::OutOfRange { axis: "heave", value: 1.04 })
+        );
     }
 
     #[test]

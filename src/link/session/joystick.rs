@@ -143,14 +143,17 @@ impl Drop for Poller {
     }
 }
 
-/// What one answer of mavlink2rest holds: the message's count and its sticks (`None`: no such
-/// message yet, mavlink2rest's `None`).
-fn reading_of(body: &str) -> Result<Option<(i64, Result<Sticks, StickError>)>, String> {
+/// One message as mavlink2rest keeps it: how many of its kind came, and its sticks, checked.
+type Counted = (i64, Result<Sticks, StickError>);
+
+/// What one answer of mavlink2rest holds (`None`: no such message yet, mavlink2rest's `None`).
+fn reading_of(body: &str) -> Result<Option<Counted>, String> {
     if body.trim() == "None" {
         return Ok(None);
     }
     let v: serde_json::Value = serde_json::from_str(body).map_err(|e| format!("not JSON: {e}"))?;
-    let count = v.pointer("/status/time/counter").and_then(serde_json::Value::as_i64).ok_or("no status.time.counter")?;
+    let count =
+        v.pointer("/status/time/counter").and_then(serde_json::Value::as_i64).ok_or("no status.time.counter")?;
     let m = v.get("message").ok_or("no message")?;
     if m.get("type").and_then(serde_json::Value::as_str) != Some("MANUAL_CONTROL") {
         return Err(format!("not a MANUAL_CONTROL: {}", m.get("type").unwrap_or(&serde_json::Value::Null)));
@@ -168,11 +171,8 @@ fn reading_of(body: &str) -> Result<Option<(i64, Result<Sticks, StickError>)>, S
 /// What goes wrong is passed on once as a refused reading (the assist holds), until an answer
 /// is good again.
 fn poll(url: &str, readings: &Sender<Arrived>, stop: &AtomicBool) {
-    let agent: ureq::Agent = ureq::Agent::config_builder()
-        .timeout_global(Some(ANSWER_TIMEOUT))
-        .http_status_as_error(false)
-        .build()
-        .into();
+    let agent: ureq::Agent =
+        ureq::Agent::config_builder().timeout_global(Some(ANSWER_TIMEOUT)).http_status_as_error(false).build().into();
     let (mut last_count, mut failing) = (None, false);
     let mut next = Instant::now();
     while !stop.load(Ordering::Relaxed) {

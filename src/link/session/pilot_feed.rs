@@ -75,7 +75,16 @@ impl PilotFeed {
                 }
             })
             .map_err(|e| format!("cannot start the sticks' reader: {e}"))?;
-        Ok(Self { assist, readings, ended: false, joystick: None, _poller: None, ground: None, first_t: None, heard: false })
+        Ok(Self {
+            assist,
+            readings,
+            ended: false,
+            joystick: None,
+            _poller: None,
+            ground: None,
+            first_t: None,
+            heard: false,
+        })
     }
 
     /// The way in for a ground station's joystick's messages to the autopilot `autopilot` on
