@@ -6,7 +6,8 @@
 //! the MPC tracks the speed over the ground whatever the current. Stopping (the stick let go):
 //! the reference is where the vehicle was a moment ago at its present speed, every cycle, so
 //! the MPC brakes hard and never plans to come back further than that. Holding: once the
-//! vehicle no longer moves the way it went, the reference stays where it came to rest.
+//! vehicle no longer moves the way it went, the reference stays at the farthest point it
+//! reached.
 
 use super::sticks::{StickError, StickLimits, Sticks};
 use crate::mpc::{Horizontal, Reference};
@@ -60,11 +61,13 @@ struct Axis<const N: usize> {
     way: [f64; N],
     /// When the stick was let go (s).
     released: f64,
+    /// While stopping, the farthest point reached the way it went: where it is held.
+    farthest: [f64; N],
 }
 
 impl<const N: usize> Axis<N> {
     fn holding(here: [f64; N]) -> Self {
-        Self { phase: Phase::Holding, hold: here, way: [0.0; N], released: f64::NEG_INFINITY }
+        Self { phase: Phase::Holding, hold: here, way: [0.0; N], released: f64::NEG_INFINITY, farthest: here }
     }
 
     /// The unit vector of the way the axis went.
@@ -88,13 +91,20 @@ impl<const N: usize> Axis<N> {
                 (self.phase, self.way, self.hold) = (Phase::Moving, c, here);
             }
             (Phase::Moving, None) => {
-                (self.phase, self.released, self.hold) = (Phase::Stopping, t, here);
+                (self.phase, self.released, self.hold, self.farthest) = (Phase::Stopping, t, here, here);
             }
             (Phase::Stopping, None) => {
                 let d = self.direction();
+                let ahead = |p: &[f64; N]| d.iter().zip(p).map(|(d, p)| d * p).sum::<f64>();
+                if ahead(&here) > ahead(&self.farthest) {
+                    self.farthest = here;
+                }
                 let along: f64 = d.iter().zip(velocity).map(|(d, v)| d * v).sum();
                 if along <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
-                    (self.phase, self.hold) = (Phase::Holding, here);
+                    // At rest where it went farthest: the speed is seen over a window, so the
+                    // vehicle may already have eased back from there; held there, it does not
+                    // come back.
+                    (self.phase, self.hold) = (Phase::Holding, self.farthest);
                 } else {
                     // Where the vehicle would have been `lead` ago at this speed: the MPC brakes
                     // harder than for where it is, and the hold is taken at rest.
