@@ -163,8 +163,9 @@ pub struct DriveSettings {
     /// A live depth reading unchanged this long (s) stops the session.
     pub frozen_depth: f64,
     /// The ground station whose place pinc takes for the session (its system id): the
-    /// autopilot's `SYSID_MYGCS` is set to pinc's own id before anything is commanded, so the
-    /// autopilot takes pilot axes from pinc alone, and set back to this id at every stop.
+    /// autopilot's ground-station id (`MAV_GCS_SYSID`, `SYSID_MYGCS` on older firmware) is set
+    /// to pinc's own before anything is commanded, so the autopilot takes pilot axes from pinc
+    /// alone, and set back at every stop ([`GroundStationPlace`]).
     pub replaces_ground_station: Option<u8>,
 }
 

@@ -128,8 +128,9 @@ pub struct SessionOptions<'a> {
 /// Where the pilot's sticks come from and what full deflection asks for.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PilotOptions {
-    /// A file or named pipe of one JSON object per line; `-` for stdin; `mavlink:SYSID` for
-    /// the joystick of the ground station with that system id (its `MANUAL_CONTROL`).
+    /// A file or named pipe of one JSON object per line; `-` for stdin; a ground station's
+    /// joystick, `mavlink:SYSID` or a mavlink2rest address (its `MANUAL_CONTROL`, as
+    /// `session::joystick` reads it).
     pub source: String,
     /// Caps on full deflection: surge, sway, heave (m/s), yaw rate (rad/s); `None` leaves
     /// [`StickLimits::of_model`](crate::pilot::StickLimits::of_model)'s share of the model's

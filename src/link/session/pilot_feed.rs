@@ -133,3 +133,24 @@ impl PilotFeed {
         said
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pilot::StickLimits;
+
+    #[test]
+    fn a_joystick_never_heard_is_said_once_and_the_vehicle_holds() {
+        let limits = StickLimits { surge: 0.5, sway: 0.3, heave: 0.3, yaw_rate: 0.3 };
+        let mut feed = PilotFeed::open("mavlink:255", PilotAssist::new(limits, (0.0, 10.0))).unwrap();
+        // The session keeps the tap for its whole life.
+        let _tap = feed.joystick_tap(1).unwrap();
+        assert!(feed.take_readings(10.0).is_empty());
+        assert!(feed.take_readings(12.9).is_empty());
+        let said = feed.take_readings(13.0);
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(said[0].starts_with("no MANUAL_CONTROL from system 255 in 3 s"), "{said:?}");
+        assert!(feed.take_readings(20.0).is_empty());
+        assert_eq!(feed.assist.commanded(20.0), Sticks::CENTRED);
+    }
+}
