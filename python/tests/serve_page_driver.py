@@ -29,7 +29,7 @@ from pymavlink import mavutil
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
-from selenium.common.exceptions import StaleElementReferenceException
+from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select
 
@@ -117,10 +117,11 @@ def wait(what, ok, timeout, every=0.2):
     until = time.monotonic() + timeout
     while time.monotonic() < until:
         # The page rebuilds its lists as the server's state arrives: an element read while it is
-        # replaced is stale, which is "not yet", not a failure.
+        # replaced is stale, which is "not yet", not a failure; so is one not there yet, on a page
+        # still loading (a reload under load: an hour's dive stopped on it at 18 minutes).
         try:
             v = ok()
-        except StaleElementReferenceException:
+        except (StaleElementReferenceException, NoSuchElementException):
             v = None
         if v:
             return v
