@@ -200,7 +200,8 @@ fn poll(url: &str, readings: &Sender<Arrived>, stop: &AtomicBool) {
         if !sent {
             return;
         }
-        next += POLL;
+        // A slow answer is not made up for with a burst of requests.
+        next = (next + POLL).max(Instant::now());
         std::thread::sleep(next.saturating_duration_since(Instant::now()));
     }
 }
