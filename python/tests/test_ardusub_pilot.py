@@ -244,3 +244,20 @@ def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_p
         full = sum(1 for o in held if min(abs(v - 1500) for v in o[1:]) >= 350)
         print(f"outputs while the stick was held: {len(held)}, at Cockpit's full forward: {full}")
         assert len(held) >= 150 and full == 0, (way, len(held), full)
+
+
+LEFT = Path(__file__).resolve().parent / "ground_station_left.py"
+
+
+def test_a_place_left_by_a_killed_joystick_flight_is_given_back_by_the_server(tmp_path):
+    from test_ardusub_live import OWNER_VEHICLE
+    from test_vehicle_link import pinc_binary
+    parm = tmp_path / "left.parm"
+    parm.write_text("MAV_GCS_SYSID 254\n")
+    r = run_on_firmware(tmp_path, [parm], [sys.executable, LEFT, pinc_binary(), OWNER_VEHICLE, tmp_path / "data"],
+                        timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    print(json.dumps(out))
+    assert out["before"] == 254.0 and out["after"] == 255.0, out
+    assert "a flight on the joystick left MAV_GCS_SYSID = 254" in out["serve"], out

@@ -126,6 +126,32 @@ impl GroundStationPlace {
     }
 }
 
+/// Gives the place back where a flight on a joystick left it, killed before its stop (with
+/// its server, or the autopilot rebooting under it): the autopilot's ground station is still
+/// `left` (the flight's id), and goes back to `ground`. `None`: nothing left (or no answer).
+/// Every message received meanwhile goes to `seen`; `still_free` is asked just before the
+/// write (a flight started meanwhile keeps its place).
+pub fn give_back_left_place(
+    link: &mut VehicleLink,
+    autopilot: &Autopilot,
+    left: u8,
+    ground: u8,
+    mut seen: impl FnMut(&Received),
+    still_free: impl Fn() -> bool,
+) -> Option<Result<String, String>> {
+    let names: Vec<String> = NAMES.iter().map(|n| n.to_string()).collect();
+    let params = match read_params(link, autopilot, &names, TIMEOUT, &mut seen) {
+        Ok(p) => p,
+        Err(e) => return Some(Err(e.to_string())),
+    };
+    let (name, found) = NAMES.iter().find_map(|n| params.get(n).map(|v| (*n, v)))?;
+    if found != f64::from(left) || !still_free() {
+        return None;
+    }
+    let place = GroundStationPlace { name, restore: ground };
+    Some(place.give_back(link, autopilot).map(|said| format!("a flight on the joystick left {name} = {left}: {said}")))
+}
+
 fn link_lost(place: Option<GroundStationPlace>, e: LinkError) -> (Option<GroundStationPlace>, Trigger) {
     (place, Trigger::Link(e.to_string()))
 }

@@ -3,6 +3,7 @@
 //! whatever a flight's own process does, so that the vehicle stops even if that process hangs).
 
 use crate::link::cli::{LinkOptions, open};
+use crate::link::ground_station::give_back_left_place;
 use crate::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
 use crate::link::{Autopilot, EkfStatus, SubMode};
 use mavlink::dialects::ardupilotmega::MavMessage;
@@ -88,6 +89,32 @@ impl VehicleView {
     }
 }
 
+/// The autopilot's ground-station place a flight on Cockpit's joystick takes: where one was
+/// killed before its stop (with the server, or the autopilot rebooting under it), the place
+/// is still the flight's, and Cockpit's joystick ignored, until given back.
+#[derive(Clone)]
+pub struct LeftPlace {
+    /// The flight's system id, and the ground station's.
+    pub flight: u8,
+    pub ground: u8,
+    /// A flight running keeps its place.
+    pub jobs: super::jobs::Jobs,
+}
+
+impl LeftPlace {
+    fn give_back(&self, link: &mut crate::link::VehicleLink, autopilot: &Autopilot) {
+        if self.jobs.running() {
+            return;
+        }
+        let free = || !self.jobs.running();
+        match give_back_left_place(link, autopilot, self.flight, self.ground, |_| {}, free) {
+            Some(Ok(said)) => eprintln!("serve: {said}"),
+            Some(Err(why)) => eprintln!("serve: {why}"),
+            None => {}
+        }
+    }
+}
+
 /// The watcher's shared parts: the view and STOP's request.
 #[derive(Clone, Default)]
 pub struct Watcher {
@@ -103,13 +130,19 @@ impl Watcher {
     }
 
     /// Keeps a link to `connect` open for ever (a thread): a new one after any error or
-    /// silence, a second apart.
-    pub fn start(&self, connect: String, options: LinkOptions) {
+    /// silence, a second apart. Each new link first gives back the ground station's place a
+    /// flight on the joystick left (`left`), while no flight runs.
+    pub fn start(&self, connect: String, options: LinkOptions, left: Option<LeftPlace>) {
         let me = self.clone();
         std::thread::spawn(move || {
             loop {
                 let reason = match open(&connect, &options, |_| {}) {
-                    Ok((link, autopilot, assembler)) => me.watch(link, &autopilot, assembler),
+                    Ok((mut link, autopilot, assembler)) => {
+                        if let Some(l) = &left {
+                            l.give_back(&mut link, &autopilot);
+                        }
+                        me.watch(link, &autopilot, assembler)
+                    }
                     Err(e) => e,
                 };
                 {

@@ -101,6 +101,14 @@ impl Joystick {
     }
 }
 
+/// The ground station whose joystick `source` (as `--pilot` takes it) names, if it names one.
+///
+/// # Errors
+/// As [`Joystick::of`].
+pub fn ground_station_of(source: &str) -> Result<Option<u8>, String> {
+    Ok(Joystick::of(source)?.map(|j| j.ground_station()))
+}
+
 /// Where the session passes a ground station's `MANUAL_CONTROL` on its link to the assist.
 pub(super) struct JoystickTap {
     /// The ground station's system id, and the autopilot's its messages are for.

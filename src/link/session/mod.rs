@@ -176,6 +176,7 @@ macro_rules! each {
 }
 
 pub use flight::DEFAULT_HISTORY_S;
+pub use joystick::ground_station_of;
 pub use navigation_plot::NavigationTrack;
 
 // After the macro: the stages use it.
@@ -294,7 +295,7 @@ impl<M: DiscreteModel + Clone> Setup<M> {
         // A ground station's joystick as the sticks: pinc takes that station's place as the one
         // whose pilot axes the autopilot obeys, so exactly one source commands the thrusters.
         settings.replaces_ground_station = match o.pilot {
-            Some(p) => joystick::Joystick::of(&p.source)?.map(|j| j.ground_station()),
+            Some(p) => ground_station_of(&p.source)?,
             None => None,
         };
         let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
