@@ -110,7 +110,7 @@ pub fn write_param(
                 target_system: autopilot.system_id,
                 target_component: autopilot.component_id,
                 param_id: name.into(),
-                // ArduPilot stores by its own type and converts; SYSID_MYGCS is an integer.
+                // ArduPilot stores by its own type and converts; the ids set here are integers.
                 param_type: MavParamType::MAV_PARAM_TYPE_INT32,
             }))?;
             next_ask = Instant::now() + RETRY;
