@@ -101,10 +101,12 @@ impl Joystick {
     }
 }
 
-/// The ground station whose joystick `source` (as `--pilot` takes it) names, if it names one.
+/// The ground station whose joystick `source` (as `--pilot` takes it) names, if it names one:
+/// `mavlink:SYSID`, or a mavlink2rest address of one sender's `MANUAL_CONTROL`.
 ///
 /// # Errors
-/// As [`Joystick::of`].
+/// `mavlink:` not followed by a system id 1..=255; an `http://` address that is not such an
+/// address.
 pub fn ground_station_of(source: &str) -> Result<Option<u8>, String> {
     Ok(Joystick::of(source)?.map(|j| j.ground_station()))
 }
