@@ -157,9 +157,10 @@ def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(fligh
         if case != "sway 0.3":
             assert pinc["past_m"] <= target, (case, pinc)
     # Back from the farthest point, held there since this round: 0.021 m at 0.5 m/s, 0.011 m at
-    # 0.9 m/s (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s).
-    assert f["pinc, surge 0.5"]["release"]["back_m"] <= 0.03, f["pinc, surge 0.5"]
-    assert f["pinc, surge 0.9"]["release"]["back_m"] <= 0.03, f["pinc, surge 0.9"]
+    # 0.9 m/s (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s); the bound
+    # leaves room for the GPS hold's own wander (some 5 cm RMS).
+    assert f["pinc, surge 0.5"]["release"]["back_m"] <= 0.035, f["pinc, surge 0.5"]
+    assert f["pinc, surge 0.9"]["release"]["back_m"] <= 0.035, f["pinc, surge 0.9"]
     for who in flights:
         if who.startswith("pinc"):
             # The turn (15 deg/s) and the dive (0.25 m/s) let go: back 0.43-0.73 deg and
@@ -236,7 +237,7 @@ def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_p
         let_go = release(positions, JOYSTICK_RELEASE_S)
         print(f"Cockpit's joystick ({way}), released: {json.dumps(let_go)}")
         assert abs(let_go["speed_m_s"] - 0.5) <= 0.06 and let_go["past_m"] <= 0.17, (way, let_go)
-        assert let_go["back_m"] <= 0.03, (way, let_go)
+        assert let_go["back_m"] <= 0.035, (way, let_go)
         # Exactly one source on the thrusters: Cockpit's full forward (x 1000 at the full pilot
         # gain) puts the four horizontal outputs at 1100, 1100, 1900, 1900 (measured on this
         # firmware) whenever the autopilot takes it.
