@@ -343,11 +343,7 @@ impl Drive {
         let mut heard = Vec::new();
         let taken = GroundStationPlace::take(&mut self.link, &self.autopilot, ground, |r| heard.push(r.clone()));
         for r in &heard {
-            if self.autopilot.sent(r) {
-                self.read(r);
-            }
-            let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
-            seen(r, t);
+            self.pass_on(r, seen);
         }
         match taken {
             Ok((place, said)) => {
@@ -761,16 +757,20 @@ impl Drive {
         let until = Instant::now() + duration;
         while Instant::now() < until {
             match self.link.recv_timeout(POLL) {
-                Ok(Some(r)) => {
-                    if self.autopilot.sent(&r) {
-                        self.read(&r);
-                    }
-                    let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
-                    seen(&r, t);
-                }
+                Ok(Some(r)) => self.pass_on(&r, &mut seen),
                 Ok(None) => {}
                 Err(_) => break,
             }
         }
+    }
+
+    /// A message received outside the cycle's poll: the autopilot's read into the state, and
+    /// every one to `seen` with its autopilot time.
+    fn pass_on(&mut self, r: &Received, seen: &mut impl FnMut(&Received, f64)) {
+        if self.autopilot.sent(r) {
+            self.read(r);
+        }
+        let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
+        seen(r, t);
     }
 }

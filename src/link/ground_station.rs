@@ -7,7 +7,7 @@
 //! link, and gives the place back at the stop.
 
 use super::link::{Autopilot, LinkError, Received, VehicleLink};
-use super::params::{read_params, write_param};
+use super::params::{Params, read_params, write_param};
 use super::safety::Trigger;
 use std::time::Duration;
 
@@ -52,10 +52,8 @@ impl GroundStationPlace {
                 "the pilot's ground station and pinc both send as system {own}: give pinc another --gcs-sysid"
             )));
         }
-        let mut names: Vec<String> = NAMES.iter().map(|n| n.to_string()).collect();
-        names.extend([RANGE_TOP.to_string(), OPTIONS.to_string()]);
-        let params = read_params(link, autopilot, &names, TIMEOUT, &mut seen).map_err(|e| link_lost(None, e))?;
-        let Some((name, found)) = NAMES.iter().find_map(|n| params.get(n).map(|v| (*n, v))) else {
+        let params = read(link, autopilot, &[RANGE_TOP, OPTIONS], &mut seen).map_err(|e| link_lost(None, e))?;
+        let Some((name, found)) = answered(&params) else {
             return Err(refused(format!(
                 "the autopilot answered neither {} nor {} within {:.1} s: pinc cannot take the ground station's place",
                 NAMES[0],
@@ -139,17 +137,32 @@ pub fn give_back_left_place(
     mut seen: impl FnMut(&Received),
     still_free: impl Fn() -> bool,
 ) -> Option<Result<String, String>> {
-    let names: Vec<String> = NAMES.iter().map(|n| n.to_string()).collect();
-    let params = match read_params(link, autopilot, &names, TIMEOUT, &mut seen) {
+    let params = match read(link, autopilot, &[], &mut seen) {
         Ok(p) => p,
         Err(e) => return Some(Err(e.to_string())),
     };
-    let (name, found) = NAMES.iter().find_map(|n| params.get(n).map(|v| (*n, v)))?;
+    let (name, found) = answered(&params)?;
     if found != f64::from(left) || !still_free() {
         return None;
     }
     let place = GroundStationPlace { name, restore: ground };
     Some(place.give_back(link, autopilot).map(|said| format!("a flight on the joystick left {name} = {left}: {said}")))
+}
+
+/// The ground-station parameter under both its names, and `more`.
+fn read(
+    link: &mut VehicleLink,
+    autopilot: &Autopilot,
+    more: &[&str],
+    seen: impl FnMut(&Received),
+) -> Result<Params, LinkError> {
+    let names: Vec<String> = NAMES.iter().chain(more).map(|n| n.to_string()).collect();
+    read_params(link, autopilot, &names, TIMEOUT, seen)
+}
+
+/// The name the autopilot answered to, and its value.
+fn answered(params: &Params) -> Option<(&'static str, f64)> {
+    NAMES.iter().find_map(|n| params.get(n).map(|v| (*n, v)))
 }
 
 fn link_lost(place: Option<GroundStationPlace>, e: LinkError) -> (Option<GroundStationPlace>, Trigger) {

@@ -112,12 +112,10 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
     }
     // One cycle per 0.08 s at most, the model's usual period.
     let jobs = jobs::Jobs::keeping((a.history / 0.08).ceil() as usize);
-    let left = crate::link::session::ground_station_of(&a.joystick)
+    let ground = crate::link::session::ground_station_of(&a.joystick)
         .map_err(|e| e.replace("--pilot", "--joystick"))?
-        .map(|ground| vehicle_watch::LeftPlace { flight: a.joystick_flight_sysid, ground, jobs: jobs.clone() });
-    if left.is_none() {
-        return Err(format!("--joystick {}: not a ground station's joystick (docs/PILOT.md)", a.joystick));
-    }
+        .ok_or_else(|| format!("--joystick {}: not a ground station's joystick (docs/PILOT.md)", a.joystick))?;
+    let left = vehicle_watch::LeftPlace { flight: a.joystick_flight_sysid, ground, jobs: jobs.clone() };
     let watcher = vehicle_watch::Watcher::default();
     watcher.start(a.link.connect.clone(), a.link.options.clone(), left);
     let token = data.token().map_err(|e| e.to_string())?;

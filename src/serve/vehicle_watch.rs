@@ -132,15 +132,13 @@ impl Watcher {
     /// Keeps a link to `connect` open for ever (a thread): a new one after any error or
     /// silence, a second apart. Each new link first gives back the ground station's place a
     /// flight on the joystick left (`left`), while no flight runs.
-    pub fn start(&self, connect: String, options: LinkOptions, left: Option<LeftPlace>) {
+    pub fn start(&self, connect: String, options: LinkOptions, left: LeftPlace) {
         let me = self.clone();
         std::thread::spawn(move || {
             loop {
                 let reason = match open(&connect, &options, |_| {}) {
                     Ok((mut link, autopilot, assembler)) => {
-                        if let Some(l) = &left {
-                            l.give_back(&mut link, &autopilot);
-                        }
+                        left.give_back(&mut link, &autopilot);
                         me.watch(link, &autopilot, assembler)
                     }
                     Err(e) => e,

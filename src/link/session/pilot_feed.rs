@@ -42,16 +42,7 @@ impl PilotFeed {
             let (tx, readings) = channel();
             let ground = Some(joystick.ground_station());
             let (tap, poller) = joystick.start(tx)?;
-            return Ok(Self {
-                assist,
-                readings,
-                ended: false,
-                joystick: tap,
-                _poller: poller,
-                ground,
-                first_t: None,
-                heard: false,
-            });
+            return Ok(Self::new(assist, readings, tap, poller, ground));
         }
         let input: Box<dyn BufRead + Send> = if source == "-" {
             Box::new(std::io::BufReader::new(std::io::stdin()))
@@ -75,16 +66,17 @@ impl PilotFeed {
                 }
             })
             .map_err(|e| format!("cannot start the sticks' reader: {e}"))?;
-        Ok(Self {
-            assist,
-            readings,
-            ended: false,
-            joystick: None,
-            _poller: None,
-            ground: None,
-            first_t: None,
-            heard: false,
-        })
+        Ok(Self::new(assist, readings, None, None, None))
+    }
+
+    fn new(
+        assist: PilotAssist,
+        readings: Receiver<Arrived>,
+        joystick: Option<JoystickTap>,
+        poller: Option<Poller>,
+        ground: Option<u8>,
+    ) -> Self {
+        Self { assist, readings, ended: false, joystick, _poller: poller, ground, first_t: None, heard: false }
     }
 
     /// The way in for a ground station's joystick's messages to the autopilot `autopilot` on
