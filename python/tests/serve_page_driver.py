@@ -341,6 +341,13 @@ def main():
         wait("armed, and control running on the joystick", lambda: observer.armed()
              and text("job-kind") == "fly" and len(state()["job"]["samples"]) >= 25
              or (text("job-state") == "failed" and (_ for _ in ()).throw(AssertionError(text("job-log")))), 90)
+        # Up first (half the stick, 0.15 m/s, 4 s): the dive below starts well above the 3 m
+        # limit whatever depth the gamepad's flight left the vehicle at (2.0 m once: the dive and
+        # its stop reached 3 m, a safety stop).
+        joystick["z"] = 750
+        time.sleep(4.0)
+        joystick["z"] = 500
+        time.sleep(1.0)
         cockpit_flight = {"start": last_sample()}
         joystick["z"] = 250  # half the heave stick down: 0.15 m/s
         time.sleep(5.0)

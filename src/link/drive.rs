@@ -278,15 +278,10 @@ impl Drive {
             Err(e) => return Err(d.refuse(Trigger::Link(e.to_string()))),
         }
         for r in &early {
-            if d.autopilot.sent(r) {
-                d.read(r);
-                // Its heartbeats while it answered (or left unanswered, 3 s) the parameters.
-                if let Some(trigger) = d.heard(r) {
-                    return Err(d.stop_with_trigger(trigger));
-                }
+            // Its heartbeats while it answered (or left unanswered, 3 s) the parameters.
+            if let Some(trigger) = d.pass_on(r, &mut seen) {
+                return Err(d.stop_with_trigger(trigger));
             }
-            let t = d.assembler.autopilot_time(r.at).unwrap_or(0.0);
-            seen(r, t);
         }
         let outputs = OutputFunctions::from_params(&d.params);
         if let Err(refused) = outputs.check(d.commander.way(), d.commander.thrusters()) {
@@ -342,14 +337,17 @@ impl Drive {
         let t = self.now_t();
         let mut heard = Vec::new();
         let taken = GroundStationPlace::take(&mut self.link, &self.autopilot, ground, |r| heard.push(r.clone()));
+        // Its heartbeats meanwhile (up to 1.5 s for a name the firmware does not have) keep the
+        // watchdog's clock: unheard, the arming after it met a heartbeat 2.5 s old.
+        let mut stop = None;
         for r in &heard {
-            self.pass_on(r, seen);
+            stop = stop.or(self.pass_on(r, seen));
         }
         match taken {
             Ok((place, said)) => {
                 self.announce(t, Level::Info, said);
                 self.ground_station = Some(place);
-                Ok(())
+                stop.map_or(Ok(()), Err)
             }
             Err((place, trigger)) => {
                 // The stop that follows sets back what may have been set.
@@ -757,20 +755,28 @@ impl Drive {
         let until = Instant::now() + duration;
         while Instant::now() < until {
             match self.link.recv_timeout(POLL) {
-                Ok(Some(r)) => self.pass_on(&r, &mut seen),
+                Ok(Some(r)) => {
+                    // After the stop: nothing more to trigger.
+                    let _ = self.pass_on(&r, &mut seen);
+                }
                 Ok(None) => {}
                 Err(_) => break,
             }
         }
     }
 
-    /// A message received outside the cycle's poll: the autopilot's read into the state, and
-    /// every one to `seen` with its autopilot time.
-    fn pass_on(&mut self, r: &Received, seen: &mut impl FnMut(&Received, f64)) {
-        if self.autopilot.sent(r) {
+    /// A message received outside the cycle's poll: the autopilot's read into the state and its
+    /// heartbeat to the watchdog (what that triggers is returned), and every one to `seen` with
+    /// its autopilot time.
+    fn pass_on(&mut self, r: &Received, seen: &mut impl FnMut(&Received, f64)) -> Option<Trigger> {
+        let trigger = if self.autopilot.sent(r) {
             self.read(r);
-        }
+            self.heard(r)
+        } else {
+            None
+        };
         let t = self.assembler.autopilot_time(r.at).unwrap_or(0.0);
         seen(r, t);
+        trigger
     }
 }
