@@ -4,7 +4,7 @@
 
 use super::Estimator;
 use super::health::Health;
-use super::mavlink::{MavlinkMeasurements, Observation};
+use super::mavlink::{MavlinkMeasurements, Observation, change_time};
 use super::measurement::{Measurement, NoiseSettings};
 use super::smoother::Smoothed;
 use crate::traits::DiscreteModel;
@@ -159,9 +159,14 @@ pub fn replay_streams<M: DiscreteModel>(
         );
     }
     if let Some(s) = &streams.input {
-        events.extend(
-            s.t.iter().zip(&s.v).map(|(&t, u)| Observation::Applied(t, crate::types::Input::from_row_slice(u))),
-        );
+        // Each change dated between the sample that first shows it and the one before, as the
+        // live outputs are ([`change_time`]).
+        let mut last = None;
+        for (&t, u) in s.t.iter().zip(&s.v) {
+            let since = change_time(last.as_ref(), t, u);
+            last = Some((t, *u));
+            events.push(Observation::Applied(since, crate::types::Input::from_row_slice(u)));
+        }
     }
     let time = |o: &Observation| match o {
         Observation::Measured(m) | Observation::Unfused(m) => m.t(),

@@ -499,7 +499,8 @@ mod tests {
             });
         };
         let s = |t: f64| estimate(t, [0.0; 8]);
-        // Outputs every 20 ms; the vertical thrusters go from 1500 to 1700 at 1.02 s.
+        // Outputs every 20 ms; the vertical thrusters' 1700 first reported at 1.02 s, so dated
+        // 1.01 s (halfway from the report before, `change_time`): 7/8 of the period.
         outputs(&mut p, 1.0, 1000, 1500);
         p.state(s(1.0));
         assert!(p.ready(1.0).is_empty(), "the sample's period is not covered yet");
@@ -512,7 +513,7 @@ mod tests {
         assert_eq!(got.len(), 1);
         let z = got[0].1.unwrap()[2];
         let full = thrusters.input_from_commands(&[1500.0, 1500.0, 1500.0, 1500.0, 1700.0, 1700.0])[2];
-        assert!((z - 0.75 * full).abs() < 1e-9, "{z} vs 3/4 of {full}");
+        assert!((z - 0.875 * full).abs() < 1e-9, "{z} vs 7/8 of {full}");
         // Outputs stop: the next state's input is unknown once the gap passes.
         p.state(s(1.6));
         assert!(p.ready(2.0).is_empty());
