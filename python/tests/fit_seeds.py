@@ -11,7 +11,9 @@ and in the depth pinc reads (1.0236 times longer: the simulator presses 1023.6 k
 pinc converts with 1000 unless told).
 
 usage: PINC_BIN=... MPC_TRACK_BIN=... fit_seeds.py OUT stock|gps SEED [SEED ...]
-       (--reuse OLD_OUT first: fit the recordings an earlier campaign made instead of exciting)
+       (--reuse OLD_OUT: fit the recordings an earlier campaign made instead of exciting;
+        --repeat N: then N more batches of three at once, the model beside the file twice, and the
+        held heading's and depth's means over every flight in "repeated")
 """
 import bisect, glob, json, math, os, subprocess, sys, time
 from pathlib import Path
@@ -22,9 +24,14 @@ from test_ardusub_live import STOCK, OWNER_VEHICLE
 from test_ardusub_sitl import JS_GAIN, run_on_firmware
 PINC = os.environ["PINC_BIN"]
 args = sys.argv[1:]
-reuse = None
-if args[0] == "--reuse":
-    reuse, args = Path(args[1]), args[2:]
+reuse, repeat = None, 0
+while args[0].startswith("--"):
+    if args[0] == "--reuse":
+        reuse, args = Path(args[1]), args[2:]
+    elif args[0] == "--repeat":
+        repeat, args = int(args[1]), args[2:]
+    else:
+        sys.exit(f"unknown option {args[0]}")
 root = Path(args[0]); kind = args[1]; seeds = args[2:]
 DEPTH_SCALE = 1.0236  # pinc's depth per true metre on this simulator
 
@@ -94,7 +101,7 @@ for seed in seeds:
         "file": ((out / "file_flight", "--oracle"), {"vehicle": SIM_VEHICLE, "parms": parms})})
     for who, (run, s) in runs.items():
         f = glob.glob(str(out / f"{who}_flight" / "*.mcap"))[0]
-        w = [abs(json.loads(m.data)["sim"]["w"]) for _, _, m in make_reader(open(f, "rb")).iter_messages(topics=["/vehicle/state"])]
+        w = [abs(json.loads(m.data)["w"]) for _, _, m in make_reader(open(f, "rb")).iter_messages(topics=["/truth"])]
         w.sort()
         row[who] = {"depth_truth_rms": round(s["live"]["truth_rms"]["depth_m"], 4),
                     "held_mean": round(s["steady_heading_error_deg"], 3), "held_max": round(s["held_heading_error_max_deg"], 3),
@@ -109,6 +116,23 @@ for seed in seeds:
         for name, vp in (("", v), ("_depth_scale", DEPTH_SCALE * v)):
             fit_drag = c["z_w"] * vp + c["z_ww"] * vp * vp
             row[f"drag_ratio{name}_at_{key}"] = round(fit_drag / (-69.0 * v * v), 3) if v > 0 else None
+    flights = {"fitted": [row["fitted"]], "file": [row["file"]]}
+    for b in range(repeat):
+        again = fly_side_by_side({
+            "fitted": ((out / f"fitted_flight_{b}", "--model", out / "fitted" / "model.pinc"), {"vehicle": None, "parms": parms}),
+            "file": ((out / f"file_flight_{b}", "--oracle"), {"vehicle": SIM_VEHICLE, "parms": parms}),
+            "file_again": ((out / f"file_again_flight_{b}", "--oracle"), {"vehicle": SIM_VEHICLE, "parms": parms})})
+        for who, (run, s) in again.items():
+            f = glob.glob(str(out / f"{who}_flight_{b}" / "*.mcap"))[0]
+            flights["fitted" if who == "fitted" else "file"].append(
+                {"depth_truth_rms": s["live"]["truth_rms"]["depth_m"], "held_mean": s["steady_heading_error_deg"],
+                 "held_mean_truth": held_heading_truth(f)})
+    if repeat:
+        mean = lambda who, key: sum(x[key] for x in flights[who]) / len(flights[who])
+        row["repeated"] = {"flights": {w: len(v) for w, v in flights.items()},
+                           **{f"ratio_{k}": round(mean("fitted", k) / mean("file", k), 3)
+                              for k in ("depth_truth_rms", "held_mean", "held_mean_truth")},
+                           "file_held_mean": [round(x["held_mean"], 3) for x in flights["file"]]}
     row["ratio_depth"] = round(row["fitted"]["depth_truth_rms"] / row["file"]["depth_truth_rms"], 3)
     row["ratio_held_mean"] = round(row["fitted"]["held_mean"] / row["file"]["held_mean"], 3)
     row["ratio_held_mean_truth"] = round(row["fitted"]["held_mean_truth"] / row["file"]["held_mean_truth"], 3)
