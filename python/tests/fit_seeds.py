@@ -46,8 +46,12 @@ def held_heading_truth(path, settle=8.0, lead=2.0):
     ref, tru, est = [], [], []
     for _, c, m in make_reader(open(path, "rb")).iter_messages(topics=["/truth", "/mpc/reference", "/estimate"]):
         d = json.loads(m.data)
-        {"/mpc/reference": lambda: ref.append((m.log_time, d["heading_rad"])), "/truth": lambda: tru.append((m.log_time, d["psi"])),
-         "/estimate": lambda: est.append((m.log_time, d["estimate"][3]))}[c.topic]()
+        if c.topic == "/mpc/reference":
+            ref.append((m.log_time, d["heading_rad"]))
+        elif c.topic == "/truth":
+            tru.append((m.log_time, d["psi"]))
+        else:
+            est.append((m.log_time, d["estimate"][3]))
     rt, tt = [r[0] for r in ref], [t[0] for t in tru]
     rows = []
     for t, e in est:

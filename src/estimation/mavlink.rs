@@ -313,6 +313,7 @@ impl MavlinkMeasurements {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mavlink::dialects::ardupilotmega::{ATTITUDE_DATA, LOCAL_POSITION_NED_DATA, SCALED_PRESSURE2_DATA};
 
     /// A change of outputs is dated halfway between the report that first shows it and the one
     /// before; a repeat keeps its report's time, and so does a change after a lost stream.
@@ -339,7 +340,6 @@ mod tests {
         let want = [1.0, 1.02, 1.03, 1.06];
         assert!(times.iter().zip(want).all(|(t, w)| (t - w).abs() < 1e-9), "{times:?}");
     }
-    use mavlink::dialects::ardupilotmega::{ATTITUDE_DATA, LOCAL_POSITION_NED_DATA, SCALED_PRESSURE2_DATA};
 
     /// `GLOBAL_POSITION_INT.vz` (cm/s, down) is a vertical velocity once the autopilot's EKF
     /// vouches for it, and not while a local position carries the same number.
