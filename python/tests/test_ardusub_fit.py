@@ -198,6 +198,8 @@ def test_with_gps_all_four_axes_are_fitted_and_fly_like_the_simulators_file_besi
     runs = fly_side_by_side({
         "pinc (fitted)": ((tmp_path / "fitted_run", "--model", model, *common), {"vehicle": None, "parms": gps}),
         "the simulator's file": ((tmp_path / "sim", "--oracle", *common), {"vehicle": SIM_VEHICLE, "parms": gps}),
+        "the simulator's file, again": ((tmp_path / "sim_again", "--oracle", *common),
+                                        {"vehicle": SIM_VEHICLE, "parms": gps}),
         "ArduSub GUIDED": ((tmp_path / "guided", "--model", model, "--autopilot-hold", "guided", *common),
                            {"vehicle": None, "parms": gps}),
     })
@@ -216,9 +218,12 @@ def test_with_gps_all_four_axes_are_fitted_and_fly_like_the_simulators_file_besi
     # 0.52-0.60 deg and the file's 0.34-0.50 (a 1.5x bound on the file's failed once), GUIDED's
     # 0.88-0.92. The means (five of those runs): fitted 0.14-0.20, the file 0.14-0.18, GUIDED
     # 0.51-0.57; the 0.05 deg of slack is below the compass's own noise (0.11 deg). Depth and
-    # heading RMS: fitted 0.128 m / 4.79 deg, the file 0.124 / 4.80, GUIDED 0.19 / 11.6.
+    # heading RMS: fitted 0.128 m / 4.79 deg, the file 0.124 / 4.80, GUIDED 0.19 / 11.6. One
+    # flight of the file once held its heading at 0.091 deg (the fitted model 0.193 beside it):
+    # the file flies twice and the mean of the two is the measure.
     assert fitted[0] <= 1.2 * own[0] and fitted[1] <= 1.2 * own[1], table
-    assert steady["pinc (fitted)"] <= 1.5 * steady["the simulator's file"] + 0.05, steady
+    file_held = (steady["the simulator's file"] + steady["the simulator's file, again"]) / 2
+    assert steady["pinc (fitted)"] <= 1.5 * file_held + 0.05, steady
     assert fitted[0] < guided[0] and fitted[1] < guided[1] and fitted[2] < guided[2], table
     e = runs["pinc (fitted)"][1]["live"]["estimate_rms_error"]
     assert e["u"] <= 0.05 and e["v"] <= 0.05 and e["w"] <= 0.05, e
