@@ -30,6 +30,13 @@ from test_vehicle_link import read_mcap
 
 STICKS = Path(__file__).resolve().parent / "pilot_sticks.py"
 RELEASE_S = 18.0
+# How far a released stick may come back from its farthest point (truth): the GPS hold's own wander
+# is in every figure (pinc 3.0-3.8 cm from its mean over 8 s held still; the truth in 1.1 cm steps):
+# Cockpit's joystick at 0.5 m/s came back 0.014 and 0.037 m in one batch, and where pinc saw the
+# 0.9 m/s release one 0.08 s cycle early (0.135 m past) 0.034-0.036 m, the estimate's farthest point
+# some 3 cm short of the truth's in the hard stop. It still refuses a hold latched where the speed
+# fell rather than at the farthest point (0.053-0.064 m at 0.9 m/s).
+BACK_M = 0.045
 TURN_RELEASE_S = 29.0
 DURATION_S = 40.0
 
@@ -174,14 +181,10 @@ def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(fligh
         assert pinc["rest_ring_m"] <= 0.05 and pinc["rest_after_s"] <= 5.0, (case, pinc)
         if case != "sway 0.3":
             assert pinc["past_m"] <= target, (case, pinc)
-    # Back from the farthest point, held there since this round: 0.021 m at 0.5 m/s, 0.011 m at
-    # 0.9 m/s (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s); the bound
-    # leaves room for the GPS hold's own wander (some 5 cm RMS).
-    assert f["pinc, surge 0.5"]["release"]["back_m"] <= 0.035, f["pinc, surge 0.5"]
-    # At 0.9 m/s, where pinc saw the release one 0.08 s cycle earlier (0.135 m past), 0.034-0.036 m:
-    # the estimate's farthest point some 3 cm short of the truth's in the hard stop; 0.045 m
-    # still refuses the hold latched where the speed fell (0.053-0.064 m).
-    assert f["pinc, surge 0.9"]["release"]["back_m"] <= 0.045, f["pinc, surge 0.9"]
+    # Back from the farthest point, held there: 0.016-0.023 m at 0.5 m/s, 0.011-0.020 m at 0.9 m/s
+    # (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s).
+    assert f["pinc, surge 0.5"]["release"]["back_m"] <= BACK_M, f["pinc, surge 0.5"]
+    assert f["pinc, surge 0.9"]["release"]["back_m"] <= BACK_M, f["pinc, surge 0.9"]
     for who in flights:
         if who.startswith("pinc"):
             # The turn (15 deg/s) and the dive (0.25 m/s) let go: back 0.43-0.73 deg and
@@ -258,7 +261,7 @@ def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_p
         let_go = release(positions, JOYSTICK_RELEASE_S)
         print(f"Cockpit's joystick ({way}), released: {json.dumps(let_go)}")
         assert abs(let_go["speed_m_s"] - 0.5) <= 0.06 and let_go["past_m"] <= 0.17, (way, let_go)
-        assert let_go["back_m"] <= 0.035, (way, let_go)
+        assert let_go["back_m"] <= BACK_M, (way, let_go)
         # Exactly one source on the thrusters: Cockpit's full forward (x 1000 at the full pilot
         # gain) puts the four horizontal outputs at 1100, 1100, 1900, 1900 (measured on this
         # firmware) whenever the autopilot takes it.
