@@ -181,7 +181,7 @@ def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(fligh
         assert pinc["rest_ring_m"] <= 0.05 and pinc["rest_after_s"] <= 5.0, (case, pinc)
         if case != "sway 0.3":
             assert pinc["past_m"] <= target, (case, pinc)
-    # Back from the farthest point, held there: 0.016-0.023 m at 0.5 m/s, 0.011-0.020 m at 0.9 m/s
+    # Back from the farthest point, held there: 0.016-0.034 m at 0.5 m/s, 0.011-0.020 m at 0.9 m/s
     # (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s).
     assert f["pinc, surge 0.5"]["release"]["back_m"] <= BACK_M, f["pinc, surge 0.5"]
     assert f["pinc, surge 0.9"]["release"]["back_m"] <= BACK_M, f["pinc, surge 0.9"]
