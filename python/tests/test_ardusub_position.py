@@ -331,9 +331,12 @@ def dvl_row(who, r, s, plan):
     own = s["live"]["truth_horizontal"]
     if own is not None:
         # pinc's own figure, from SIMSTATE (whose position follows the truth with the GPS off
-        # too, measured), agrees: the mirror above computes what pinc computes.
-        assert abs(own["rms_m"] - truth["rms_m"]) <= 0.002 and abs(own["samples"] - truth["samples"]) <= 10, \
-            (own, truth)
+        # too, measured), agrees: the mirror above computes what pinc computes. Each side dates
+        # SIM_STATE by its own host clock's arrival time, so a loaded machine puts tens of ms
+        # between them, and a vehicle on the move differs by its speed times that: within 2 mm
+        # or 5 % (CI, seven flights at once on 2 cores: GUIDED on the USBL 0.1532 against 0.1489 m).
+        assert abs(own["rms_m"] - truth["rms_m"]) <= max(0.002, 0.05 * truth["rms_m"]) \
+            and abs(own["samples"] - truth["samples"]) <= 10, (own, truth)
     return row(who, r, s, truth)
 
 
