@@ -1,9 +1,11 @@
 //! Stages 1-5 composed: estimate on the starting vehicle, identify, fit the sensors, estimate
-//! and identify again until the coefficients settle, take in the heave gain; and what they
+//! and identify again until the coefficients settle, fit the heave on the depth readings, take
+//! in the heave gain; and what they
 //! found ([`Identified`]). Apart because both [`super::fit`] and [`super::determinacy`] (the
 //! recording's watch) run exactly these stages.
 
 use super::heave_gain::{HEAVE_GAIN_TOLERANCE, MAX_HEAVE_GAIN_STEPS, mean_heave_gain, with_heave_gain};
+use super::heave_on_depth::{HeaveOnDepth, heave_on_depth};
 use super::identification::coefficient;
 use super::open_loop_depth::{self, OpenLoopDepth};
 use super::sensor_model::{LagMethod, Sensors};
@@ -40,6 +42,9 @@ pub struct Identified {
     pub horizontal: bool,
     /// Estimate-and-identify passes on the fitted sensors.
     pub passes: usize,
+    /// The heave fitted on the depth readings after the passes (`None`: too few whole
+    /// segments, the identification's heave kept).
+    pub heave_on_depth: Option<HeaveOnDepth>,
     /// The filter's mean heave gain after the passes and after each time it was taken in.
     pub heave_gains: Vec<f64>,
     pub(super) runs: Vec<Replay>,
@@ -76,7 +81,8 @@ impl Identified {
 
 impl Pipeline<'_> {
     /// Stages 1-5: estimate on the starting vehicle, identify, fit the sensors, estimate and
-    /// identify again until the heave and yaw coefficients settle, take in the heave gain.
+    /// identify again until the heave and yaw coefficients settle, fit the heave on the depth
+    /// readings, take in the heave gain.
     pub(super) fn identified(&self, on_stage: &mut impl FnMut(Stage)) -> Result<Identified, FitError> {
         // Pass 1: the starting vehicle and the estimator's default sensors.
         on_stage(Stage::Estimate);
@@ -119,6 +125,14 @@ impl Pipeline<'_> {
             }
         };
 
+        // The heave on the depth readings themselves: from the smoothed heave rate the
+        // identification takes the depth sensor's noise for drag (docs/MODEL.md section 10).
+        let segments = open_loop_depth::depth_segments(&runs, self.settings.dt, sensors.model.depth_delay);
+        let heave_on_depth = heave_on_depth(&identification, &self.base, &segments, self.settings.dt);
+        if let Some(h) = &heave_on_depth {
+            h.apply_to(&mut identification);
+        }
+
         // The heave force the identified vehicle still misses: the heave gain (docs/MODEL.md
         // section 12) that the estimator, run as a live session runs it, estimates from the
         // depth itself, where the identification from smoothed velocities leaves part of it
@@ -133,7 +147,7 @@ impl Pipeline<'_> {
             }
             identification.vehicle = with_heave_gain(identification.vehicle, gain);
         }
-        let (runs, dataset) = if heave_gains.len() > 1 {
+        let (runs, dataset) = if heave_gains.len() > 1 || heave_on_depth.is_some() {
             let runs = self.replay_all(&identification.vehicle, &sensors)?;
             let data = self.dataset_of(&runs)?;
             (runs, data)
@@ -155,6 +169,7 @@ impl Pipeline<'_> {
             sensors_defaulted,
             horizontal,
             passes,
+            heave_on_depth,
             heave_gains,
             runs,
             dt: self.settings.dt,

@@ -10,7 +10,8 @@
 //!    autopilot's vertical velocity where the recordings hold it, else from the heave equation
 //!    on the readings and the applied force ([`sensors`]);
 //! 4. the estimate and the identification again with the identified vehicle and the sensor
-//!    model (the velocities of pass 1 came from a vehicle that was not this one);
+//!    model (the velocities of pass 1 came from a vehicle that was not this one); then the
+//!    heave fitted on the depth readings themselves ([`heave_on_depth`]);
 //! 5. the heave force the identified vehicle still misses, as the filter's heave gain
 //!    estimates it, taken into its heave equation;
 //! 6. a hybrid (the identified vehicle's step plus a correction anchored at rest) trained on
@@ -24,6 +25,7 @@
 //! Each stage is a module of its own, declared below in the order the pipeline runs them;
 //! this file holds the entry points, [`fit`] and [`determinacy`].
 
+pub mod heave_on_depth;
 pub mod open_loop_depth;
 pub mod report;
 pub mod sensors;

@@ -7,7 +7,7 @@
 
 use crate::estimation::measurement::Measurement;
 use crate::estimation::replay::Replay;
-use crate::types::SimState;
+use crate::types::{Input, SimState};
 use crate::vehicle::{Rk4Vehicle, VehicleParams};
 use serde::Serialize;
 
@@ -52,13 +52,55 @@ pub struct OpenLoopDepth {
     pub biased: bool,
 }
 
-/// [`OpenLoopDepth`] of `vehicle` on `runs` (the fit's replays, their steps `dt` apart), each
-/// reading taken as the depth `depth_delay` s before its time.
-pub fn open_loop_depth(vehicle: &VehicleParams, runs: &[Replay], dt: f64, depth_delay: f64) -> OpenLoopDepth {
-    let physics = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(dt) };
+/// One whole segment of a replay's estimate: where it starts, the inputs held over its steps,
+/// and the depth readings within it.
+#[derive(Debug, Clone)]
+pub(super) struct DepthSegment {
+    /// The smoothed state at the segment's start.
+    pub start: SimState,
+    /// The time of the start and of each step's end (s): `inputs.len() + 1` of them.
+    pub times: Vec<f64>,
+    /// The input held over each step.
+    pub inputs: Vec<Input>,
+    /// Each depth reading within the segment: the time it measured (its stamp less the lag),
+    /// the depth.
+    pub readings: Vec<(f64, f64)>,
+}
+
+impl DepthSegment {
+    /// The shallowest depth the segment's estimate or its readings reached (m).
+    pub(super) fn shallowest(&self) -> f64 {
+        self.readings.iter().map(|r| r.1).fold(self.start[2], f64::min)
+    }
+
+    /// `vehicle`'s depth rolled out from `start` at each reading.
+    pub(super) fn rollout(&self, physics: &Rk4Vehicle, start: &SimState) -> Vec<f64> {
+        let steps = self.inputs.len();
+        let mut track = Vec::with_capacity(steps + 1);
+        let mut x = *start;
+        track.push(x[2]);
+        for u in &self.inputs {
+            x = physics.step_sim(&x, u);
+            track.push(x[2]);
+        }
+        let (t0, dt) = (self.times[0], physics.dt);
+        self.readings
+            .iter()
+            .map(|&(t, _)| {
+                let k = (((t - t0) / dt) as usize).min(steps - 1);
+                let f = (t - self.times[k]) / dt;
+                track[k] + f * (track[k + 1] - track[k])
+            })
+            .collect()
+    }
+}
+
+/// The whole segments of [`SEGMENT_S`] of `runs` (the fit's replays, their steps `dt` apart)
+/// holding at least three depth readings, each reading taken as the depth `depth_delay` s
+/// before its time. Back to back where the estimate is unbroken and has its inputs.
+pub(super) fn depth_segments(runs: &[Replay], dt: f64, depth_delay: f64) -> Vec<DepthSegment> {
     let steps = (SEGMENT_S / dt).round() as usize;
-    let (mut segments, mut readings) = (0, 0);
-    let (mut squared, mut moved, mut cross, mut moved_detrended) = (0.0, 0.0, 0.0, 0.0);
+    let mut out = Vec::new();
     for run in runs {
         let mut depths: Vec<(f64, f64)> = run
             .measurements
@@ -82,43 +124,57 @@ pub fn open_loop_depth(vehicle: &VehicleParams, runs: &[Replay], dt: f64, depth_
                 start += 1;
                 continue;
             }
-            let mut x = SimState::from_fn(|i, _| span[0].state[i]);
-            let mut track = vec![(span[0].t, x[2])];
-            for p in &span[..steps] {
-                x = physics.step_sim(&x, &p.input.expect("checked"));
-                track.push((p.t + dt, x[2]));
-            }
-            let z0 = track[0].1;
-            let (t0, t1) = (track[0].0, track[steps].0);
-            // (time into the segment, error, the rollout's move) at each reading.
-            let mut points = Vec::new();
-            for &(t, z) in depths.iter().filter(|(t, _)| *t >= t0 && *t <= t1) {
-                let k = (((t - t0) / dt) as usize).min(steps - 1);
-                let f = (t - track[k].0) / dt;
-                let predicted = track[k].1 + f * (track[k + 1].1 - track[k].1);
-                points.push((t - t0, predicted - z, predicted - z0));
-            }
-            if points.len() < 3 {
-                start += steps;
+            let times: Vec<f64> = std::iter::once(span[0].t).chain(span[..steps].iter().map(|p| p.t + dt)).collect();
+            let (t0, t1) = (times[0], times[steps]);
+            let readings: Vec<(f64, f64)> = depths.iter().copied().filter(|(t, _)| *t >= t0 && *t <= t1).collect();
+            start += steps;
+            if readings.len() < 3 {
                 continue;
             }
-            for &(_, e, dp) in &points {
-                squared += e * e;
-                moved += dp * dp;
-            }
-            readings += points.len();
-            // The gain on what is left of the error and of the move once each has its
-            // segment's straight line in time taken out: a steady force the vehicle file misses
-            // (its net buoyancy, a current) or a start velocity off by a little makes the
-            // rollout drift, which the filter's heave disturbance takes up in flight; what the
-            // controller relies on is the response to the thrust it commands.
-            let (e, dp) = (detrended(&points, |p| p.1), detrended(&points, |p| p.2));
-            cross += e.iter().zip(&dp).map(|(a, b)| a * b).sum::<f64>();
-            moved_detrended += dp.iter().map(|b| b * b).sum::<f64>();
-            segments += 1;
-            start += steps;
+            out.push(DepthSegment {
+                start: SimState::from_fn(|i, _| span[0].state[i]),
+                times,
+                inputs: span[..steps].iter().map(|p| p.input.expect("checked")).collect(),
+                readings,
+            });
         }
     }
+    out
+}
+
+/// [`OpenLoopDepth`] of `vehicle` on `runs` (the fit's replays, their steps `dt` apart), each
+/// reading taken as the depth `depth_delay` s before its time.
+pub fn open_loop_depth(vehicle: &VehicleParams, runs: &[Replay], dt: f64, depth_delay: f64) -> OpenLoopDepth {
+    open_loop_depth_on(vehicle, &depth_segments(runs, dt, depth_delay), dt)
+}
+
+/// [`OpenLoopDepth`] of `vehicle` on `segments` ([`depth_segments`]).
+pub(super) fn open_loop_depth_on(vehicle: &VehicleParams, segments: &[DepthSegment], dt: f64) -> OpenLoopDepth {
+    let physics = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(dt) };
+    let steps = (SEGMENT_S / dt).round() as usize;
+    let mut readings = 0;
+    let (mut squared, mut moved, mut cross, mut moved_detrended) = (0.0, 0.0, 0.0, 0.0);
+    for segment in segments {
+        let predicted = segment.rollout(&physics, &segment.start);
+        let (t0, z0) = (segment.times[0], segment.start[2]);
+        // (time into the segment, error, the rollout's move) at each reading.
+        let points: Vec<(f64, f64, f64)> =
+            segment.readings.iter().zip(&predicted).map(|(&(t, z), &p)| (t - t0, p - z, p - z0)).collect();
+        for &(_, e, dp) in &points {
+            squared += e * e;
+            moved += dp * dp;
+        }
+        readings += points.len();
+        // The gain on what is left of the error and of the move once each has its
+        // segment's straight line in time taken out: a steady force the vehicle file misses
+        // (its net buoyancy, a current) or a start velocity off by a little makes the
+        // rollout drift, which the filter's heave disturbance takes up in flight; what the
+        // controller relies on is the response to the thrust it commands.
+        let (e, dp) = (detrended(&points, |p| p.1), detrended(&points, |p| p.2));
+        cross += e.iter().zip(&dp).map(|(a, b)| a * b).sum::<f64>();
+        moved_detrended += dp.iter().map(|b| b * b).sum::<f64>();
+    }
+    let segments = segments.len();
     let n = readings.max(1) as f64;
     let moved_m = (moved / n).sqrt();
     let gain_error = if moved_detrended > 0.0 { cross / moved_detrended } else { 0.0 };

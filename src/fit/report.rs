@@ -476,6 +476,7 @@ pub fn json(fit: &Fit, held: &HeldOut, command: &str) -> serde_json::Value {
         "position_source": fit.identified.horizontal,
         "start": fit.start.key(),
         "passes": fit.identified.passes,
+        "heave_on_depth": fit.identified.heave_on_depth,
         "heave_gains": fit.identified.heave_gains,
         "coefficients": fit.report.coefficients,
         "axes": fit.report.axes,
@@ -522,6 +523,9 @@ pub fn markdown(fit: &Fit, held: &HeldOut, command: &str) -> String {
     md += "\n## Axes\n\n| axis | determined | why not |\n|---|---|---|\n";
     for a in &fit.report.axes {
         md += &format!("| {} | {} | {} |\n", a.axis, if a.determined { "yes" } else { "no" }, a.why);
+    }
+    if let Some(h) = &fit.identified.heave_on_depth {
+        md += &heave_on_depth_markdown(h);
     }
     md += &format!(
         "\nEstimate-and-identify passes: {}. The filter's heave gain (the share of the applied heave force the \
@@ -616,6 +620,21 @@ fn judged_text(judged: bool, biased: bool) -> &'static str {
 }
 
 /// The report's open-loop depth section: the identified vehicle's and the reference file's.
+/// The heave as identified from the velocities and as fitted on the depth readings.
+fn heave_on_depth_markdown(h: &super::heave_on_depth::HeaveOnDepth) -> String {
+    let mut md = format!(
+        "\nThe heave fitted on the depth readings ({} segments, {} readings, RMS {:.3} m against them), which the \
+         vehicle takes, beside the identification's from the smoothed velocities:\n\n| coefficient | from the \
+         velocities | on the depth | std. error |\n|---|---|---|---|\n",
+        h.segments, h.readings, h.rms_m
+    );
+    for (i, key) in super::heave_on_depth::HEAVE_KEYS.iter().enumerate() {
+        let se = h.std_err[i].map_or("not determined: the starting file's".to_string(), |s| format!("{s:.3e}"));
+        md += &format!("| {key} | {:.5} | {:.5} | {se} |\n", h.from_velocities[i], h.fitted[i]);
+    }
+    md
+}
+
 fn open_loop_depth_markdown(fit: &Fit) -> String {
     let (identified, reference) = &fit.open_loop_depth;
     let mut md = format!(

@@ -12,7 +12,7 @@
 //!   the last message of each sender with a count of those that came; a new count is a new
 //!   reading, whatever the router.
 
-use super::pilot_feed::Arrived;
+use super::Arrived;
 use crate::link::Received;
 use crate::pilot::{StickError, Sticks};
 use mavlink::dialects::ardupilotmega::MavMessage;

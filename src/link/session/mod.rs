@@ -180,6 +180,10 @@ pub use joystick::ground_station_of;
 pub use navigation_plot::NavigationTrack;
 
 // After the macro: the stages use it.
+/// A stick reading as it arrived (pinc's clock), from any of the pilot feed's sources: the
+/// feed's own reader or a ground station's joystick.
+type Arrived = (std::time::Instant, Result<crate::pilot::Sticks, crate::pilot::StickError>);
+
 mod flight;
 mod joystick;
 mod navigation_plot;

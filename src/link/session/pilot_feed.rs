@@ -4,6 +4,7 @@
 //! arrived, and every cycle the session hands those that came to the pilot assist at their own
 //! time.
 
+use super::Arrived;
 use super::joystick::{Joystick, JoystickTap, Poller};
 use crate::pilot::{PilotAssist, StickError, Sticks};
 use std::io::BufRead;
@@ -13,9 +14,6 @@ use std::time::Instant;
 /// How long the first cycles may go without the ground station's joystick before the
 /// session says so (Cockpit sends 25 a second while a joystick is plugged in).
 const JOYSTICK_SILENCE_S: f64 = 3.0;
-
-/// A reading as it arrived.
-pub(super) type Arrived = (Instant, Result<Sticks, StickError>);
 
 /// The sticks' source and the assist they drive.
 pub(super) struct PilotFeed {

@@ -6,7 +6,8 @@
 //! The stages, one module each: [`mapping`] the file's types and their checks (the TOML side),
 //! [`resolve`] the mapping's columns found in one file's header, [`plan`] what each quantity
 //! read becomes in pinc's frames ([`rotation`] the quaternion's part of it), [`rows`] the rows
-//! read through the plan.
+//! read through the plan and the streams they filled returned. Each stage imports only those
+//! before it.
 
 mod mapping;
 mod plan;
@@ -72,5 +73,10 @@ pub fn read_mapped_csv(
     let plan = Plan::new(mapping, &header, commands_to_input.is_some()).map_err(malformed)?;
     let mut streams = Streams::new(&plan);
     let (rows, torn) = read_rows(&mut reader, &header, &plan, &mut streams, commands_to_input).map_err(malformed)?;
-    plan.finish(streams, rows, torn).map_err(malformed)
+    streams.finish(plan, rows, torn).map_err(malformed)
+}
+
+/// The line of the file a record was read from.
+fn line_of(record: &csv::ByteRecord) -> u64 {
+    record.position().map_or(0, |p| p.line())
 }

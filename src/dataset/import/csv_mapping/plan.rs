@@ -2,16 +2,24 @@
 //! each quantity of a row becomes pinc's (NED world, FRD body, rad, s). Apart from the
 //! resolving because these are the per-row conversions, run once per row.
 
+use super::line_of;
 use super::mapping::VelocityAxes;
-use super::resolve::Columns;
 use super::rotation::{ENU_TO_NED, FRD_TO_FLU, euler_zyx, rotation};
-use super::rows::{Streams, line_of};
-use crate::dataset::import::{CommandsToInput, StreamSet, WorldFrame};
+use crate::dataset::import::{CommandsToInput, WorldFrame};
 use crate::vehicle::wrap_angle;
 use std::f64::consts::FRAC_PI_2;
 
 /// How far a quaternion's length may be from 1 before the row is refused.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
+
+/// The columns a mapping reads, resolved against one file's header.
+#[derive(Default)]
+pub(super) struct Columns {
+    /// Header index of each column read, in slot order.
+    pub(super) index: Vec<usize>,
+    /// Header name of each slot.
+    pub(super) name: Vec<String>,
+}
 
 /// How a row's time is found.
 #[derive(Clone, Copy)]
@@ -167,36 +175,4 @@ pub(super) struct Plan {
     /// The input's conversion and its columns' names.
     pub(super) input: Option<(InputPlan, String)>,
     pub(super) notes: Vec<String>,
-}
-
-impl Plan {
-    /// The streams read, the notes with the row count (and a torn last line), as the reader
-    /// returns them; velocities go to the body or the world stream by their axes.
-    ///
-    /// # Errors
-    /// No row after the header.
-    pub(super) fn finish(self, streams: Streams, rows: usize, torn: Option<String>) -> Result<StreamSet, String> {
-        if rows == 0 {
-            return Err("no rows after the header".into());
-        }
-        let mut notes = self.notes;
-        notes.push(format!("{rows} rows"));
-        notes.extend(torn);
-        let (mut velocity_body, mut velocity_ned) = (None, None);
-        match self.velocity.as_ref().map(|v| v.axes) {
-            Some(VelocityAxes::BodyFrd | VelocityAxes::BodyFlu) => velocity_body = streams.velocity,
-            Some(VelocityAxes::WorldNed | VelocityAxes::WorldEnu) => velocity_ned = streams.velocity,
-            None => {}
-        }
-        Ok(StreamSet {
-            position: streams.position,
-            depth: None,
-            attitude: streams.attitude,
-            velocity_ned,
-            velocity_body,
-            yaw_rate: streams.yaw_rate,
-            input: streams.input,
-            notes,
-        })
-    }
 }

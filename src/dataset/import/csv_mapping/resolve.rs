@@ -6,17 +6,8 @@ use super::mapping::{
     AngleUnit, CsvMapping, HeadingFrame, HeadingMapping, InputMapping, PositionMapping, QuaternionOrder, TimeMapping,
     TimeUnit, VelocityAxes, VelocityMapping, YawRateMapping,
 };
-use super::plan::{Heading, InputPlan, Plan, TimePlan, VectorPlan, YawRatePlan};
+use super::plan::{Columns, Heading, InputPlan, Plan, TimePlan, VectorPlan, YawRatePlan};
 use crate::dataset::import::{BodyFrame, WorldFrame};
-
-/// The columns a mapping reads, resolved against one file's header.
-#[derive(Default)]
-pub(super) struct Columns {
-    /// Header index of each column read, in slot order.
-    pub(super) index: Vec<usize>,
-    /// Header name of each slot.
-    pub(super) name: Vec<String>,
-}
 
 impl Columns {
     /// The slot of `column` (named by `role` of the mapping), adding it when new.

@@ -2,10 +2,11 @@
 //! parsed and converted into the streams. Apart because it is the only part that touches the
 //! file after its header.
 
-use super::mapping::CsvMapping;
+use super::line_of;
+use super::mapping::{CsvMapping, VelocityAxes};
 use super::plan::{Heading, InputPlan, Plan};
 use crate::dataset::import::csv_rows::{next_row, parse_field};
-use crate::dataset::import::{CommandsToInput, ImportError, Series};
+use crate::dataset::import::{CommandsToInput, ImportError, Series, StreamSet};
 use std::path::Path;
 
 /// The series a file fills, one per section its plan reads.
@@ -75,11 +76,6 @@ impl Streams {
     }
 }
 
-/// The line of the file a record was read from.
-pub(super) fn line_of(record: &csv::ByteRecord) -> u64 {
-    record.position().map_or(0, |p| p.line())
-}
-
 /// Opens the file as the mapping's CSV dialect and reads its header.
 pub(super) fn open(
     path: &Path,
@@ -135,4 +131,36 @@ pub(super) fn read_rows(
         row += 1;
     }
     Ok((row, torn))
+}
+
+impl Streams {
+    /// The streams read through `plan`, with its notes, the row count (and a torn last line),
+    /// as the reader returns them; velocities go to the body or the world stream by their axes.
+    ///
+    /// # Errors
+    /// No row after the header.
+    pub(super) fn finish(self, plan: Plan, rows: usize, torn: Option<String>) -> Result<StreamSet, String> {
+        if rows == 0 {
+            return Err("no rows after the header".into());
+        }
+        let mut notes = plan.notes;
+        notes.push(format!("{rows} rows"));
+        notes.extend(torn);
+        let (mut velocity_body, mut velocity_ned) = (None, None);
+        match plan.velocity.as_ref().map(|v| v.axes) {
+            Some(VelocityAxes::BodyFrd | VelocityAxes::BodyFlu) => velocity_body = self.velocity,
+            Some(VelocityAxes::WorldNed | VelocityAxes::WorldEnu) => velocity_ned = self.velocity,
+            None => {}
+        }
+        Ok(StreamSet {
+            position: self.position,
+            depth: None,
+            attitude: self.attitude,
+            velocity_ned,
+            velocity_body,
+            yaw_rate: self.yaw_rate,
+            input: self.input,
+            notes,
+        })
+    }
 }
