@@ -1,7 +1,7 @@
 //! Stage 4b, the heave identified on the depth readings: the heave coefficients (added mass,
 //! linear and quadratic drag, net buoyancy) fitted to the depth sensor's own readings by
 //! rolling the vehicle out from the recorded thrust over whole segments, each segment's start
-//! depth and heave rate fitted with them (docs/MODEL.md section 10).
+//! depth and heave rate fitted with them (docs/MODEL.md section 10.1).
 //!
 //! Apart from the identification because the two see the depth sensor's noise differently.
 //! The identification fits velocities a few periods ahead from the smoothed estimate's, so the
@@ -301,4 +301,124 @@ impl HeaveOnDepth {
 /// `p`'s heave coefficients in [`HEAVE_KEYS`] order.
 fn heave_of(p: &VehicleParams) -> [f64; 4] {
     [p.z_wd, p.z_w, p.z_ww, p.volume]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::identified::{fixture, identified_on_fixture};
+    use crate::fit::open_loop_depth::SEGMENT_S;
+    use crate::types::Input;
+
+    /// `id` as the identification would hand it over: `vehicle`, every heave coefficient
+    /// with a standard error, the recording's RMS heave speed.
+    fn identification(vehicle: VehicleParams, w_rms: f64) -> Identification {
+        Identification {
+            vehicle,
+            std_err: HEAVE_KEYS.iter().map(|k| (*k, Some(1.0))).collect(),
+            not_identifiable: Vec::new(),
+            rms_residual: [0.0; 4],
+            samples: 0,
+            speeds: [0.0, 0.0, w_rms, 0.0],
+        }
+    }
+
+    /// Segments of `truth` driven by trains of heave-force reversals (the designed
+    /// excitation's shape), read every step with uniform noise of +-`noise` m, each started
+    /// from the truth less a smoothed estimate's error.
+    fn noisy_segments(truth: &VehicleParams, dt: f64, noise: f64) -> Vec<DepthSegment> {
+        let physics = Rk4Vehicle { params: *truth, ..Rk4Vehicle::with_dt(dt) };
+        let steps = (SEGMENT_S / dt).round() as usize;
+        // A seeded linear congruential generator: uniform in [-1, 1).
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut uniform = move || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        };
+        // Forces (N) and half-periods (steps) of the trains; the truth floats up 1 N.
+        let levels = [8.0, 20.0, 40.0, 14.0, 30.0, 5.0, 50.0, 25.0];
+        let halves = [12, 25, 18, 35, 10, 30, 20, 15];
+        (0..levels.len())
+            .map(|s| {
+                let mut start = SimState::zeros();
+                start[2] = 1.5;
+                let inputs: Vec<Input> = (0..steps)
+                    .map(|k| {
+                        let sign = if (k / halves[s]) % 2 == 0 { 1.0 } else { -1.0 };
+                        Input::new(0.0, 0.0, sign * levels[s], 0.0)
+                    })
+                    .collect();
+                let times: Vec<f64> = (0..=steps).map(|k| 100.0 * s as f64 + k as f64 * dt).collect();
+                let mut x = start;
+                let mut readings = vec![(times[0], x[2] + noise * uniform())];
+                for (k, u) in inputs.iter().enumerate() {
+                    x = physics.step_sim(&x, u);
+                    readings.push((times[k + 1], x[2] + noise * uniform()));
+                }
+                // The smoothed start is off by a few centimetres and centimetres a second.
+                start[2] += 0.03 * uniform();
+                start[6] += 0.03 * uniform();
+                DepthSegment { start, times, inputs, readings }
+            })
+            .collect()
+    }
+
+    /// A vehicle with quadratic heave drag only, read by a depth sensor with +-0.2 m of
+    /// uniform noise (ArduSub's simulator's), handed over with the biased heave the velocity
+    /// fit found on the firmware (`z_w` -6.7, `z_ww` -47, 1 N of buoyancy off): the fit on the
+    /// readings finds the truth's heave, and its residual is the sensor's noise.
+    #[test]
+    fn the_heave_on_noisy_depth_readings_is_the_truths() {
+        let truth = VehicleParams::load(fixture("sitl_truth.toml")).unwrap();
+        let dt = 0.08;
+        let segments = noisy_segments(&truth, dt, 0.2);
+        let mut biased = VehicleParams { z_w: -6.7, z_ww: -47.0, z_wd: 0.7, ..truth };
+        biased.volume -= 1.0 / (truth.rho * truth.g);
+        let base = VehicleParams { z_w: -0.19, z_ww: -74.2, ..truth };
+        let h = heave_on_depth(&identification(biased, 0.25), &base, &segments, dt).unwrap();
+        let mut fitted = truth;
+        [fitted.z_wd, fitted.z_w, fitted.z_ww, fitted.volume] = h.fitted;
+        eprintln!("{h:?}");
+        assert_eq!((h.segments, h.readings), (8, 8 * 126));
+        let mass = |p: &VehicleParams| p.m - p.z_wd;
+        assert!((mass(&fitted) / mass(&truth) - 1.0).abs() < 0.05, "{h:?}");
+        assert!((fitted.z_ww / truth.z_ww - 1.0).abs() < 0.05, "{h:?}");
+        assert!((fitted.net_buoyancy() - truth.net_buoyancy()).abs() < 0.2, "{h:?}");
+        // No linear drag: none found beyond its standard error, or held at zero (the base's).
+        match h.std_err[1] {
+            Some(se) => assert!(fitted.z_w.abs() < 2.0 * se.max(0.5), "{h:?}"),
+            None => assert_eq!(fitted.z_w, base.z_w),
+        }
+        // Uniform noise of +-0.2 m: 0.115 m RMS.
+        assert!((h.rms_m / (0.2 / 3f64.sqrt()) - 1.0).abs() < 0.1, "{h:?}");
+    }
+
+    /// Segments touching the surface are left out; too few left is no fit.
+    #[test]
+    fn segments_at_the_surface_are_left_out() {
+        let truth = VehicleParams::load(fixture("sitl_truth.toml")).unwrap();
+        let mut segments = noisy_segments(&truth, 0.08, 0.2);
+        for s in segments.iter_mut().skip(2) {
+            s.readings[10].1 = 0.1;
+        }
+        assert!(heave_on_depth(&identification(truth, 0.25), &truth, &segments, 0.08).is_none());
+    }
+
+    /// On the firmware's two recordings (stock, and the GPS's four axes; stock joystick gain),
+    /// as `pinc fit` runs it: the heave the vehicle takes has the simulator's drag (69 N/(m/s)^2
+    /// in true metres, 65.9 in pinc's depth, which converts the simulator's 1023.6 kg/m^3 water
+    /// with 1000) within 10 % at 0.5 m/s, and its fit explains the readings down to their noise.
+    #[test]
+    fn the_firmwares_heave_on_its_depth_readings() {
+        let simulator_z_ww = -69.0 / 1.0236f64.powi(2);
+        for rec in ["stock_designed_60s.mcap", "gps_designed_90s.mcap"] {
+            let found = identified_on_fixture(rec);
+            let h = found.heave_on_depth.clone().unwrap();
+            let v = &found.identification.vehicle;
+            eprintln!("{rec}: {h:?}; the vehicle: z_wd {:.3}, z_w {:.3}, z_ww {:.2}", v.z_wd, v.z_w, v.z_ww);
+            let drag = |w: f64| -(v.z_w * w + v.z_ww * w * w);
+            assert!((drag(0.5) / (-simulator_z_ww * 0.25) - 1.0).abs() < 0.1, "{rec}: {h:?}");
+            assert!(h.rms_m < 1.1 * found.sensors.depth_std, "{rec}: {h:?} against {}", found.sensors.depth_std);
+        }
+    }
 }

@@ -126,7 +126,7 @@ impl Pipeline<'_> {
         };
 
         // The heave on the depth readings themselves: from the smoothed heave rate the
-        // identification takes the depth sensor's noise for drag (docs/MODEL.md section 10).
+        // identification takes the depth sensor's noise for drag (docs/MODEL.md section 10.1).
         let segments = open_loop_depth::depth_segments(&runs, self.settings.dt, sensors.model.depth_delay);
         let heave_on_depth = heave_on_depth(&identification, &self.base, &segments, self.settings.dt);
         if let Some(h) = &heave_on_depth {
