@@ -44,6 +44,9 @@ pub struct HeaveOnDepth {
     pub fitted: [f64; 4],
     /// Their standard errors (`None`: not determined).
     pub std_err: [Option<f64>; 4],
+    /// Those the readings pushed to a bound (a drag that would push, an added mass that would
+    /// leave no mass): they keep the starting file's value.
+    pub held_at_bound: Vec<&'static str>,
     /// Segments rolled out and readings compared.
     pub segments: usize,
     /// Depth readings compared.
@@ -219,6 +222,7 @@ pub(super) fn heave_on_depth(
     let from_velocities = heave_of(&id.vehicle);
     let mut p = id.vehicle;
     let mut problem = Problem { segments, dt, active: (0..4).collect() };
+    let mut held_at_bound = Vec::new();
     loop {
         if problem.active.is_empty() {
             return None;
@@ -239,6 +243,7 @@ pub(super) fn heave_on_depth(
         if let Some(j) = held {
             let i = problem.active.remove(j);
             set(&mut p, i, get(base, i));
+            held_at_bound.push(HEAVE_KEYS[i]);
             continue;
         }
         // Each coefficient's standard error in its own units (the volume's from the net
@@ -272,6 +277,7 @@ pub(super) fn heave_on_depth(
                     from_velocities,
                     fitted: heave_of(&fitted),
                     std_err: se,
+                    held_at_bound,
                     segments: segments.len(),
                     readings,
                     rms_m: (r.norm_squared() / readings.max(1) as f64).sqrt(),
@@ -295,6 +301,19 @@ impl HeaveOnDepth {
                 id.not_identifiable.push(key);
             }
         }
+    }
+
+    /// The report's notes: the coefficients held at a bound, said so.
+    pub fn notes(&self) -> Vec<String> {
+        self.held_at_bound
+            .iter()
+            .map(|k| {
+                format!(
+                    "heave: on the depth readings {k} went past its bound (a drag that would push, or an added mass \
+                     that would leave no mass): the data want none of it, and it keeps the starting file's value"
+                )
+            })
+            .collect()
     }
 }
 

@@ -237,6 +237,7 @@ pub fn fit(
     let mut findings =
         report::findings(&found.identification, &base, found.horizontal, &found.sensors_defaulted, Some(&training));
     findings.warnings.extend(found.bias_warnings());
+    findings.notes.extend(found.heave_on_depth.iter().flat_map(|h| h.notes()));
     for (log, span) in pipeline.logs.iter().zip(&recordings) {
         if let Some(cut) = &log.cut {
             let line = format!("{}: {cut}; fitted from the {:.0} s it holds", log.path.display(), span.2);
