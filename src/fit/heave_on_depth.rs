@@ -66,11 +66,21 @@ fn get(p: &VehicleParams, i: usize) -> f64 {
     }
 }
 
-fn set(p: &mut VehicleParams, i: usize, v: f64) {
+/// The bound of unknown `i` (a drag cannot push, an added mass cannot leave no mass).
+fn bound(p: &VehicleParams, i: usize) -> f64 {
     match i {
-        0 => p.z_wd = v.min(0.999 * p.m),
-        1 => p.z_w = v.min(0.0),
-        2 => p.z_ww = v.min(0.0),
+        0 => 0.999 * p.m,
+        1 | 2 => 0.0,
+        _ => f64::INFINITY,
+    }
+}
+
+fn set(p: &mut VehicleParams, i: usize, v: f64) {
+    let v = v.min(bound(p, i));
+    match i {
+        0 => p.z_wd = v,
+        1 => p.z_w = v,
+        2 => p.z_ww = v,
         _ => p.volume = ((p.m * p.g - v) / (p.rho * p.g)).max(1e-9),
     }
 }
@@ -206,7 +216,8 @@ impl Problem<'_> {
 /// segments, their steps `dt` apart), from the identification's values; a coefficient whose
 /// standard error is over [`MAX_RELATIVE_STD_ERR`] of what it is judged against (as the
 /// identification judges it) takes `base`'s value and the others are fitted again. `None`
-/// with too few segments, or with nothing determined.
+/// with too few segments, with nothing determined, or where the fit explains the readings no
+/// better than the identification's heave does.
 pub(super) fn heave_on_depth(
     id: &Identification,
     base: &VehicleParams,
@@ -220,7 +231,18 @@ pub(super) fn heave_on_depth(
         return None;
     }
     let from_velocities = heave_of(&id.vehicle);
+    // What the identification's heave leaves unexplained, each segment's start fitted alone:
+    // the fit on the depth is taken only where it explains the readings better.
+    let (_, _, r) = Problem { segments, dt, active: Vec::new() }.solve(&id.vehicle);
+    let identification_rss = r.norm_squared();
+    // A coefficient the identification left at its bound starts from the starting file's
+    // value: at the bound a step outward moves nothing, so nothing would pull it inward.
     let mut p = id.vehicle;
+    for i in 0..3 {
+        if get(&p, i) >= bound(&p, i) {
+            set(&mut p, i, get(base, i));
+        }
+    }
     let mut problem = Problem { segments, dt, active: (0..4).collect() };
     let mut held_at_bound = Vec::new();
     loop {
@@ -230,16 +252,13 @@ pub(super) fn heave_on_depth(
         let (x, jtj, r) = problem.solve(&p);
         let dof = (r.len() as f64 - problem.len() as f64).max(1.0);
         let sigma2 = r.norm_squared() / dof;
-        let covariance = jtj.cholesky().map(|c| c.inverse());
+        let covariance = jtj.clone().cholesky().map(|c| c.inverse());
         let (fitted, _) = problem.at(&p, &x);
         // A coefficient held at its bound (a drag that would push, an added mass that would
         // leave no mass) is what the data do not want of it: it takes the starting file's
         // value and the rest are fitted again (ArduSub's simulator, no linear heave drag: its
         // `z_w` comes out at 0).
-        let held = problem.active.iter().enumerate().position(|(j, &i)| {
-            // The same sum `set` was given: unequal only where it clamped.
-            i != 3 && get(&fitted, i) != get(&p, i) + x[j] * SCALE[i]
-        });
+        let held = problem.active.iter().position(|&i| get(&fitted, i) >= bound(&fitted, i));
         if let Some(j) = held {
             let i = problem.active.remove(j);
             set(&mut p, i, get(base, i));
@@ -253,7 +272,14 @@ pub(super) fn heave_on_depth(
             .iter()
             .enumerate()
             .map(|(j, &i)| {
-                let se = covariance.as_ref().map_or(f64::INFINITY, |c| (sigma2 * c[(j, j)].max(0.0)).sqrt() * SCALE[i]);
+                // Without the inverse (J'J singular) the diagonal alone, as the identification
+                // does: nothing in the readings moves a coefficient whose column is zero.
+                let variance = match &covariance {
+                    Some(c) => c[(j, j)].max(0.0),
+                    None if jtj[(j, j)] > 0.0 => 1.0 / jtj[(j, j)],
+                    None => f64::INFINITY,
+                };
+                let se = (sigma2 * variance).sqrt() * SCALE[i];
                 if i == 3 { se / (fitted.rho * fitted.g) } else { se }
             })
             .collect();
@@ -267,6 +293,7 @@ pub(super) fn heave_on_depth(
                 let i = problem.active.remove(j);
                 set(&mut p, i, get(base, i));
             }
+            _ if r.norm_squared() >= identification_rss => return None,
             _ => {
                 let mut se = [None; 4];
                 for (j, &i) in problem.active.iter().enumerate() {
@@ -384,8 +411,10 @@ mod tests {
 
     /// A vehicle with quadratic heave drag only, read by a depth sensor with +-0.2 m of
     /// uniform noise (ArduSub's simulator's), handed over with the biased heave the velocity
-    /// fit found on the firmware (`z_w` -6.7, `z_ww` -47, 1 N of buoyancy off): the fit on the
-    /// readings finds the truth's heave, and its residual is the sensor's noise.
+    /// fit found on the firmware (`z_w` -6.7, `z_ww` -47, 1 N of buoyancy off), or with its
+    /// linear drag at the bound (a killed recording's fit: `z_w` 0, where a step outward moves
+    /// nothing): the fit on the readings finds the truth's heave, and its residual is the
+    /// sensor's noise.
     #[test]
     fn the_heave_on_noisy_depth_readings_is_the_truths() {
         let truth = VehicleParams::load(fixture("sitl_truth.toml")).unwrap();
@@ -393,8 +422,16 @@ mod tests {
         let segments = noisy_segments(&truth, dt, 0.2);
         let mut biased = VehicleParams { z_w: -6.7, z_ww: -47.0, z_wd: 0.7, ..truth };
         biased.volume -= 1.0 / (truth.rho * truth.g);
+        let at_bound = VehicleParams { z_w: 0.0, z_ww: -65.6, z_wd: 0.85, ..truth };
+        for handed in [biased, at_bound] {
+            the_truths_heave_from(&truth, handed, &segments, dt);
+        }
+    }
+
+    fn the_truths_heave_from(truth: &VehicleParams, handed: VehicleParams, segments: &[DepthSegment], dt: f64) {
+        let truth = *truth;
         let base = VehicleParams { z_w: -0.19, z_ww: -74.2, ..truth };
-        let h = heave_on_depth(&identification(biased, 0.25), &base, &segments, dt).unwrap();
+        let h = heave_on_depth(&identification(handed, 0.25), &base, segments, dt).unwrap();
         let mut fitted = truth;
         [fitted.z_wd, fitted.z_w, fitted.z_ww, fitted.volume] = h.fitted;
         eprintln!("{h:?}");
