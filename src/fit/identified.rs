@@ -1,8 +1,7 @@
 //! Stages 1-5 composed: estimate on the starting vehicle, identify, fit the sensors, estimate
 //! and identify again until the coefficients settle, fit the heave on the depth readings, take
-//! in the heave gain; and what they
-//! found ([`Identified`]). Apart because both [`super::fit`] and [`super::determinacy`] (the
-//! recording's watch) run exactly these stages.
+//! in the heave gain; and what they found ([`Identified`]). Apart because both [`super::fit`]
+//! and [`super::determinacy`] (the recording's watch) run exactly these stages.
 
 use super::heave_gain::{HEAVE_GAIN_TOLERANCE, MAX_HEAVE_GAIN_STEPS, mean_heave_gain, with_heave_gain};
 use super::heave_on_depth::{HeaveOnDepth, heave_on_depth};

@@ -73,7 +73,7 @@ impl DepthSegment {
         self.readings.iter().map(|r| r.1).fold(self.start[2], f64::min)
     }
 
-    /// `vehicle`'s depth rolled out from `start` at each reading.
+    /// The depth `physics` rolls out from `start` over the segment's inputs, at each reading.
     pub(super) fn rollout(&self, physics: &Rk4Vehicle, start: &SimState) -> Vec<f64> {
         let steps = self.inputs.len();
         let mut track = Vec::with_capacity(steps + 1);

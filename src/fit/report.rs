@@ -619,7 +619,6 @@ fn judged_text(judged: bool, biased: bool) -> &'static str {
     }
 }
 
-/// The report's open-loop depth section: the identified vehicle's and the reference file's.
 /// The heave as identified from the velocities and as fitted on the depth readings.
 fn heave_on_depth_markdown(h: &super::heave_on_depth::HeaveOnDepth) -> String {
     let mut md = format!(
@@ -635,6 +634,7 @@ fn heave_on_depth_markdown(h: &super::heave_on_depth::HeaveOnDepth) -> String {
     md
 }
 
+/// The report's open-loop depth section: the identified vehicle's and the reference file's.
 fn open_loop_depth_markdown(fit: &Fit) -> String {
     let (identified, reference) = &fit.open_loop_depth;
     let mut md = format!(
