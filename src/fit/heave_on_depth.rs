@@ -173,6 +173,30 @@ impl Problem<'_> {
         j
     }
 
+    /// Each active coefficient's standard error in its own units (the volume's from the net
+    /// buoyancy's), from `J^T J` and the residuals `r` at `fitted`.
+    fn std_errors(&self, fitted: &VehicleParams, jtj: DMatrix<f64>, r: &DVector<f64>) -> Vec<f64> {
+        let dof = (r.len() as f64 - self.len() as f64).max(1.0);
+        let sigma2 = r.norm_squared() / dof;
+        let diagonal = jtj.diagonal();
+        let covariance = jtj.cholesky().map(|c| c.inverse());
+        self.active
+            .iter()
+            .enumerate()
+            .map(|(j, &i)| {
+                // Without the inverse (J'J singular) the diagonal alone, as the identification
+                // does: nothing in the readings moves a coefficient whose column is zero.
+                let variance = match &covariance {
+                    Some(c) => c[(j, j)].max(0.0),
+                    None if diagonal[j] > 0.0 => 1.0 / diagonal[j],
+                    None => f64::INFINITY,
+                };
+                let se = (sigma2 * variance).sqrt() * SCALE[i];
+                if i == 3 { se / (fitted.rho * fitted.g) } else { se }
+            })
+            .collect()
+    }
+
     /// Levenberg-Marquardt from zero; the unknowns found, `J^T J` there and the residuals.
     fn solve(&self, p: &VehicleParams) -> (DVector<f64>, DMatrix<f64>, DVector<f64>) {
         let mut x = DVector::zeros(self.len());
@@ -250,9 +274,6 @@ pub(super) fn heave_on_depth(
             return None;
         }
         let (x, jtj, r) = problem.solve(&p);
-        let dof = (r.len() as f64 - problem.len() as f64).max(1.0);
-        let sigma2 = r.norm_squared() / dof;
-        let covariance = jtj.clone().cholesky().map(|c| c.inverse());
         let (fitted, _) = problem.at(&p, &x);
         // A coefficient held at its bound (a drag that would push, an added mass that would
         // leave no mass) is what the data do not want of it: it takes the starting file's
@@ -265,24 +286,7 @@ pub(super) fn heave_on_depth(
             held_at_bound.push(HEAVE_KEYS[i]);
             continue;
         }
-        // Each coefficient's standard error in its own units (the volume's from the net
-        // buoyancy's), relative to what the identification judges it against.
-        let std_err: Vec<f64> = problem
-            .active
-            .iter()
-            .enumerate()
-            .map(|(j, &i)| {
-                // Without the inverse (J'J singular) the diagonal alone, as the identification
-                // does: nothing in the readings moves a coefficient whose column is zero.
-                let variance = match &covariance {
-                    Some(c) => c[(j, j)].max(0.0),
-                    None if jtj[(j, j)] > 0.0 => 1.0 / jtj[(j, j)],
-                    None => f64::INFINITY,
-                };
-                let se = (sigma2 * variance).sqrt() * SCALE[i];
-                if i == 3 { se / (fitted.rho * fitted.g) } else { se }
-            })
-            .collect();
+        let std_err = problem.std_errors(&fitted, jtj, &r);
         let relative = |j: usize| {
             let key = HEAVE_KEYS[problem.active[j]];
             std_err[j] / judged_against(&fitted, key, id.speeds).max(1e-300)

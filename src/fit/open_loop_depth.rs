@@ -149,7 +149,7 @@ pub fn open_loop_depth(vehicle: &VehicleParams, runs: &[Replay], dt: f64, depth_
 }
 
 /// [`OpenLoopDepth`] of `vehicle` on `segments` ([`depth_segments`]).
-pub(super) fn open_loop_depth_on(vehicle: &VehicleParams, segments: &[DepthSegment], dt: f64) -> OpenLoopDepth {
+fn open_loop_depth_on(vehicle: &VehicleParams, segments: &[DepthSegment], dt: f64) -> OpenLoopDepth {
     let physics = Rk4Vehicle { params: *vehicle, ..Rk4Vehicle::with_dt(dt) };
     let steps = (SEGMENT_S / dt).round() as usize;
     let mut readings = 0;
