@@ -64,11 +64,14 @@ def fly(out_dir, script, *extra, timeout=300):
 
 
 def truth_track(s):
-    """`(t, north, east)` of the true position and `(t, depth, heading deg)`, session time."""
+    """`(t, north, east)` of the true position, `(t, depth, heading deg)` and the true velocity
+    over the ground `(t, north, east)` (SIM_STATE's, turned from the body axes), session time."""
     topics = read_mcap(Path(s["log"]))
     positions = [(ns * 1e-9, m["north_m"], m["east_m"]) for ns, m in topics["/truth/position"]]
     states = [(ns * 1e-9, m["z"], math.degrees(m["psi"])) for ns, m in topics["/truth"]]
-    return positions, states
+    velocities = [(ns * 1e-9, math.cos(m["psi"]) * m["u"] - math.sin(m["psi"]) * m["v"],
+                   math.sin(m["psi"]) * m["u"] + math.cos(m["psi"]) * m["v"]) for ns, m in topics["/truth"]]
+    return positions, states, velocities
 
 
 def at(track, t):
@@ -88,11 +91,13 @@ def hold_wander(positions, holding):
     return max(math.hypot(n - mean[0], e - mean[1]) for n, e in held)
 
 
-def release(positions, t_release, holding=None):
+def release(positions, t_release, holding=None, velocities=()):
     """Past the release point along the way it went; back from the farthest to where it rests
-    (its mean position 6-8 s after the release: the hold's own wander on the GPS averaged); at
-    rest after (the last time it was farther from there than 3 cm, or than it strayed while
-    holding still over `holding` before the stick); and the speed over the second before the
+    (its mean position 6-8 s after the release: the hold's own wander on the GPS averaged); over
+    the 2 s after the release, sampled every 0.02 s, the most it moved back from the farthest point
+    reached so far (`back_2s_m`) and its fastest speed back (`back_speed_m_s`, the true velocity);
+    at rest after (the last time it was farther from where it rests than 3 cm, or than it strayed
+    while holding still over `holding` before the stick); and the speed over the second before the
     release."""
     p, before = at(positions, t_release), at(positions, t_release - 1.0)
     v = [p[0] - before[0], p[1] - before[1]]
@@ -105,7 +110,15 @@ def release(positions, t_release, holding=None):
     past = max(along(n, e) for _, n, e in after)
     ring = max(0.03, hold_wander(positions, holding)) if holding else 0.03
     moving = [t for t, n, e in after if math.hypot(n - end[0], e - end[1]) > ring]
-    return {"speed_m_s": speed, "past_m": past, "back_m": past - along(*end), "rest_ring_m": ring,
+    farthest, back_2s = -math.inf, 0.0
+    for k in range(101):
+        a = along(*at(positions, t_release + 0.02 * k))
+        farthest = max(farthest, a)
+        back_2s = max(back_2s, farthest - a)
+    back_speed = max((-(vn * d[0] + ve * d[1]) for t, vn, ve in velocities if t_release <= t <= t_release + 2.0),
+                     default=0.0)
+    return {"speed_m_s": speed, "past_m": past, "back_m": past - along(*end), "back_2s_m": back_2s,
+            "back_speed_m_s": back_speed, "rest_ring_m": ring,
             "rest_after_s": (moving[-1] - t_release) if moving else 0.0}
 
 
@@ -147,10 +160,10 @@ def flights(tmp_path_factory, fitted):
 
 def figures(who, r, s):
     assert s["stopped"] is None and r.returncode == 0, (who, r.stderr[-3000:])
-    positions, states = truth_track(s)
+    positions, states, velocities = truth_track(s)
     # Held over the 8 s before the stick (4-12 s; the heave stick's dive moves the depth alone),
     # as long as the release's 8 s are watched.
-    out = {"release": release(positions, RELEASE_S, holding=(4.0, 12.0)),
+    out = {"release": release(positions, RELEASE_S, holding=(4.0, 12.0), velocities=velocities),
            "turn": excursion(states, 2, TURN_RELEASE_S, DURATION_S - 0.5),
            "dive": excursion(states, 1, 6.0, 11.5)}
     print(f"{who:20s} {json.dumps(out)}")
@@ -181,6 +194,12 @@ def test_a_released_stick_stops_at_half_poshold_travel_without_coming_back(fligh
         assert pinc["rest_ring_m"] <= 0.05 and pinc["rest_after_s"] <= 5.0, (case, pinc)
         if case != "sway 0.3":
             assert pinc["past_m"] <= target, (case, pinc)
+        # No swing back: over the 2 s after the release at most 2 cm back (4 cm at 0.9 m/s) from
+        # the farthest point reached, never faster than 0.05 m/s backwards (POSHOLD never moves back).
+        print(f"{case}: back within 2 s pinc {pinc['back_2s_m']:.3f} m at up to {pinc['back_speed_m_s']:.3f} m/s, "
+              f"POSHOLD {poshold['back_2s_m']:.3f} m at up to {poshold['back_speed_m_s']:.3f} m/s")
+        assert pinc["back_2s_m"] <= (0.04 if speed > 0.5 else 0.02), (case, pinc)
+        assert pinc["back_speed_m_s"] <= 0.05, (case, pinc)
     # Back from the farthest point, held there: 0.016-0.034 m at 0.5 m/s, 0.011-0.020 m at 0.9 m/s
     # (0.023-0.028 and 0.053-0.064 m held where the speed fell under 0.02 m/s).
     assert f["pinc, surge 0.5"]["release"]["back_m"] <= BACK_M, f["pinc, surge 0.5"]
@@ -250,7 +269,7 @@ def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_p
         mygcs = cockpit["mygcs"]
         assert [v for t, v in mygcs if t is not None and 4.0 <= t <= 20.0] == [254.0], (way, mygcs)
         assert mygcs[-1][1] == 255.0 and mygcs[-1][0] > cockpit["ended_t"], (way, mygcs)
-        positions, states = truth_track(s)
+        positions, states, velocities = truth_track(s)
         # Known motions: Cockpit's z below 500 took the vehicle down, its x forward along the heading.
         assert at(states, 6.0)[0] - at(states, 1.5)[0] >= 0.4, (way, at(states, 1.5), at(states, 6.0))
         p0, p1 = at(positions, 9.5), at(positions, JOYSTICK_RELEASE_S)
@@ -258,10 +277,11 @@ def test_cockpits_joystick_flies_pinc_while_the_autopilot_takes_pinc_alone(tmp_p
         moved = [p1[0] - p0[0], p1[1] - p0[1]]
         along = moved[0] * math.cos(heading) + moved[1] * math.sin(heading)
         assert along >= 0.9 * math.hypot(*moved), (way, moved, heading)
-        let_go = release(positions, JOYSTICK_RELEASE_S)
+        let_go = release(positions, JOYSTICK_RELEASE_S, velocities=velocities)
         print(f"Cockpit's joystick ({way}), released: {json.dumps(let_go)}")
         assert abs(let_go["speed_m_s"] - 0.5) <= 0.06 and let_go["past_m"] <= 0.17, (way, let_go)
         assert let_go["back_m"] <= BACK_M, (way, let_go)
+        assert let_go["back_2s_m"] <= 0.02 and let_go["back_speed_m_s"] <= 0.05, (way, let_go)
         # Exactly one source on the thrusters: Cockpit's full forward (x 1000 at the full pilot
         # gain) puts the four horizontal outputs at 1100, 1100, 1900, 1900 (measured on this
         # firmware) whenever the autopilot takes it.

@@ -151,7 +151,7 @@ def test_a_refusal_is_shown_on_the_page(server, browser, tmp_path):
     browser.find_element(By.ID, "ex-start").click()
     message = lambda: browser.find_element(By.ID, "message").text  # noqa: E731
     wait_for("the refusal", lambda: "outside the vehicle's limits" in message(), browser)
-    assert message() == "depth_band bottom 5 m is outside the vehicle's limits: 0 to 3 m (pinc serve --max-depth)"
+    assert message() == "depth_band bottom 5 m is outside the vehicle's limits: 0 to 3 m (the limits on the page)"
     assert browser.find_element(By.ID, "message").get_attribute("class") == "bad"
     browser.save_screenshot(str(tmp_path / "refusal.png"))
 
@@ -287,7 +287,7 @@ def test_cockpit_finds_the_page_as_a_widget_and_hold_and_stop_as_actions(server,
             return e.code, json.loads(e.read())
     assert send(actions["pinc-hold-here"]) == (409, {"error": "no fitted model to hold with: excite and fit first"})
     assert send(actions["pinc-resume"]) == (
-        409, {"error": "nothing to resume: no flight was ordered from the page since pinc serve started"})
+        409, {"error": "nothing to resume from: no hold or pilot flight is running"})
     status, reply = send(actions["pinc-stop"])
     assert status == 200 and reply["stopped"] is True, reply
     # The token outlives a restart (Cockpit keeps the headers it copied): the data folder's.

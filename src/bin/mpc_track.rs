@@ -45,7 +45,9 @@ struct Args {
     oracle: bool,
     /// Which built-in scenario: depth and heading (`default`, `disturbed`), or on four axes
     /// in a 0.3 m/s current (`station`: hold where control starts through a depth step and a
-    /// 45 deg turn; `survey`: 4 legs of 10 m, 2 m apart, 0.3 m/s, 2 m deep).
+    /// 45 deg turn; `hold`: hold the point, depth and heading where control starts, an hour
+    /// unless --duration says (on a vehicle: its estimate's at the first cycle); `survey`: 4
+    /// legs of 10 m, 2 m apart, 0.3 m/s, 2 m deep).
     #[arg(long, value_enum, default_value = "default", conflicts_with_all = ["reference", "path", "survey"])]
     scenario: ScenarioName,
     /// Follow a path: a CSV of waypoints with header north_m,east_m,depth_m and t (s) or
@@ -202,6 +204,7 @@ enum ScenarioName {
     Default,
     Disturbed,
     Station,
+    Hold,
     Survey,
 }
 
@@ -266,6 +269,7 @@ fn settings(a: &Args) -> Result<Settings, String> {
             ScenarioName::Default => "default",
             ScenarioName::Disturbed => "disturbed",
             ScenarioName::Station => "station",
+            ScenarioName::Hold => "hold",
             ScenarioName::Survey => "survey",
         }
         .into(),

@@ -25,7 +25,7 @@ pub struct Settings {
     pub model: PathBuf,
     /// Vehicle file of the plant and of the oracle's model [`None`: the BlueROV2].
     pub vehicle: Option<PathBuf>,
-    /// Built-in scenario: `default`, `disturbed`, `station` or `survey` (ignored when
+    /// Built-in scenario: `default`, `disturbed`, `station`, `hold` or `survey` (ignored when
     /// `reference`, `path` or `survey` is given).
     pub scenario: String,
     /// References from a CSV file `t,depth_m,heading_deg`.
@@ -320,10 +320,11 @@ fn scenario_of(s: &Settings, limits: &PathLimits) -> Result<Scenario, SetupError
         (.., "default") => Scenario::default(),
         (.., "disturbed") => Scenario::disturbed(),
         (.., "station") => Scenario::station(),
+        (.., "hold") => Scenario::hold(),
         (.., "survey") => Scenario::survey(),
         (.., other) => {
             return Err(SetupError::Setting(format!(
-                "scenario: `{other}` is none of default, disturbed, station, survey"
+                "scenario: `{other}` is none of default, disturbed, station, hold, survey"
             )));
         }
     };

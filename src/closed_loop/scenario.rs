@@ -55,7 +55,13 @@ pub struct Scenario {
     pub current: [f64; 2],
     /// The horizontal goal: a point held or a path (`None`: depth and heading only).
     pub horizontal: Option<HorizontalPlan>,
+    /// Whether the depth and heading tracks are offsets from where the vehicle is when control
+    /// starts (`hold`: where it is, held), rather than depths and headings of their own.
+    pub from_start: bool,
 }
+
+/// How long `hold` lasts unless told (s): until STOP, in practice.
+pub const HOLD_DURATION_S: f64 = 3600.0;
 
 /// The current of the built-in four-axis scenarios: 0.3 m/s towards 30 deg east of north
 /// (along no axis of the vehicle or the world).
@@ -73,6 +79,7 @@ impl Default for Scenario {
             damping_scale: 1.0,
             current: [0.0, 0.0],
             horizontal: None,
+            from_start: false,
         }
     }
 }
@@ -139,6 +146,7 @@ impl Scenario {
             damping_scale: 1.0,
             current: [0.0, 0.0],
             horizontal: None,
+            from_start: false,
         })
     }
 
@@ -153,6 +161,39 @@ impl Scenario {
             damping_scale: 1.0,
             current: FOUR_AXIS_CURRENT,
             horizontal: Some(HorizontalPlan::station()),
+            from_start: false,
+        }
+    }
+
+    /// `hold`: holding the point, the depth and the heading the vehicle has when control starts
+    /// (a live vehicle's estimate at its first cycle; the simulated one starts at rest at the
+    /// surface), for an hour unless told, in [`FOUR_AXIS_CURRENT`]. What "hold here" flies.
+    pub fn hold() -> Self {
+        Self {
+            name: "hold".into(),
+            depth: Track::steps(&[(0.0, 0.0)]),
+            heading: Track::steps(&[(0.0, 0.0)]),
+            duration: HOLD_DURATION_S,
+            damping_scale: 1.0,
+            current: FOUR_AXIS_CURRENT,
+            horizontal: Some(HorizontalPlan::station()),
+            from_start: true,
+        }
+    }
+
+    /// This scenario as flown from a start at `depth` (m) and `heading` (rad): a scenario
+    /// [`from_start`](Self::from_start) has its depth and heading tracks moved there (the
+    /// heading track in degrees, continued from the start's heading); any other is itself.
+    pub fn started_at(&self, depth: f64, heading: f64) -> Self {
+        if !self.from_start {
+            return self.clone();
+        }
+        let heading = heading.to_degrees();
+        Self {
+            depth: self.depth.shifted(depth),
+            heading: self.heading.shifted(heading),
+            from_start: false,
+            ..self.clone()
         }
     }
 
@@ -168,6 +209,7 @@ impl Scenario {
             damping_scale: 1.0,
             current,
             horizontal: Some(path.horizontal),
+            from_start: false,
         }
     }
 

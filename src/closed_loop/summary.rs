@@ -41,11 +41,23 @@ pub struct HorizontalFigures {
     pub finished_s: Option<f64>,
 }
 
-/// The horizontal figures of a simulated run's samples, for a scenario with a horizontal goal
-/// (the plant starts at the plan's zero).
+/// The horizontal figures of a run's samples, for a scenario with a horizontal goal. The
+/// positions are taken into the plan's frame by where each sample's reference put the plan's zero:
+/// the simulated plant starts there, a live vehicle wherever control started in its autopilot's
+/// frame (a cycle without a horizontal reference keeps the last one's).
 pub(super) fn horizontal_of(scenario: &Scenario, samples: &[Sample]) -> Option<HorizontalFigures> {
     let plan = scenario.horizontal.as_ref()?;
-    let positions: Vec<(f64, f64, f64)> = samples.iter().map(|s| (s.t, s.state[0], s.state[1])).collect();
+    let mut zero = [0.0, 0.0];
+    let positions: Vec<(f64, f64, f64)> = samples
+        .iter()
+        .map(|s| {
+            if let Some(h) = s.reference.horizontal {
+                let ([n, e], _) = plan.at(s.t);
+                zero = [h.north - n, h.east - e];
+            }
+            (s.t, s.state[0] - zero[0], s.state[1] - zero[1])
+        })
+        .collect();
     Some(horizontal_figures(plan, &positions))
 }
 

@@ -63,6 +63,11 @@ impl Track {
         }
     }
 
+    /// The same track with every value moved by `by`.
+    pub fn shifted(&self, by: f64) -> Self {
+        Self { points: self.points.iter().map(|&(t, v)| (t, v + by)).collect() }
+    }
+
     /// Time of the last point.
     pub fn end(&self) -> f64 {
         self.points.last().map_or(0.0, |p| p.0)

@@ -110,6 +110,12 @@ pub struct DriveArgs {
     /// Rate (Hz) requested for SERVO_OUTPUT_RAW, whose outputs give the recorded input.
     #[arg(long, default_value_t = 50.0)]
     pub outputs_rate: f64,
+    /// Take the autopilot's ground-station place from the station with this system id for the
+    /// run (Cockpit: 255): pinc's --gcs-sysid becomes the autopilot's ground station, so that
+    /// station's joystick moves nothing meanwhile, and the place is given back at every end.
+    /// `--pilot` on a ground station's joystick takes it by itself.
+    #[arg(long, value_name = "SYSID")]
+    pub take_ground_station: Option<u8>,
 }
 
 /// A number of seconds that is zero or more, or an error naming `name`.
@@ -189,7 +195,7 @@ impl DriveArgs {
             js_gain_from_autopilot: self.js_gain.is_none(),
             sensor_silence: positive("--max-sensor-silence", self.max_sensor_silence)?.as_secs_f64(),
             frozen_depth: positive("--max-frozen", self.max_frozen)?.as_secs_f64(),
-            replaces_ground_station: None,
+            replaces_ground_station: self.take_ground_station,
         })
     }
 

@@ -87,6 +87,9 @@ pub struct Drive {
     ekf_status: Option<EkfStatus>,
     /// The flight mode of the autopilot's newest heartbeat (`custom_mode`).
     mode: u32,
+    /// The flight mode the autopilot was in when the session found it: what a hand-back
+    /// returns to.
+    mode_before: u32,
     /// The newest `GPS_RAW_INT` fix type.
     gps_fix: Option<u8>,
     /// The newest `SYS_STATUS`'s health of a DVL (visual odometry), where one is present.
@@ -262,6 +265,7 @@ impl Drive {
             params: Params::default(),
             ekf_status: None,
             mode,
+            mode_before: mode,
             gps_fix: None,
             vision_healthy: None,
             origin_asked: None,
@@ -708,6 +712,27 @@ impl Drive {
 
     /// Ends a session that ran to its end: neutral, and a disarm if the session armed.
     pub fn finish(&mut self) -> Stopped {
+        self.stop(None)
+    }
+
+    /// Ends a session by handing the vehicle back as the pilot had it (asked, not a stop):
+    /// neutral, the flight mode the autopilot was in before the session (asked while pinc is
+    /// still its ground station), a disarm only if the session armed it, and the ground-station
+    /// place given back.
+    pub fn hand_back(&mut self) -> Stopped {
+        let t = self.now_t();
+        let _ = self.commander.send(&self.link, &self.commander.neutral());
+        let before = self.mode_before;
+        let mode = SubMode::ALL.into_iter().find(|m| *m as u32 == before && *m != SubMode::Manual);
+        let said = match mode {
+            _ if self.armed_by_us => "pinc had armed it: neutral and disarm".to_string(),
+            Some(m) => match self.link.set_mode(m) {
+                Ok(()) => format!("its mode {} asked back, still armed", m.name()),
+                Err(e) => format!("its mode {} could not be asked back ({e}): left in MANUAL, armed", m.name()),
+            },
+            None => format!("left in {}, armed, as it was", SubMode::name_of(before)),
+        };
+        self.announce(t, Level::Info, format!("the vehicle handed back to the pilot: {said}"));
         self.stop(None)
     }
 

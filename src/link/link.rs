@@ -20,11 +20,23 @@ use std::time::{Duration, Instant};
 
 type Connection = mavlink::Connection<MavMessage>;
 
+/// What to try where a connection was refused: the addresses BlueOS serves (its autopilot
+/// manager's default endpoints), not the simulator's TCP 5760.
+fn blueos_hint(source: &std::io::Error) -> &'static str {
+    if source.kind() == std::io::ErrorKind::ConnectionRefused {
+        "; nothing listens there. BlueOS serves MAVLink to a laptop on UDP (udpout:192.168.2.2:14550, its \
+         \"GCS Server Link\") and to programs on the vehicle on tcp:127.0.0.1:5777; tcp:...:5760 is ArduSub's \
+         simulator (docs/OWNER.md#connect)"
+    } else {
+        ""
+    }
+}
+
 /// What can go wrong on the link.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
     /// The connection could not be opened (port in use, device missing, TCP refused).
-    #[error("cannot open {address}: {source}")]
+    #[error("cannot open {address}: {source}{}", blueos_hint(.source))]
     Open {
         /// The address, in the crate's form.
         address: String,

@@ -19,20 +19,18 @@ use std::collections::VecDeque;
 pub const DEADMAN_S: f64 = 0.5;
 /// A stick within this of the centre is centred.
 pub const DEADBAND: f64 = 0.05;
-/// The shortest interval between two readings taken (s): 200 a second; a gamepad sends 60 at
-/// most.
-pub const MIN_INTERVAL_S: f64 = 0.005;
 /// A released position or depth is at rest when its speed the way it went falls under this
 /// (m/s).
 const REST_SPEED: f64 = 0.02;
 /// A released heading is at rest when its rate the way it turned falls under this (rad/s): 1
 /// deg/s.
 const REST_RATE: f64 = 0.017_453_292_519_943_295;
-/// While stopping, the reference lies this long of the speed behind the vehicle (s): on the
-/// simulated vehicle in a 0.3 m/s current, 0.3 s took the travel past the release point from
-/// 0.122 to 0.089 m at 0.5 m/s and from 0.104 to 0.077 m at 0.3 m/s sway, the way back from 0.002
-/// to 0.006-0.019 m (0.6 s: 0.075 m past, 0.012-0.020 m back; 1 s: 0.031 m back).
-const BRAKE_LEAD_S: f64 = 0.3;
+/// While stopping, the reference lies this long of the speed behind the vehicle (s): the MPC
+/// brakes harder than for a reference where it is (on the simulated vehicle in a 0.3 m/s current,
+/// 0.3 s took the travel past the release point from 0.122 to 0.089 m at 0.5 m/s and from 0.104 to
+/// 0.077 m at 0.3 m/s sway). The speed is the vehicle's now ([`Axis::speed_now`]), so the lead is
+/// gone when the vehicle stops.
+const BRAKE_LEAD_S: f64 = 0.2;
 /// A released axis is held where it is after this long, at rest or not (s).
 pub const STOP_TIMEOUT_S: f64 = 5.0;
 /// The ground velocity is the estimate's positions' change over this window (s).
@@ -55,25 +53,46 @@ pub enum Phase {
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Axis<const N: usize> {
     phase: Phase,
-    /// Where the reference is: the vehicle's place while stopping, the rest point holding.
+    /// Where the reference is: behind the vehicle while stopping, the rest point holding.
     hold: [f64; N],
     /// The commanded velocity when last moving: the way it went.
     way: [f64; N],
     /// When the stick was let go (s).
     released: f64,
-    /// While stopping, the farthest point reached the way it went: where it is held.
+    /// While stopping: the speed the way it went at the last cycle and when (the window's), and
+    /// the farthest point reached the way it went (where it is held).
+    last_speed: Option<(f64, f64)>,
     farthest: [f64; N],
 }
 
 impl<const N: usize> Axis<N> {
     fn holding(here: [f64; N]) -> Self {
-        Self { phase: Phase::Holding, hold: here, way: [0.0; N], released: f64::NEG_INFINITY, farthest: here }
+        Self {
+            phase: Phase::Holding,
+            hold: here,
+            way: [0.0; N],
+            released: f64::NEG_INFINITY,
+            last_speed: None,
+            farthest: here,
+        }
     }
 
     /// The unit vector of the way the axis went.
     fn direction(&self) -> [f64; N] {
         let norm = self.way.iter().map(|w| w * w).sum::<f64>().sqrt().max(1e-12);
         self.way.map(|w| w / norm)
+    }
+
+    /// The speed the way it went now, from `windowed` (the positions' change over
+    /// [`VELOCITY_WINDOW_S`], which is the speed of half a window ago) moved on by the rate it
+    /// changed since the last cycle: braking, the windowed speed lags the vehicle's by a tenth of
+    /// a second, and a reference behind a vehicle already at rest swung it back (0.10-0.11 m at
+    /// up to 0.39 m/s after a 0.9 m/s push on the firmware).
+    fn speed_now(&self, t: f64, windowed: f64) -> f64 {
+        match self.last_speed {
+            Some((t0, s0)) if t > t0 => (windowed + (windowed - s0) / (t - t0) * 0.5 * VELOCITY_WINDOW_S).max(0.0),
+            _ => windowed.max(0.0),
+        }
     }
 
     /// The phase after this cycle; `Some` with the new phase when it changed.
@@ -86,29 +105,32 @@ impl<const N: usize> Axis<N> {
         stop: Stop,
     ) -> Option<Phase> {
         let before = self.phase;
+        let d = self.direction();
+        let ahead = |p: &[f64; N]| d.iter().zip(p).map(|(d, p)| d * p).sum::<f64>();
+        let windowed = ahead(&velocity);
         match (self.phase, commanded) {
             (_, Some(c)) => {
                 (self.phase, self.way, self.hold) = (Phase::Moving, c, here);
             }
             (Phase::Moving, None) => {
-                (self.phase, self.released, self.hold, self.farthest) = (Phase::Stopping, t, here, here);
+                (self.phase, self.released, self.farthest) = (Phase::Stopping, t, here);
+                let now = self.speed_now(t, windowed);
+                self.hold = std::array::from_fn(|i| here[i] - stop.lead * now * d[i]);
+                self.last_speed = Some((t, windowed));
             }
             (Phase::Stopping, None) => {
-                let d = self.direction();
-                let ahead = |p: &[f64; N]| d.iter().zip(p).map(|(d, p)| d * p).sum::<f64>();
                 if ahead(&here) > ahead(&self.farthest) {
                     self.farthest = here;
                 }
-                let along: f64 = d.iter().zip(velocity).map(|(d, v)| d * v).sum();
-                if along <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
-                    // At rest where it went farthest: the speed is seen over a window, so the
-                    // vehicle may already have eased back from there; held there, it does not
-                    // come back.
+                let now = self.speed_now(t, windowed);
+                self.last_speed = Some((t, windowed));
+                if now <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
+                    // At rest where it went farthest: held there, it does not come back.
                     (self.phase, self.hold) = (Phase::Holding, self.farthest);
                 } else {
-                    // Where the vehicle would have been `lead` ago at this speed: the MPC brakes
-                    // harder than for where it is, and the hold is taken at rest.
-                    self.hold = std::array::from_fn(|i| here[i] - stop.lead * along * d[i]);
+                    // Where the vehicle would have been `lead` ago at its speed now: the MPC
+                    // brakes harder than for where it is, and less as the speed goes.
+                    self.hold = std::array::from_fn(|i| here[i] - stop.lead * now * d[i]);
                 }
             }
             (Phase::Holding, None) => {}
@@ -118,7 +140,7 @@ impl<const N: usize> Axis<N> {
 }
 
 /// How an axis group stops: at rest under `rest` (m/s or rad/s) the way it went, the
-/// reference `lead` s of its speed behind it until then.
+/// reference `lead` (s) of its speed behind it meanwhile.
 #[derive(Debug, Clone, Copy)]
 struct Stop {
     rest: f64,
@@ -198,22 +220,21 @@ impl PilotAssist {
         self.limits
     }
 
-    /// A reading taken at `t` (s, the session's time): checked, it replaces the last. A
-    /// refused one centres the sticks (the vehicle holds) until the next good one.
+    /// A reading taken at `t` (s, the session's time): checked, it replaces the last. Readings
+    /// closer together than a cycle (a browser's gamepad polled twice under load, a burst passed
+    /// on at once) merge: the newest is in force at the next cycle, and none of them centres the
+    /// sticks. A refused one (an axis not finite or out of range) centres the sticks (the
+    /// vehicle holds) until the next good one.
     ///
     /// # Errors
-    /// The reading is refused: an axis not finite or out of range, or sooner than
-    /// [`MIN_INTERVAL_S`] after the last one taken.
+    /// The reading is refused: an axis not finite or out of range.
     pub fn take(&mut self, t: f64, reading: Result<Sticks, StickError>) -> Result<(), StickError> {
-        let checked = reading.and_then(|s| Sticks::new(s.axes())).and_then(|s| match self.last_reading {
-            Some(last) if t - last < MIN_INTERVAL_S => {
-                Err(StickError::TooFast { interval_ms: (t - last) * 1e3, min_ms: MIN_INTERVAL_S * 1e3 })
-            }
-            _ => Ok(s),
-        });
-        match checked {
+        match reading.and_then(|s| Sticks::new(s.axes())) {
             Ok(s) => {
-                (self.sticks, self.last_reading) = (s, Some(t));
+                // A reading that arrived out of order (older than the newest taken) is left out.
+                if self.last_reading.is_none_or(|last| t >= last) {
+                    (self.sticks, self.last_reading) = (s, Some(t));
+                }
                 Ok(())
             }
             Err(e) => {
@@ -333,5 +354,44 @@ impl PilotAssist {
             (Some((t0, a)), Some((t1, b))) if t1 - t0 > 1e-9 => std::array::from_fn(|i| (b[i] - a[i]) / (t1 - t0)),
             _ => [0.0; 4],
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 0.9 m/s push whose readings come in bursts (pairs 1 ms apart every 40 ms, as a browser
+    /// polling its gamepad under load passes them on) stays a push: the assist never stops it
+    /// mid-push, and the release afterwards stops it at once.
+    #[test]
+    fn sticks_in_bursts_never_brake_a_push() {
+        let limits = StickLimits { surge: 1.0, sway: 0.5, heave: 0.4, yaw_rate: 0.5 };
+        let mut assist = PilotAssist::new(limits, (0.0, 10.0));
+        let push = Sticks { surge: 0.9, ..Sticks::CENTRED };
+        let (dt, mut refs) = (0.08, vec![Reference::depth_heading(0.0, 0.0); 10]);
+        let mut next_burst = 0.0;
+        for k in 0..150 {
+            let t = k as f64 * dt;
+            while next_burst <= t {
+                let stick = if next_burst < 10.0 { push } else { Sticks::CENTRED };
+                assist.take(next_burst, Ok(stick)).unwrap();
+                assist.take(next_burst + 0.001, Ok(stick)).unwrap();
+                next_burst += 0.04;
+            }
+            // The vehicle going north at the stick's speed until 10 s, then braking.
+            let north = 0.9 * t.min(10.0);
+            let x = State::from([north, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            assist.references(t, &x, true, dt, &mut refs);
+        }
+        let horizontal: Vec<_> = assist.changes().iter().filter(|c| c.axis == "horizontal").collect();
+        assert_eq!(horizontal[0].phase, Phase::Moving, "{horizontal:?}");
+        assert!(horizontal[0].t < 0.1, "{horizontal:?}");
+        assert_eq!(horizontal[1].phase, Phase::Stopping, "{horizontal:?}");
+        assert!((10.0..10.1).contains(&horizontal[1].t), "stopped mid-push: {horizontal:?}");
+        assert_eq!(assist.refused(), 0);
+        // A bad value is still refused, and holds.
+        assert!(assist.take(12.0, Sticks::new([f64::NAN, 0.0, 0.0, 0.0])).is_err());
+        assert_eq!(assist.commanded(12.0), Sticks::CENTRED);
     }
 }

@@ -7,7 +7,7 @@
 mod assist;
 mod sticks;
 
-pub use assist::{DEADBAND, DEADMAN_S, MIN_INTERVAL_S, Phase, PhaseChange, Phases, PilotAssist, STOP_TIMEOUT_S};
+pub use assist::{DEADBAND, DEADMAN_S, Phase, PhaseChange, Phases, PilotAssist, STOP_TIMEOUT_S};
 pub use sticks::{AXES, STEADY_SPEED_SHARE, StickError, StickLimits, Sticks};
 
 use crate::closed_loop::{Plant, Sample, run_with};

@@ -42,14 +42,6 @@ pub enum StickError {
     /// The source of the readings failed (a joystick's address that does not answer).
     #[error("{0}")]
     Source(String),
-    /// A reading sooner after the last than any gamepad or joystick sends them.
-    #[error("stick reading {interval_ms:.1} ms after the last: more than one per {min_ms:.0} ms is refused")]
-    TooFast {
-        /// Since the last accepted reading (ms).
-        interval_ms: f64,
-        /// The shortest interval taken (ms).
-        min_ms: f64,
-    },
 }
 
 /// The axes' names, in [`Sticks::axes`]'s order.

@@ -9,8 +9,9 @@ use serde_json::{Value, json};
 /// Where `register_service` says the extras are.
 pub const EXTRAS_PATH: &str = "/cockpit_extras.json";
 
-/// The extras: the page as an iframe widget, "hold here", "resume" and STOP as HTTP actions carrying the
-/// page's token (stable across restarts: the data folder's), and a joystick suggestion for
+/// The extras: the page as an iframe widget, "hold here" (the depth, heading and position at the
+/// press), "resume" (the vehicle back to the pilot) and STOP as HTTP actions carrying the page's
+/// token (stable across restarts: the data folder's), and a joystick suggestion for
 /// them. Cockpit checks the file as a whole: one field wrong and it drops all of it.
 pub fn extras(token: &str) -> Value {
     let version = env!("CARGO_PKG_VERSION");
@@ -64,8 +65,8 @@ pub fn extras(token: &str) -> Value {
             "targetVehicleTypes": ["MAV_TYPE_SUBMARINE"],
             "version": version,
             "buttonMappingSuggestions": [
-                suggestion("pinc-suggest-hold", "pinc-hold-here", "pinc: hold here", 2, "hold where the vehicle is"),
-                suggestion("pinc-suggest-resume", "pinc-resume", "pinc: resume", 3, "the last flight again"),
+                suggestion("pinc-suggest-hold", "pinc-hold-here", "pinc: hold here", 2, "hold the depth, heading and position now"),
+                suggestion("pinc-suggest-resume", "pinc-resume", "pinc: resume", 3, "the vehicle back to the pilot as they had it"),
                 suggestion("pinc-suggest-stop", "pinc-stop", "pinc: STOP", 1, "neutral and disarm"),
             ],
         }],

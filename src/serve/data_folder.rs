@@ -34,6 +34,9 @@ pub fn check_name(what: &'static str, name: &str) -> Result<(), DataError> {
     if plain { Ok(()) } else { Err(DataError::Name { what, name: name.to_string() }) }
 }
 
+/// The owner's limits, in the data folder.
+const LIMITS_FILE: &str = "limits.json";
+
 /// The data folder.
 #[derive(Clone)]
 pub struct DataFolder {
@@ -120,6 +123,41 @@ impl DataFolder {
             .filter(|(_, name)| check_name("name", name).is_ok())
             .max()
             .map(|(_, name)| name)
+    }
+
+    /// The limits the owner set on the page (`limits.json`), if any.
+    ///
+    /// # Errors
+    /// The file cannot be read, or it is not limits (named with what is wrong).
+    pub fn limits(&self) -> Result<Option<super::orders::DiveLimits>, DataError> {
+        let path = self.root.join(LIMITS_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(io(&path, e)),
+        };
+        let bad = |error: String| DataError::Io { path: path.display().to_string(), error };
+        let limits: super::orders::DiveLimits = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        limits.check().map_err(bad)?;
+        Ok(Some(limits))
+    }
+
+    /// Keeps `limits` as the owner's (`limits.json`, written whole: a temporary file renamed
+    /// over the old one, so a power cut leaves the old limits or the new, never half).
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn save_limits(&self, limits: &super::orders::DiveLimits) -> Result<(), DataError> {
+        let path = self.root.join(LIMITS_FILE);
+        let temporary = self.root.join(format!(".{LIMITS_FILE}.partial"));
+        let text = serde_json::to_string_pretty(limits).map_err(|e| io(&path, std::io::Error::other(e)))?;
+        let write = || -> std::io::Result<()> {
+            let mut f = std::fs::File::create(&temporary)?;
+            std::io::Write::write_all(&mut f, text.as_bytes())?;
+            f.sync_all()?;
+            std::fs::rename(&temporary, &path)
+        };
+        write().map_err(|e| io(&path, e))
     }
 
     /// The page's token: kept in the folder (`.token`, owner-only), made on the first start, so

@@ -330,6 +330,21 @@ impl Jobs {
         true
     }
 
+    /// The running flight told to end by handing the vehicle back as the pilot had it (its
+    /// child's SIGUSR1; a flight that does not end is left to STOP). Whether a flight was
+    /// running.
+    pub fn hand_back(&self) -> bool {
+        let mut current = self.current.lock().expect("jobs");
+        let Some(j) = current.as_mut().filter(|j| j.state == State::Running && j.kind == Kind::Fly) else {
+            return false;
+        };
+        if let Some(pid) = j.child {
+            signal(pid, libc::SIGUSR1);
+        }
+        j.say("asked to hand the vehicle back to the pilot".into());
+        true
+    }
+
     /// One line of sticks to the running flight that takes them.
     ///
     /// # Errors

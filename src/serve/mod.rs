@@ -46,16 +46,18 @@ pub struct ServeArgs {
     #[arg(long)]
     vehicle: Option<PathBuf>,
     /// Deepest the page may ask for (m): references, the excitation's band, and every run's
-    /// --max-depth stop.
-    #[arg(long, default_value_t = 3.0)]
-    max_depth: f64,
-    /// Longest excitation or flight (s).
-    #[arg(long, default_value_t = 600.0)]
-    max_duration: f64,
+    /// --max-depth stop [default: 50]. The limits the owner sets on the page (kept in the data
+    /// folder's limits.json) win over these three flags.
+    #[arg(long)]
+    max_depth: Option<f64>,
+    /// Longest excitation or scripted flight (s); the hold and pilot assist run until STOP
+    /// [default: 1800].
+    #[arg(long)]
+    max_duration: Option<f64>,
     /// The farthest a flight may go from where it starts (m): a path reaching past it is
-    /// refused, and crossing it stops the flight.
-    #[arg(long, default_value_t = 30.0)]
-    max_distance: f64,
+    /// refused, and crossing it stops the flight [default: 100].
+    #[arg(long)]
+    max_distance: Option<f64>,
     /// The most the data folder may hold (MB): a run that would take it past this is refused
     /// before it starts (delete old runs on the page); the page shows what it holds.
     #[arg(long, default_value_t = 1024.0)]
@@ -74,6 +76,11 @@ pub struct ServeArgs {
     /// in Cockpit's place for the flight (docs/PILOT.md).
     #[arg(long, value_name = "SYSID", default_value_t = 254)]
     joystick_flight_sysid: u8,
+    /// A website's origin (scheme://host[:port]) whose pages may send commands besides pinc's
+    /// own page, BlueOS's pages at the same address and Cockpit desktop (repeat; e.g. a Cockpit
+    /// served from a laptop, `http://192.168.2.1:5173`). Every other site's page is refused.
+    #[arg(long = "allow-origin", value_name = "ORIGIN")]
+    allow_origins: Vec<String>,
     /// One more argument for every excitation and flight (repeat; e.g. `--run-arg=--js-gain
     /// --run-arg=1`, or the estimator's sensor noise).
     #[arg(long = "run-arg", value_name = "ARG", allow_hyphen_values = true)]
@@ -83,19 +90,7 @@ pub struct ServeArgs {
 /// Runs `pinc serve`: checks the limits, opens the data folder, watches the vehicle and serves
 /// the page until the process ends (its address on stderr).
 pub fn run_serve(a: ServeArgs) -> Result<(), String> {
-    let limits = orders::Limits {
-        max_depth: a.max_depth,
-        max_duration: a.max_duration,
-        max_distance: a.max_distance,
-        max_data_bytes: a.max_data_mb * 1e6,
-    };
-    for (flag, v) in [
-        ("--max-depth", a.max_depth),
-        ("--max-duration", a.max_duration),
-        ("--max-distance", a.max_distance),
-        ("--max-data-mb", a.max_data_mb),
-        ("--history", a.history),
-    ] {
+    for (flag, v) in [("--max-data-mb", a.max_data_mb), ("--history", a.history)] {
         if !(v.is_finite() && v > 0.0) {
             return Err(format!("{flag} must be a positive number, got {v}"));
         }
@@ -104,6 +99,20 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         return Err(format!("--history must be at least 10 s, got {}", a.history));
     }
     let data = data_folder::DataFolder::open(&a.data).map_err(|e| e.to_string())?;
+    let flags = orders::DiveLimits {
+        max_depth: a.max_depth.unwrap_or(orders::DIVE_LIMITS.max_depth),
+        max_distance: a.max_distance.unwrap_or(orders::DIVE_LIMITS.max_distance),
+        max_duration: a.max_duration.unwrap_or(orders::DIVE_LIMITS.max_duration),
+    };
+    flags.check().map_err(|e| format!("--{}", e.replacen('_', "-", 2)))?;
+    let dive = match data.limits().map_err(|e| e.to_string())? {
+        Some(own) => {
+            eprintln!("pinc serve: the owner's limits from the data folder's limits.json: {own:?}");
+            own
+        }
+        None => flags,
+    };
+    let limits = dive.with_data_bytes(a.max_data_mb * 1e6);
     let here = std::env::current_exe().map_err(|e| format!("cannot find this program: {e}"))?;
     let bin = here.parent().map(PathBuf::from).unwrap_or_default();
     let mpc_track = bin.join("mpc_track");
@@ -124,10 +133,11 @@ pub fn run_serve(a: ServeArgs) -> Result<(), String> {
         watcher,
         jobs,
         history_s: a.history,
-        last_flight: Default::default(),
-        holding: Default::default(),
+        until_stop: Default::default(),
+        ground_station: ground,
+        allowed_origins: a.allow_origins.iter().map(|o| o.trim_end_matches('/').to_string()).collect(),
         token,
-        limits,
+        limits: std::sync::Mutex::new(limits),
         vehicle: a.vehicle.clone(),
         flight_connect: a.flight_connect.clone().unwrap_or_else(|| a.link.connect.clone()),
         run_args: a.run_args.clone(),

@@ -4,18 +4,77 @@
 use serde::Deserialize;
 use std::fmt::Write as _;
 
-/// The vehicle's limits, from `pinc serve`'s flags.
-#[derive(Clone, Copy, Debug)]
+/// The vehicle's limits: depth, distance and duration the owner sets on the page (kept in the
+/// data folder's `limits.json`; `pinc serve`'s flags give them until then), and the data folder's
+/// size (a flag).
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
     /// Deepest depth (m) any reference, band or stop may ask for.
     pub max_depth: f64,
-    /// Longest excitation or flight (s).
+    /// Longest excitation or scripted flight (s); the hold and pilot assist run until STOP.
     pub max_duration: f64,
-    /// The farthest a path may go from the start (m).
+    /// The farthest a flight may go from where it starts (m).
     pub max_distance: f64,
     /// The most the data folder may hold (bytes).
     pub max_data_bytes: f64,
 }
+
+/// The limits a dive starts with until the owner sets their own: a BlueROV2's enclosures are
+/// rated to 100 m (the standard) and its tether is commonly 100-300 m; half of the rating, a
+/// third of the shortest tether, and half an hour for an excitation or a scripted flight.
+pub const DIVE_LIMITS: DiveLimits = DiveLimits { max_depth: 50.0, max_distance: 100.0, max_duration: 1800.0 };
+
+/// The limits the page shows and sets, as `limits.json` keeps them.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiveLimits {
+    /// Deepest (m): every run stops past it, and nothing may ask for more.
+    pub max_depth: f64,
+    /// Farthest from where a flight starts (m).
+    pub max_distance: f64,
+    /// Longest excitation or scripted flight (s).
+    pub max_duration: f64,
+}
+
+/// What the page may set each limit to: up to a BlueROV2 Heavy's 300 m enclosures, a kilometre,
+/// a day.
+const LIMIT_RANGES: [(&str, f64, &str); 3] =
+    [("max_depth", 300.0, "m"), ("max_distance", 1000.0, "m"), ("max_duration", 86400.0, "s")];
+
+impl DiveLimits {
+    /// # Errors
+    /// A limit that is not a positive number within its range, named with the range.
+    pub fn check(&self) -> Result<(), String> {
+        let values = [self.max_depth, self.max_distance, self.max_duration];
+        for ((field, most, unit), v) in LIMIT_RANGES.into_iter().zip(values) {
+            if !(v.is_finite() && v > 0.0 && v <= most) {
+                return Err(format!("{field} {v} {unit} must be above 0 and at most {most} {unit}"));
+            }
+        }
+        Ok(())
+    }
+
+    /// These limits with the data folder's size limit.
+    pub fn with_data_bytes(self, max_data_bytes: f64) -> Limits {
+        Limits {
+            max_depth: self.max_depth,
+            max_duration: self.max_duration,
+            max_distance: self.max_distance,
+            max_data_bytes,
+        }
+    }
+}
+
+impl Limits {
+    /// The limits the page sets.
+    pub fn dive(&self) -> DiveLimits {
+        DiveLimits { max_depth: self.max_depth, max_distance: self.max_distance, max_duration: self.max_duration }
+    }
+}
+
+/// How long the hold and pilot assist run (s): until STOP, the deadman or the page closed, in
+/// practice (a day).
+pub const UNTIL_STOP_S: f64 = 86400.0;
 
 /// What a run writes per second, at most (bytes): a flight's MCAP log is about 21 kB/s (the
 /// firmware tests' 60 s flights: 1.29 MB), doubled for its plots and a margin.
@@ -102,8 +161,9 @@ pub struct FlyOrder {
 pub enum References {
     /// Depth FROM then TO at AT (s); heading likewise (deg).
     Steps { depth: [f64; 2], depth_at: f64, heading: [f64; 2], heading_at: f64 },
-    /// Hold where control starts (needs a position source), with the scenario's depth step and turn.
-    Station,
+    /// Hold the depth, heading and position (where one is known) the vehicle has when control
+    /// starts, until STOP or "resume".
+    Hold,
     /// A lawnmower from the start: width, length, spacing (m), speed (m/s), depth (m).
     Survey { width: f64, length: f64, spacing: f64, speed: f64, depth: f64 },
     /// The page's gamepad: what full sticks ask for, surge, sway, heave (m/s), yaw (deg/s)
@@ -129,7 +189,7 @@ fn depth(field: &str, v: f64, limits: &Limits) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!(
-            "{field} {v} m is outside the vehicle's limits: 0 to {} m (pinc serve --max-depth)",
+            "{field} {v} m is outside the vehicle's limits: 0 to {} m (the limits on the page)",
             limits.max_depth
         ))
     }
@@ -140,7 +200,7 @@ fn duration(field: &str, v: f64, limits: &Limits) -> Result<f64, String> {
     if v > 0.0 && v <= limits.max_duration {
         Ok(v)
     } else {
-        Err(format!("{field} {v} s must be above 0 and at most {} s (pinc serve --max-duration)", limits.max_duration))
+        Err(format!("{field} {v} s must be above 0 and at most {} s (the limits on the page)", limits.max_duration))
     }
 }
 
@@ -180,7 +240,9 @@ impl FitOrder {
 
 impl FlyOrder {
     pub fn check(&self, limits: &Limits) -> Result<(), String> {
-        duration("duration", self.duration, limits)?;
+        if !self.until_stop() {
+            duration("duration", self.duration, limits)?;
+        }
         match &self.references {
             References::Steps { depth: [a, b], depth_at, heading: [h0, h1], heading_at } => {
                 depth("depth from", *a, limits)?;
@@ -194,7 +256,7 @@ impl FlyOrder {
                     }
                 }
             }
-            References::Station => {}
+            References::Hold => {}
             References::Pilot { speeds: Some(speeds) } | References::Joystick { speeds: Some(speeds) } => {
                 for (field, v) in ["surge", "sway", "heave", "yaw"].into_iter().zip(speeds) {
                     positive(&format!("speeds {field}"), *v)?;
@@ -210,13 +272,27 @@ impl FlyOrder {
                 if reach > limits.max_distance {
                     return Err(format!(
                         "the survey reaches {reach:.1} m from the start, past the vehicle's limit of {} m \
-                         (pinc serve --max-distance)",
+                         (the limits on the page)",
                         limits.max_distance
                     ));
                 }
             }
         }
         Ok(())
+    }
+
+    /// Whether the flight runs until STOP (the hold, pilot assist): the duration limit is for
+    /// excitations and scripted flights.
+    pub fn until_stop(&self) -> bool {
+        matches!(self.references, References::Hold | References::Pilot { .. } | References::Joystick { .. })
+    }
+
+    /// The order as flown: a flight until STOP lasts [`UNTIL_STOP_S`], whatever it asked.
+    pub fn flown(mut self) -> Self {
+        if self.until_stop() {
+            self.duration = UNTIL_STOP_S;
+        }
+        self
     }
 
     /// A steps order as `mpc_track --reference`'s CSV (a step is two rows at one time).
@@ -258,8 +334,11 @@ mod tests {
     fn numbers_past_the_vehicles_limits_are_refused_naming_the_field() {
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,5],"depth_at":10,"heading":[0,90],"heading_at":20}}"#).unwrap_err();
         assert!(e.contains("depth to 5 m is outside the vehicle's limits: 0 to 3 m"), "{e}");
-        let e = fly(r#"{"model":"m","duration":3000,"references":{"kind":"station"}}"#).unwrap_err();
+        let e = fly(r#"{"model":"m","duration":3000,"references":{"kind":"survey","width":4,"length":10,"spacing":2,"speed":0.3,"depth":2}}"#).unwrap_err();
         assert!(e.starts_with("duration 3000 s"), "{e}");
+        // The hold and pilot assist run until STOP: their duration is not the limit's.
+        fly(r#"{"model":"m","duration":3000,"references":{"kind":"hold"}}"#).unwrap();
+        fly(r#"{"model":"m","duration":90000,"references":{"kind":"joystick"}}"#).unwrap();
         let e = fly(r#"{"model":"m","duration":60,"references":{"kind":"survey","width":40,"length":10,"spacing":2,"speed":0.3,"depth":2}}"#).unwrap_err();
         assert!(e.contains("reaches 41.2 m from the start, past the vehicle's limit of 20 m"), "{e}");
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"steps","depth":[1,2],"depth_at":40,"heading":[0,90],"heading_at":20}}"#).unwrap_err();
@@ -268,6 +347,12 @@ mod tests {
             fly(r#"{"model":"m","duration":30,"references":{"kind":"pilot","speeds":[0.5,0,0.3,20]}}"#).unwrap_err();
         assert_eq!(e, "speeds sway must be above 0, got 0");
         fly(r#"{"model":"m","duration":600,"references":{"kind":"pilot"}}"#).unwrap();
+        assert_eq!(
+            DiveLimits { max_depth: 0.0, ..DIVE_LIMITS }.check().unwrap_err(),
+            "max_depth 0 m must be above 0 and at most 300 m"
+        );
+        assert!(DiveLimits { max_duration: f64::NAN, ..DIVE_LIMITS }.check().is_err());
+        DIVE_LIMITS.check().unwrap();
         let e = fly(r#"{"model":"m","duration":30,"references":{"kind":"orbit"}}"#).unwrap_err();
         assert!(e.contains("unknown variant `orbit`"), "{e}");
         let band = |b: &str| {

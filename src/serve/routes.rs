@@ -1,12 +1,16 @@
 //! The HTTP routes. Reads are GETs; everything that moves the vehicle or changes the data
-//! folder is a POST carrying the token the page was given in an `X-Pinc-Token` header
-//! (another site's page in the same browser cannot read the page, so it has no token, and
-//! cannot set the header without a CORS permission this server never gives). Every refusal
-//! is a JSON `{"error": ...}` with its status, and a line in the server's log.
+//! folder is a POST carrying the token the page was given in an `X-Pinc-Token` header. The
+//! token is not the guard against other websites: behind BlueOS's proxy every answer carries
+//! `Access-Control-Allow-Origin: *`, so any page a pilot's browser opens can read it. The guard
+//! is the `Origin` a browser sends with every POST and cannot be made to forge: a command is
+//! taken from pinc's own page (its own origin, as BlueOS serves it), Cockpit desktop (`file://`),
+//! an origin `--allow-origin` names, or no browser at all; another site's page is refused, and
+//! its browser's preflight is refused too. Every refusal is a JSON `{"error": ...}` with its
+//! status, and a line in the server's log.
 
 use super::data_folder::DataFolder;
 use super::jobs::{Handle, Jobs, Kind, Step};
-use super::orders::{self, ExciteOrder, FitOrder, FlyOrder, Limits, References};
+use super::orders::{self, DiveLimits, ExciteOrder, FitOrder, FlyOrder, Limits, References};
 use super::vehicle_watch::Watcher;
 use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
@@ -26,7 +30,10 @@ pub struct App {
     pub watcher: Watcher,
     pub jobs: Jobs,
     pub token: String,
-    pub limits: Limits,
+    /// The owner's limits (the page sets them between runs).
+    pub limits: std::sync::Mutex<Limits>,
+    /// The ground station whose place the hold takes (Cockpit's id).
+    pub ground_station: u8,
     pub vehicle: Option<PathBuf>,
     pub flight_connect: String,
     pub run_args: Vec<String>,
@@ -35,15 +42,53 @@ pub struct App {
     pub joystick_flight_sysid: u8,
     /// A flight's figures keep its last this many seconds (`--history`).
     pub history_s: f64,
-    /// The last flight the page ordered (what "resume" flies again), and the job id of a hold
-    /// started by "hold here" (what "resume" ends first).
-    pub last_flight: std::sync::Mutex<Option<FlyOrder>>,
-    pub holding: std::sync::Mutex<Option<u64>>,
+    /// The job id of the flight running until STOP (the hold, pilot assist): what "resume"
+    /// hands back to the pilot.
+    pub until_stop: std::sync::Mutex<Option<u64>>,
+    /// Origins besides the page's own and Cockpit desktop's whose pages may send commands.
+    pub allowed_origins: Vec<String>,
     pub pinc: PathBuf,
     pub mpc_track: PathBuf,
     /// What the data folder holds and its disk's free space (bytes), and when they were read:
     /// the state is polled five times a second per page, the folder walked at most every 2 s.
     pub storage: std::sync::Mutex<Option<(std::time::Instant, u64, Option<u64>)>>,
+}
+
+/// The `Origin` Cockpit desktop's fetches carry: Electron loads its page from a file, and with
+/// the file protocol's privileges Electron grants by default its requests say `file://` (a plain
+/// browser's file page and a sandboxed frame say `null`, refused).
+const COCKPIT_DESKTOP_ORIGIN: &str = "file://";
+
+/// Where a request comes from ([`App::origin_of`]).
+enum Origin {
+    /// No `Origin` header: not a browser's page (a script, a ground station's own HTTP client).
+    None,
+    Allowed(String),
+    /// Another website's page: nothing it sends moves the vehicle.
+    Other(String),
+}
+
+/// A browser's question before a command with the token's header (`OPTIONS`): answered yes
+/// for the page's own origin, Cockpit desktop's and those `--allow-origin` names, refused for any
+/// other (BlueOS's proxy adds `Access-Control-Allow-Origin: *` to every answer, but without the
+/// allowed headers the browser still never sends the command).
+fn preflight(path: &str, origin: Origin) -> Reply {
+    match origin {
+        Origin::Allowed(o) if path.starts_with("/api/") => Ok(Response::from_data(Vec::new())
+            .with_status_code(204)
+            .with_header(header("Access-Control-Allow-Origin", &o))
+            .with_header(header("Access-Control-Allow-Methods", "POST"))
+            .with_header(header("Access-Control-Allow-Headers", "Content-Type, X-Pinc-Token"))
+            // A page on a laptop asking the vehicle's private address (Chromium's private
+            // network access) is asked too.
+            .with_header(header("Access-Control-Allow-Private-Network", "true"))
+            .with_header(header("Access-Control-Max-Age", "600"))
+            .with_header(header("Vary", "Origin"))),
+        Origin::Other(o) => {
+            Err(Refused(403, format!("refused: another website's page ({o}) may not send commands here")))
+        }
+        _ => Err(Refused(404, format!("nothing to ask about at {path}"))),
+    }
 }
 
 /// A refusal: status and message.
@@ -76,10 +121,21 @@ impl App {
         let url = request.url().to_string();
         let (path, query) = url.split_once('?').unwrap_or((&url, ""));
         let query: Vec<(String, String)> = form_urlencoded::parse(query.as_bytes()).into_owned().collect();
+        let origin = self.origin_of(&request);
         let reply = if method == Method::Get {
             self.get(path, &query)
+        } else if method == Method::Options {
+            preflight(path, origin)
         } else if method == Method::Post {
-            self.post(path, &mut request)
+            match origin {
+                Origin::Other(o) => Err(Refused(
+                    403,
+                    format!(
+                        "refused: a command from another website's page ({o}) moves nothing (pinc serve --allow-origin)"
+                    ),
+                )),
+                _ => self.post(path, &mut request),
+            }
         } else {
             Err(Refused(405, format!("{method} is not answered here")))
         };
@@ -88,6 +144,27 @@ impl App {
             json_reply(status, &json!({"error": message}))
         });
         let _ = request.respond(response);
+    }
+
+    /// Who sent the request, by its `Origin` (what a browser always sends with a cross-origin
+    /// request and with a POST, and a page cannot forge): none (not a browser), this server's own
+    /// origin (its page, or BlueOS's pages behind the same address), Cockpit desktop (`file://`),
+    /// one `--allow-origin` names, or another website's page.
+    fn origin_of(&self, request: &Request) -> Origin {
+        let value = |name: &'static str| {
+            request.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str().trim().to_string())
+        };
+        let Some(origin) = value("Origin") else { return Origin::None };
+        let scheme = value("X-Forwarded-Proto").unwrap_or_else(|| "http".into());
+        let own = value("Host").map(|host| format!("{scheme}://{host}"));
+        if own.is_some_and(|own| own.eq_ignore_ascii_case(&origin))
+            || origin == COCKPIT_DESKTOP_ORIGIN
+            || self.allowed_origins.iter().any(|a| a.eq_ignore_ascii_case(&origin))
+        {
+            Origin::Allowed(origin)
+        } else {
+            Origin::Other(origin)
+        }
     }
 
     fn get(&self, path: &str, query: &[(String, String)]) -> Reply {
@@ -118,6 +195,7 @@ impl App {
                 let since = arg("since").and_then(|s| s.parse().ok()).unwrap_or(0);
                 let vehicle = self.watcher.view.lock().expect("view").to_json();
                 let (used, free) = self.storage();
+                let limits = self.limits();
                 Ok(json_reply(
                     200,
                     &json!({
@@ -127,9 +205,11 @@ impl App {
                             "version": env!("CARGO_PKG_VERSION"),
                             "flight_connect": self.flight_connect,
                             "vehicle_file": self.vehicle_file().ok().map(|p| p.display().to_string()),
-                            "limits": {"max_depth": self.limits.max_depth, "max_duration": self.limits.max_duration,
-                                       "max_distance": self.limits.max_distance,
-                                       "max_data_mb": self.limits.max_data_bytes / 1e6},
+                            "limits": {"max_depth": limits.max_depth, "max_duration": limits.max_duration,
+                                       "max_distance": limits.max_distance,
+                                       "max_data_mb": limits.max_data_bytes / 1e6,
+                                       "defaults": orders::DIVE_LIMITS,
+                                       "owners": self.data.limits().ok().flatten().is_some()},
                             "data_mb": used as f64 / 1e6,
                             "disk_free_mb": free.map(|b| b as f64 / 1e6),
                             "trainer": cfg!(feature = "train"),
@@ -190,48 +270,25 @@ impl App {
             }
             "/api/excite" => self.excite(parse(&body)?),
             "/api/fit" => self.fit(parse(&body)?),
-            "/api/fly" => {
-                let order: FlyOrder = parse(&body)?;
-                let reply = self.fly(order.clone())?;
-                *self.last_flight.lock().expect("last flight") = Some(order);
-                Ok(reply)
-            }
-            // Cockpit's "hold here": the newest fitted model holds where the vehicle is.
-            "/api/hold" => {
-                let model = self
-                    .data
-                    .newest("models", "model.pinc")
-                    .ok_or_else(|| Refused(409, "no fitted model to hold with: excite and fit first".to_string()))?;
-                let reply =
-                    self.fly(FlyOrder { model, references: References::Station, duration: self.limits.max_duration })?;
-                *self.holding.lock().expect("holding") = self.jobs.to_json(usize::MAX)["id"].as_u64();
-                Ok(reply)
-            }
-            // Cockpit's "resume": the hold "hold here" started ends (neutral, disarm), and the
-            // page's last flight flies again from where the vehicle is.
-            "/api/resume" => {
-                let order = self.last_flight.lock().expect("last flight").clone().ok_or_else(|| {
-                    Refused(
-                        409,
-                        "nothing to resume: no flight was ordered from the page since pinc serve started".into(),
-                    )
-                })?;
-                let current = self.jobs.to_json(usize::MAX);
-                let hold = *self.holding.lock().expect("holding");
+            "/api/fly" => self.fly(parse(&body)?),
+            // Cockpit's "hold here" (and the page's hold): the newest fitted model holds the
+            // depth, heading and position the vehicle has at the press, until STOP or resume.
+            "/api/hold" => self.hold(),
+            // Cockpit's "resume" (and the page's): the hold or pilot assist running ends by
+            // handing the vehicle back as the pilot had it (its mode, still armed, the ground
+            // station's place returned).
+            "/api/resume" => self.resume(),
+            "/api/limits" => {
+                let limits: DiveLimits = parse(&body)?;
+                limits.check().map_err(|e| Refused(400, e))?;
                 if self.jobs.running() {
-                    if current["id"].as_u64().is_none() || current["id"].as_u64() != hold {
-                        return Err(Refused(
-                            409,
-                            format!("refused: {} is running; resume ends only a hold", current["what"]),
-                        ));
-                    }
-                    self.jobs.stop();
-                    let until = std::time::Instant::now() + std::time::Duration::from_secs(10);
-                    while self.jobs.running() && std::time::Instant::now() < until {
-                        std::thread::sleep(std::time::Duration::from_millis(50));
-                    }
+                    return Err(Refused(409, "refused: the limits change between runs (STOP or wait first)".into()));
                 }
-                self.fly(order)
+                self.data.save_limits(&limits).map_err(|e| Refused(500, e.to_string()))?;
+                let mut kept = self.limits.lock().expect("limits");
+                *kept = limits.with_data_bytes(kept.max_data_bytes);
+                eprintln!("serve: the owner's limits set: {limits:?}");
+                Ok(json_reply(200, &json!({"limits": limits})))
             }
             "/api/sticks" => {
                 // Checked here too: a refusal reaches the page at once, and nothing bad reaches
@@ -251,6 +308,74 @@ impl App {
             }
             _ => Err(Refused(404, format!("nothing at {path}"))),
         }
+    }
+
+    /// The limits in force.
+    fn limits(&self) -> Limits {
+        *self.limits.lock().expect("limits")
+    }
+
+    /// "Hold here": refused before anything is sent where the vehicle is past a limit, or where
+    /// there is no model or no depth to hold.
+    fn hold(&self) -> Reply {
+        let model = self
+            .data
+            .newest("models", "model.pinc")
+            .ok_or_else(|| Refused(409, "no fitted model to hold with: excite and fit first".to_string()))?;
+        let limits = self.limits();
+        let depth = self.watcher.view.lock().expect("view").to_json()["depth_m"].as_f64();
+        match depth {
+            None => {
+                return Err(Refused(
+                    409,
+                    "refused: the vehicle's depth is not known (no link to the autopilot, or no depth reading in 2 s): \
+                     nothing sent"
+                        .into(),
+                ));
+            }
+            Some(d) if d > limits.max_depth => {
+                return Err(Refused(
+                    409,
+                    format!(
+                        "refused: the vehicle is at {d:.2} m, deeper than the depth limit {} m: nothing sent (the \
+                         limits are on the page)",
+                        limits.max_depth
+                    ),
+                ));
+            }
+            Some(_) => {}
+        }
+        self.fly(FlyOrder { model, references: References::Hold, duration: orders::UNTIL_STOP_S })
+    }
+
+    /// "Resume": the flight running until STOP hands the vehicle back and ends (waited for, 10 s
+    /// at most); anything else running is left alone and said.
+    fn resume(&self) -> Reply {
+        let current = self.jobs.to_json(usize::MAX);
+        let id = current["id"].as_u64();
+        if !self.jobs.running() {
+            return Err(Refused(409, "nothing to resume from: no hold or pilot flight is running".into()));
+        }
+        if id.is_none() || id != *self.until_stop.lock().expect("until stop") {
+            return Err(Refused(
+                409,
+                format!(
+                    "refused: {} is running; resume ends only a hold or a pilot flight (STOP ends any)",
+                    current["what"]
+                ),
+            ));
+        }
+        self.jobs.hand_back();
+        let until = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while self.jobs.running() && std::time::Instant::now() < until {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let view = self.watcher.view.lock().expect("view").to_json();
+        eprintln!("serve: resume: the vehicle handed back (mode {}, armed {})", view["mode"], view["armed"]);
+        Ok(json_reply(
+            200,
+            &json!({"handed_back": true, "ended": !self.jobs.running(), "mode": view["mode"], "armed": view["armed"]}),
+        ))
     }
 
     /// The data folder's `vehicle.toml` (the owner's), else `--vehicle`.
@@ -291,11 +416,12 @@ impl App {
     /// Refuses a run of `duration` s that the data folder has no room for (its limit, its
     /// disk), before anything is sent.
     fn room_for(&self, duration: f64) -> Result<(), Refused> {
-        orders::room_for(duration, self.data.size(), self.data.free(), &self.limits).map_err(|e| Refused(507, e))
+        orders::room_for(duration, self.data.size(), self.data.free(), &self.limits()).map_err(|e| Refused(507, e))
     }
 
     fn excite(&self, order: ExciteOrder) -> Reply {
-        order.check(&self.limits).map_err(|e| Refused(400, e))?;
+        let limits = self.limits();
+        order.check(&limits).map_err(|e| Refused(400, e))?;
         self.room_for(order.duration)?;
         let vehicle = self.vehicle_file()?;
         let name = self.data.new_name("recordings", "excite", ".mcap").map_err(|e| Refused(500, e.to_string()))?;
@@ -333,7 +459,7 @@ impl App {
             "--arm".into(),
             format!("--depth-band={top},{bottom}"),
             "--max-depth".into(),
-            self.limits.max_depth.to_string(),
+            limits.max_depth.to_string(),
             "--out".into(),
             path(&out),
         ];
@@ -399,8 +525,13 @@ impl App {
     }
 
     fn fly(&self, order: FlyOrder) -> Reply {
-        order.check(&self.limits).map_err(|e| Refused(400, e))?;
-        self.room_for(order.duration)?;
+        let limits = self.limits();
+        order.check(&limits).map_err(|e| Refused(400, e))?;
+        let until_stop = order.until_stop();
+        let order = order.flown();
+        // A flight until STOP needs room for what it writes at first: its figures keep their
+        // last --history seconds, and its log grows with it (the page shows the folder).
+        self.room_for(if until_stop { limits.max_duration.min(order.duration) } else { order.duration })?;
         let model =
             self.data.existing("models", &order.model, Some("model.pinc")).map_err(|e| Refused(400, e.to_string()))?;
         let name = self.data.new_name("flights", "fly", "").map_err(|e| Refused(500, e.to_string()))?;
@@ -413,9 +544,9 @@ impl App {
             path(&model),
             "--arm".into(),
             "--max-depth".into(),
-            self.limits.max_depth.to_string(),
+            limits.max_depth.to_string(),
             "--max-distance".into(),
-            self.limits.max_distance.to_string(),
+            limits.max_distance.to_string(),
             "--stream-samples".into(),
             "--history".into(),
             self.history_s.to_string(),
@@ -432,7 +563,13 @@ impl App {
                 std::fs::write(&file, csv).map_err(|e| Refused(500, format!("{}: {e}", file.display())))?;
                 args.extend(["--reference".into(), path(&file)]);
             }
-            References::Station => args.extend(["--scenario".into(), "station".into()]),
+            References::Hold => {
+                // One source on the thrusters: pinc takes the ground station's place (Cockpit's
+                // joystick moves nothing meanwhile) and gives it back at the end.
+                args.extend(["--scenario".into(), "hold".into()]);
+                args.extend(["--take-ground-station".into(), self.ground_station.to_string()]);
+                args.extend(["--gcs-sysid".into(), self.joystick_flight_sysid.to_string()]);
+            }
             References::Survey { width, length, spacing, speed, depth } => {
                 args.push(format!("--survey={width},{length},{spacing},{speed},{depth}"));
             }
@@ -452,7 +589,11 @@ impl App {
         args.extend(self.run_args.iter().cloned());
         let sticks = matches!(order.references, References::Pilot { .. });
         let step = Step { program: self.mpc_track.clone(), args: os_args(args), sticks };
-        self.started(Kind::Fly, format!("{name} on {}", order.model), move |h| {
+        let what = match order.references {
+            References::Hold => format!("{name}: hold here on {}", order.model),
+            _ => format!("{name} on {}", order.model),
+        };
+        let reply = self.started(Kind::Fly, what, move |h| {
             let ran = h.run(&step)?;
             let summary: Option<Value> = serde_json::from_str(ran.stdout.trim()).ok();
             if let Some(s) = &summary {
@@ -467,7 +608,10 @@ impl App {
                 )),
                 (code, None) => Err(format!("the flight ended with {} and no summary", exit_text(code))),
             }
-        })
+        })?;
+        *self.until_stop.lock().expect("until stop") =
+            if until_stop { self.jobs.to_json(usize::MAX)["id"].as_u64() } else { None };
+        Ok(reply)
     }
 }
 

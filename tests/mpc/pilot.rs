@@ -42,6 +42,10 @@ fn script(stick: Sticks, release: f64) -> impl FnMut(f64) -> Option<Sticks> {
 struct Release {
     past_m: f64,
     back_m: f64,
+    /// Over the 2 s after the release: the most it moved back from the farthest point reached so
+    /// far, and its fastest speed back (m/s), cycle to cycle.
+    back_2s_m: f64,
+    back_speed_m_s: f64,
     rest_after_s: f64,
     speed_m_s: f64,
 }
@@ -60,7 +64,26 @@ fn release(samples: &[Sample], t_release: f64, dt: f64) -> Release {
         .rev()
         .find(|&i| (at(i)[0] - end[0]).hypot(at(i)[1] - end[1]) > 0.01)
         .map_or(0.0, |i| samples[i].t - t_release);
-    Release { past_m: past, back_m: past - along(end), rest_after_s: rest, speed_m_s: speed }
+    let (mut farthest, mut back_2s, mut back_speed) = (f64::NEG_INFINITY, 0.0f64, 0.0f64);
+    for i in k..samples.len() {
+        if samples[i].t > t_release + 2.0 {
+            break;
+        }
+        let a = along(at(i));
+        farthest = farthest.max(a);
+        back_2s = back_2s.max(farthest - a);
+        if i > k {
+            back_speed = back_speed.max((along(at(i - 1)) - a) / (samples[i].t - samples[i - 1].t));
+        }
+    }
+    Release {
+        past_m: past,
+        back_m: past - along(end),
+        back_2s_m: back_2s,
+        back_speed_m_s: back_speed,
+        rest_after_s: rest,
+        speed_m_s: speed,
+    }
 }
 
 /// Flies `stick` at `speed` (m/s, or rad/s for yaw) on `axis` (0 surge .. 3 yaw) from 10 s to
@@ -90,9 +113,11 @@ fn a_released_stick_stops_without_going_past_and_coming_back() {
     let c = campaign();
     let dt = c.model.dt;
     // Surge at 0.5 and 0.9 m/s, sway at 0.3 m/s: the cases measured with POSHOLD on the firmware
-    // (0.338, 0.672 and 0.163 m past; 0.047, 0.066 and 0.015 m back), held 6 s, released.
-    for (name, axis, speed, past_at_most) in
-        [("surge", 0, 0.5, 0.169), ("surge", 0, 0.9, 0.336), ("sway", 1, 0.3, 0.0815)]
+    // (0.336, 0.676 and 0.166 m past), held 6 s, released: half POSHOLD's travel past the release
+    // at most, and over the 2 s after it back at most 0.02, 0.04 and 0.02 m, never faster than
+    // 0.05 m/s.
+    for (name, axis, speed, past_at_most, back_at_most) in
+        [("surge", 0, 0.5, 0.168, 0.02), ("surge", 0, 0.9, 0.338, 0.04), ("sway", 1, 0.3, 0.083, 0.02)]
     {
         for pinc in [false, true] {
             let (samples, assist) = if pinc {
@@ -106,6 +131,8 @@ fn a_released_stick_stops_without_going_past_and_coming_back() {
             assert!((r.speed_m_s - speed).abs() <= 0.05 * speed, "{who} {name}: flew {} m/s for {speed}", r.speed_m_s);
             assert!(r.past_m <= past_at_most, "{who} {name} {speed}: {r:?}");
             assert!(r.back_m <= 0.02, "{who} {name} {speed}: {r:?}");
+            assert!(r.back_2s_m <= back_at_most, "{who} {name} {speed}: {r:?}");
+            assert!(r.back_speed_m_s <= 0.05, "{who} {name} {speed}: {r:?}");
             assert!(r.rest_after_s <= 5.0, "{who} {name} {speed}: {r:?}");
             assert_eq!(assist.phases().horizontal, Some(Phase::Holding));
         }

@@ -54,6 +54,9 @@ const OWN_FIXES_POSITION_PROCESS_STD: f64 = 0.001;
 /// every count the summary reports.
 pub(super) struct Flight<'l> {
     pub(super) log: &'l mut McapLog,
+    /// Raised (SIGUSR1) to end the flight by handing the vehicle back; whether it was.
+    pub(super) hand_back: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    pub(super) handed_back: bool,
     pub(super) log_error: Option<LogError>,
     pub(super) notes: Vec<Note>,
     pub(super) hold: Option<AutopilotHold>,
@@ -171,6 +174,8 @@ impl<'l> Flight<'l> {
     pub(super) fn new<M>(setup: &Setup<M>, log: &'l mut McapLog) -> Self {
         Self {
             log,
+            hand_back: None,
+            handed_back: false,
             log_error: None,
             notes: Vec::new(),
             hold: setup.hold,
@@ -422,11 +427,19 @@ impl<'l> Flight<'l> {
             }
             _ => None,
         };
+        // A scenario held from where control starts ("hold here"), once it has started.
+        let given = scenario;
+        let mut started: Option<Scenario> = None;
         loop {
             let fresh = drive.next_state(&mut seen)?;
             self.notes.extend(drive.take_notes());
             self.observe(drive, estimator, fresh.state.t);
             let now = self.estimate(estimator, &fresh, o)?;
+            if self.hand_back.as_ref().is_some_and(|f| f.load(std::sync::atomic::Ordering::Relaxed)) {
+                self.handed_back = true;
+                self.say(fresh.state.t, Level::Info, "asked to hand the vehicle back: the flight ends".into());
+                return Ok(());
+            }
             let start = match self.t0 {
                 Some(s) => s,
                 None => match self.wait_to_start(drive, estimator, &fresh, &now, o)? {
@@ -443,6 +456,18 @@ impl<'l> Flight<'l> {
                 };
                 return Err(Trigger::Error(why));
             };
+            if given.from_start && started.is_none() {
+                let held = given.started_at(state[2], state[3]);
+                let text = format!(
+                    "holding here: depth {:.2} m, heading {:.1} deg{}",
+                    state[2],
+                    state[3].to_degrees().rem_euclid(360.0),
+                    if self.plan.is_some() { ", the position where control started" } else { "" }
+                );
+                self.say(fresh.state.t, Level::Info, text);
+                started = Some(held);
+            }
+            let scenario = started.as_ref().unwrap_or(given);
             // An estimate that no longer follows what the vehicle measures steers a vehicle it
             // has lost: stop.
             if let Some(lost) = each!(&*estimator, tr => tr.ekf().health().lost()) {

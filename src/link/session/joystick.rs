@@ -24,10 +24,8 @@ use std::time::{Duration, Instant};
 /// `--pilot`'s prefix for a ground station's joystick on pinc's link.
 const LINK_PREFIX: &str = "mavlink:";
 /// The least time between two joystick readings passed on: Cockpit sends one every 40 ms; a
-/// router may hand on two at once, and the session's clock puts each reading at its arrival
-/// within a few ms of jitter, which must not bring two under the assist's
-/// [`MIN_INTERVAL_S`](crate::pilot::MIN_INTERVAL_S). A faster joystick is thinned to this (more
-/// adds nothing to a 12.5 Hz controller).
+/// router may hand on two at once. A faster joystick is thinned to this (more adds nothing to a
+/// 12.5 Hz controller, and the assist takes the newest of those between two cycles anyway).
 const MIN_GAP: Duration = Duration::from_millis(20);
 /// How often mavlink2rest is asked (twice Cockpit's rate), and how long an answer may take.
 const POLL: Duration = Duration::from_millis(20);

@@ -207,6 +207,8 @@ pub fn run<M: DiscreteModel + Clone>(
     o: &SessionOptions,
     log: &mut McapLog,
 ) -> Result<LiveRun, String> {
+    // First: a hand-back asked while the link opens must not end the process (SIGUSR1's default).
+    let hand_back = hand_back_flag()?;
     let setup = Setup::new(&flyer, o, scenario.horizontal.is_some())?;
     // Refused before the link opens (a hold that ignores sticks, a model that fails).
     let mut pilot = pilot_feed(&flyer, o)?;
@@ -227,6 +229,7 @@ pub fn run<M: DiscreteModel + Clone>(
         _ => {}
     };
     let stop = ctrl_c_flag()?;
+    flight.hand_back = Some(hand_back);
     let Setup { commander, settings, estimator_model, noise, dead_reckoning_bound, .. } = setup;
     let mut drive = match Drive::start(link, autopilot, assembler, commander, settings, stop, seen) {
         Ok(d) => d,
@@ -298,10 +301,11 @@ impl<M: DiscreteModel + Clone> Setup<M> {
         let mut settings = drive_args.settings()?;
         // A ground station's joystick as the sticks: pinc takes that station's place as the one
         // whose pilot axes the autopilot obeys, so exactly one source commands the thrusters.
-        settings.replaces_ground_station = match o.pilot {
-            Some(p) => ground_station_of(&p.source)?,
-            None => None,
-        };
+        if let Some(p) = o.pilot
+            && let Some(ground) = ground_station_of(&p.source)?
+        {
+            settings.replaces_ground_station = Some(ground);
+        }
         let wait_position = non_negative("--wait-position", o.drive.wait_position)?;
         // How long to wait (neutral) for a state to control on: --wait-position, else 30 s.
         let give_up = if wait_position.is_zero() { Duration::from_secs(30) } else { wait_position };
@@ -391,6 +395,15 @@ fn ctrl_c_flag() -> Result<Arc<AtomicBool>, String> {
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).map_err(|e| format!("cannot catch Ctrl-C: {e}"))?;
     Ok(stop)
+}
+
+/// SIGUSR1 ends the flight by handing the vehicle back as the pilot had it (`pinc serve`'s
+/// "resume", a hold or pilot assist ended without STOP): [`Drive::hand_back`].
+fn hand_back_flag() -> Result<Arc<AtomicBool>, String> {
+    let flag = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGUSR1, flag.clone())
+        .map_err(|e| format!("cannot catch SIGUSR1: {e}"))?;
+    Ok(flag)
 }
 
 /// The link to the autopilot, with the outputs (and the simulator's truth, if asked) streamed.

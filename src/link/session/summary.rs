@@ -23,6 +23,7 @@ pub(super) fn end<M: DiscreteModel>(
     o: &SessionOptions,
 ) -> LiveRun {
     let stopped = match outcome {
+        Ok(()) if f.handed_back => drive.hand_back(),
         Ok(()) => drive.finish(),
         Err(trigger) => drive.abort(trigger),
     };

@@ -1,0 +1,88 @@
+"""Cockpit's "hold here" and "resume" on the firmware (ArduSub 4.8.0-dev in ArduPilot's simulator,
+its GPS, the full pilot gain, a 0.3 m/s current towards 30 deg), through `pinc serve` as the
+extension runs it, pressed as Cockpit sends its actions (hold_here_driver.py): the pilot dives to
+2.5 m in ALT_HOLD, turns to 120 deg, lets go, and presses "hold here" while the current carries the
+vehicle; 50 s later "resume". Every figure is from the simulator's truth (SIM_STATE, SIMSTATE) on
+the pilot's own link, not from pinc.
+
+The hold flies on the simulator's own vehicle file (`--oracle`, passed to every flight with
+`pinc serve --run-arg`), the data folder holding a model for its bounds as a fitted one would.
+
+$PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
+"""
+
+import json
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from test_ardusub_position import GPS_CURRENT
+from test_ardusub_sitl import VEHICLE as SIM_VEHICLE, run_on_firmware
+from test_vehicle_link import ROOT, pinc_binary
+
+DRIVER = Path(__file__).resolve().parent / "hold_here_driver.py"
+ALLOWANCE_S, JUDGED_S = 5.0, 40.0
+
+
+def wrapped(d):
+    return (d + 180.0) % 360.0 - 180.0
+
+
+@pytest.fixture(scope="module")
+def held(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("hold_here")
+    data = tmp / "data"
+    (data / "models" / "sim").mkdir(parents=True)
+    shutil.copy(ROOT / "models" / "mpc_pinc_thrust.pinc", data / "models" / "sim" / "model.pinc")
+    record = tmp / "hold.json"
+    client = [sys.executable, DRIVER, "--record", record, "--pinc", pinc_binary(), "--data", data,
+              "--depth", "2.5", "--heading", "120", "--hold", "50"]
+    for arg in ("--oracle", f"--vehicle={SIM_VEHICLE}", "--sim-truth", "--wait-position=45"):
+        client.append(f"--run-arg={arg}")
+    r = run_on_firmware(tmp, GPS_CURRENT, client, timeout=400)
+    assert record.is_file(), f"the driver wrote nothing (exit {r.returncode}): {r.stderr[-3000:]}"
+    out = json.loads(record.read_text())
+    assert r.returncode == 0, f"{r.stderr[-3000:]}\n{out.get('serve_log', [])[-30:]}"
+    return out
+
+
+def test_hold_here_holds_the_press_depth_heading_and_point_in_a_current(held):
+    press, truth = held["press"], held["truth"]
+    assert press["answer"][0] == 200, press["answer"]
+    at_press = min(truth, key=lambda s: abs(s[0] - press["t"]))
+    judged = [s for s in truth if press["t"] + ALLOWANCE_S <= s[0] <= press["t"] + ALLOWANCE_S + JUDGED_S]
+    assert len(judged) > 20 * JUDGED_S, len(judged)
+    depth_err = max(abs(s[3] - at_press[3]) for s in judged)
+    heading_err = max(abs(wrapped(s[4] - at_press[4])) for s in judged)
+    from_press = [math.hypot(s[1] - at_press[1], s[2] - at_press[2]) for s in judged]
+    # Where it stopped: its mean over the judged window's first 5 s; held within 0.1 m of it.
+    first = [s for s in judged if s[0] <= judged[0][0] + 5.0]
+    stop = [sum(s[1] for s in first) / len(first), sum(s[2] for s in first) / len(first)]
+    from_stop = max(math.hypot(s[1] - stop[0], s[2] - stop[1]) for s in judged)
+    print(json.dumps({"press": at_press, "depth_err_m": depth_err, "heading_err_deg": heading_err,
+                      "from_press_max_m": max(from_press), "from_stop_max_m": from_stop,
+                      "speed_at_press_m_s": press_speed(truth, press["t"])}))
+    assert 2.3 <= at_press[3] <= 2.7 and abs(wrapped(at_press[4] - 120.0)) <= 3.0, at_press
+    assert depth_err <= 0.1, depth_err
+    assert heading_err <= 3.0, heading_err
+    assert max(from_press) <= 0.3, max(from_press)
+    assert from_stop <= 0.1, from_stop
+
+
+def press_speed(truth, t):
+    """The truth's speed over the ground (m/s) over the second before `t`: the current's drift."""
+    a = min(truth, key=lambda s: abs(s[0] - (t - 1.0)))
+    b = min(truth, key=lambda s: abs(s[0] - t))
+    return math.hypot(b[1] - a[1], b[2] - a[2]) / max(b[0] - a[0], 1e-9)
+
+
+def test_resume_hands_the_vehicle_back_as_the_pilot_had_it(held):
+    answer = held["resume"]["answer"]
+    assert answer[0] == 200 and answer[1]["handed_back"] and answer[1]["ended"], answer
+    after = held["after"]
+    assert after == {"mode": 2, "armed": True, "gcs_id": 255.0}, after
+    log = "".join(held["serve_log"])
+    assert "handed back to the pilot" in log, log[-3000:]
