@@ -3,9 +3,11 @@
 //! ([`link`]), the vehicle's state rebuilt from the autopilot's messages ([`state`]), the
 //! MCAP recording of a session ([`record`]), the body input turned into commands
 //! ([`command`]), the safety watchdog ([`safety`]) and a command session driven by the
-//! state's arrival ([`drive`]). `docs/VEHICLE.md` is the user's guide.
+//! state's arrival ([`drive`]); the autopilot's firmware and parameters checked (and set) before
+//! a dive ([`check`]). `docs/VEHICLE.md` is the user's guide.
 
 pub mod autopilot_estimate;
+pub mod check;
 pub mod cli;
 pub mod command;
 pub mod depth_band;

@@ -1,9 +1,10 @@
-//! `pinc vehicle`'s actions on a live vehicle: `status`, `record`, `excite` and
+//! `pinc vehicle`'s actions on a live vehicle: `status`, `check`, `record`, `excite` and
 //! `setup-signing`: pinc as a MAVLink participant next to an ArduSub autopilot
 //! (docs/VEHICLE.md), on the link of [`crate::link`].
 //!
 //! One module per action; the recording's writer is shared by `record` and `excite`.
 
+mod check;
 mod excite;
 mod record;
 mod signing;
@@ -23,6 +24,10 @@ pub enum VehicleAction {
     /// Wait for the autopilot's heartbeat and print its type, firmware, mode, armed state and
     /// which parts of the state it sends at what rates; exit 1 when nothing answers.
     Status(StatusArgs),
+    /// Check the autopilot before a dive: its firmware version, and the parameters pinc and the
+    /// position sensors fitted need (each with the value wanted and why); exit 1 naming each
+    /// to change. With --set, save the old values to a file and set the failing ones.
+    Check(CheckArgs),
     /// Record every MAVLink message, pinc's reconstructed state and the thruster outputs to
     /// an MCAP file that `pinc dataset import` reads.
     Record(RecordArgs),
@@ -58,6 +63,37 @@ pub struct StatusArgs {
     /// BlueROV2's six thrusters on outputs 1-6].
     #[arg(long)]
     vehicle: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Arguments of `pinc vehicle check`.
+#[derive(clap::Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    link: LinkArgs,
+    /// The position sensors fitted: dvl (on MAVLink, VISION_POSITION_DELTA), usbl (fixes as a
+    /// MAVLink GPS, GPS_INPUT), gps, comma-separated; or none (a stock BlueROV2).
+    #[arg(long, value_delimiter = ',', default_value = "none")]
+    sensors: Vec<String>,
+    /// The local magnetic declination (degrees east, from a declination calculator): without
+    /// an absolute position (no USBL, no GPS) COMPASS_DEC is checked against it, and --set
+    /// sets it.
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
+    declination: Option<f64>,
+    /// Set every failing parameter to its wanted value (each confirmed by the autopilot), after
+    /// saving their old values to --backup; nothing is changed where one cannot be set.
+    #[arg(long)]
+    set: bool,
+    /// Where --set saves the old values (ArduPilot's .parm format) [default:
+    /// `pinc-params-before-<UTC time>.parm`]; an existing file is never overwritten.
+    #[arg(long, value_name = "FILE", requires = "set")]
+    backup: Option<PathBuf>,
+    /// Set the values of a .parm file (NAME,VALUE lines, as --set saves) back, each confirmed;
+    /// no check is made.
+    #[arg(long, value_name = "FILE", conflicts_with = "set")]
+    restore: Option<PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -132,6 +168,7 @@ const SERVO_OUTPUT_RAW_ID: u32 = 36;
 pub fn run_vehicle(action: VehicleAction) -> Result<(), String> {
     match action {
         VehicleAction::Status(a) => status::run_status(a),
+        VehicleAction::Check(a) => check::run_check(a),
         VehicleAction::Record(a) => record::run_record(a),
         VehicleAction::Excite(a) => excite::run_excite(*a),
         VehicleAction::SetupSigning(a) => signing::run_setup_signing(a),
