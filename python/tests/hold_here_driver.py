@@ -1,9 +1,9 @@
 """Cockpit's "hold here" on the firmware, as an owner presses it: a router stand-in
 (mavlink_hub.py, BlueOS's 127.0.0.1:5777) on the autopilot, a Cockpit stand-in on it (system 255:
 heartbeats at 1 Hz, MANUAL_CONTROL at 25 Hz, its own truth from SIM_STATE and SIMSTATE), and
-`pinc serve` on the router like the extension. The pilot arms, takes ALT_HOLD, dives to --depth
-and turns to --heading on the sticks, lets go (the current carries the vehicle), waits for the
-autopilot's position, then sends Cockpit's "hold here" action as Cockpit does (its URL, headers and
+`pinc serve` on the router like the extension. The pilot arms, takes ALT_HOLD, waits for the
+autopilot's position, dives to --depth on the stick and turns to --heading (ALT_HOLD's attitude
+target), lets go for 3 s (the current carries the vehicle), then sends Cockpit's "hold here" action as Cockpit does (its URL, headers and
 body from cockpit_extras.json, `Origin: file://` as Cockpit desktop's fetch) and, --hold seconds
 later, "resume". Then it reads the autopilot back: its mode, armed, its ground station id.
 
@@ -145,17 +145,31 @@ def main():
                 raise SystemExit(f"not armed: {st['texts'][-5:]}")
         send(gcs.mav.set_mode_send, target, 1, ALT_HOLD)
         wait("ALT_HOLD", lambda: st["mode"] == ALT_HOLD, 10)
-        # Down on the stick (below 500 is down in ALT_HOLD), then a turn to the heading.
-        st["sticks"] = (0, 0, 150, 0)
-        wait(f"{a.depth} m", lambda: depth() >= a.depth - 0.05, 60)
-        st["sticks"] = (0, 0, 500, 0)
-        while abs(heading_error()) > 2.0:
-            st["sticks"] = (0, 0, 500, max(-300, min(300, round(-15 * heading_error()))))
-            time.sleep(0.04)
-        st["sticks"] = (0, 0, 500, 0)
         # The autopilot's position (its GPS, fused about 20 s after arming): EKF_STATUS's
         # horizontal absolute position flag.
         wait("the autopilot's position", lambda: st["ekf_flags"] & 16, 60)
+        # To the depth on the heave stick (in ALT_HOLD below 500 is down), slower near it, and to
+        # the heading by ALT_HOLD's attitude target (SET_ATTITUDE_TARGET, type_mask 71: the
+        # quaternion alone; its yaw stick's dead band and rate made a hand-flown turn hunt), until
+        # both have been within 8 cm and 2 deg for 2 s.
+        half = math.radians(a.heading) / 2.0
+        settled_since, next_target = None, 0.0
+        until = time.monotonic() + 90
+        while settled_since is None or time.monotonic() - settled_since < 2.0:
+            dz, dh = depth() - a.depth, heading_error()
+            st["sticks"] = (0, 0, 500 + max(-250, min(250, round(1500 * dz))), 0)
+            if time.monotonic() >= next_target:
+                send(gcs.mav.set_attitude_target_send, 0, target, 1, 71, [math.cos(half), 0, 0, math.sin(half)],
+                     0, 0, 0, 0.5)
+                next_target = time.monotonic() + 0.5
+            if abs(dz) <= 0.08 and abs(dh) <= 2.0:
+                settled_since = settled_since or time.monotonic()
+            else:
+                settled_since = None
+            if time.monotonic() > until:
+                raise SystemExit(f"not at {a.depth} m and {a.heading} deg: {st['truth'][-1]}")
+            time.sleep(0.04)
+        st["sticks"] = (0, 0, 500, 0)
         time.sleep(3.0)  # let go: drifting with the current at the press
         out["press"] = {"t": time.monotonic(), "answer": press("pinc-hold-here")}
         time.sleep(a.hold)

@@ -188,6 +188,12 @@ struct Args {
     #[cfg(feature = "vehicle")]
     #[arg(long, value_name = "U,V,W,R", value_delimiter = ',', requires = "pilot")]
     pilot_speeds: Option<Vec<f64>>,
+    /// With --connect --scenario hold: hold this depth (m) and heading (deg), and the position
+    /// NORTH,EAST (m, the autopilot's local frame) where one is given, instead of where control
+    /// starts: where the vehicle was when the pilot pressed "hold here" (`pinc serve` passes it).
+    #[cfg(feature = "vehicle")]
+    #[arg(long, value_name = "DEPTH,HEADING[,NORTH,EAST]", value_delimiter = ',', allow_hyphen_values = true)]
+    hold_at: Option<Vec<f64>>,
     /// Serve the run live over Foxglove's WebSocket protocol at [HOST:]PORT (loopback unless a
     /// host is given; port 0 picks a free one): the MCAP log's topics as they are written, to
     /// open in Foxglove without a file. A simulated run then goes in real time.
@@ -756,6 +762,23 @@ fn pilot_speeds(given: Option<&[f64]>) -> Result<[Option<f64>; 4], String> {
     Ok([Some(u), Some(v), Some(w), Some(r.to_radians())])
 }
 
+/// `--hold-at DEPTH,HEADING[,NORTH,EAST]`, checked: only for a scenario held from where it starts.
+#[cfg(feature = "vehicle")]
+fn hold_at(given: Option<&[f64]>, scenario: &Scenario) -> Result<Option<pinc::link::session::HoldAt>, String> {
+    let Some(v) = given else { return Ok(None) };
+    if !scenario.from_start {
+        return Err(format!("--hold-at is for --scenario hold, not {}", scenario.name()));
+    }
+    if !(v.len() == 2 || v.len() == 4) || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("--hold-at: DEPTH,HEADING or DEPTH,HEADING,NORTH,EAST as numbers, got {v:?}"));
+    }
+    Ok(Some(pinc::link::session::HoldAt {
+        depth: v[0],
+        heading: v[1].to_radians(),
+        north_east: (v.len() == 4).then(|| (v[2], v[3])),
+    }))
+}
+
 /// `--connect`: the live session flies the scenario, with pinc's MPC (on the model, or the
 /// analytic vehicle with `--oracle`) or the autopilot's own controller.
 #[cfg(feature = "vehicle")]
@@ -785,6 +808,7 @@ fn live(
         stream_samples: a.stream_samples,
         history_s: a.history,
         pilot: pilot.as_ref(),
+        hold_at: hold_at(a.hold_at.as_deref(), scenario)?,
     };
     let mpc = mpc.map_err(|e| e.to_string())?;
     let hold = match a.autopilot_hold.as_deref() {

@@ -65,12 +65,6 @@ impl DiveLimits {
     }
 }
 
-impl Limits {
-    /// The limits the page sets.
-    pub fn dive(&self) -> DiveLimits {
-        DiveLimits { max_depth: self.max_depth, max_distance: self.max_distance, max_duration: self.max_duration }
-    }
-}
 
 /// How long the hold and pilot assist run (s): until STOP, the deadman or the page closed, in
 /// practice (a day).

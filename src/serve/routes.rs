@@ -323,7 +323,8 @@ impl App {
             .newest("models", "model.pinc")
             .ok_or_else(|| Refused(409, "no fitted model to hold with: excite and fit first".to_string()))?;
         let limits = self.limits();
-        let depth = self.watcher.view.lock().expect("view").to_json()["depth_m"].as_f64();
+        let view = self.watcher.view.lock().expect("view").to_json();
+        let depth = view["depth_m"].as_f64();
         match depth {
             None => {
                 return Err(Refused(
@@ -345,7 +346,17 @@ impl App {
             }
             Some(_) => {}
         }
-        self.fly(FlyOrder { model, references: References::Hold, duration: orders::UNTIL_STOP_S })
+        // Held where it was pressed: the depth (its readings' mean over the last second), heading
+        // and position (where one is known) the server's own link saw at the press, not where the flight's control starts a second or
+        // two later (the current carries the vehicle meanwhile).
+        let mut at = vec![view["depth_mean_1s_m"].as_f64(), view["heading_deg"].as_f64()];
+        if let Some(p) = view["position_ne_m"].as_array().filter(|_| view["position_source"] == true) {
+            at.extend([p.first().and_then(Value::as_f64), p.get(1).and_then(Value::as_f64)]);
+        }
+        let hold_at = at.into_iter().collect::<Option<Vec<f64>>>().map(|v| {
+            format!("--hold-at={}", v.iter().map(f64::to_string).collect::<Vec<_>>().join(","))
+        });
+        self.fly_with(FlyOrder { model, references: References::Hold, duration: orders::UNTIL_STOP_S }, hold_at)
     }
 
     /// "Resume": the flight running until STOP hands the vehicle back and ends (waited for, 10 s
@@ -525,6 +536,11 @@ impl App {
     }
 
     fn fly(&self, order: FlyOrder) -> Reply {
+        self.fly_with(order, None)
+    }
+
+    /// A flight, with one more argument for mpc_track (the hold's press).
+    fn fly_with(&self, order: FlyOrder, extra: Option<String>) -> Reply {
         let limits = self.limits();
         order.check(&limits).map_err(|e| Refused(400, e))?;
         let until_stop = order.until_stop();
@@ -586,6 +602,7 @@ impl App {
                 }
             }
         }
+        args.extend(extra);
         args.extend(self.run_args.iter().cloned());
         let sticks = matches!(order.references, References::Pilot { .. });
         let step = Step { program: self.mpc_track.clone(), args: os_args(args), sticks };

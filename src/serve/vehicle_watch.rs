@@ -5,6 +5,8 @@
 use crate::link::cli::{LinkOptions, open};
 use crate::link::ground_station::give_back_left_place;
 use crate::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
+use crate::estimation::Measurement;
+use crate::estimation::mavlink::Observation;
 use crate::link::{Autopilot, EkfStatus, SubMode};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use serde_json::{Value, json};
@@ -21,6 +23,8 @@ const QUIET: Duration = Duration::from_secs(3);
 const STOP_REPEAT: Duration = Duration::from_secs(2);
 /// Between two repeats.
 const STOP_EVERY: Duration = Duration::from_millis(100);
+/// The depth "hold here" takes is the mean of the readings over this long.
+const DEPTH_MEAN: Duration = Duration::from_secs(1);
 /// A depth, heading or position older than this is shown as missing.
 const STALE: Duration = Duration::from_secs(2);
 /// `EKF_STATUS_REPORT`'s rate (Hz): the estimator's health on the page.
@@ -41,6 +45,10 @@ pub struct VehicleView {
     pub armed: Option<bool>,
     last_heartbeat: Option<Instant>,
     depth: Option<(Instant, f64)>,
+    /// The depth sensor's readings of the last [`DEPTH_MEAN`] (pinc's depth from pressure, as a
+    /// flight's estimator measures it), for their mean: one reading is off by the sensor's noise
+    /// (0.12 m on the simulator), which a hold taken there would keep.
+    depths: std::collections::VecDeque<(Instant, f64)>,
     heading: Option<(Instant, f64)>,
     position: Option<(Instant, [f64; 2])>,
     ekf: Option<EkfStatus>,
@@ -61,6 +69,13 @@ fn fresh<T: Copy>(v: Option<(Instant, T)>) -> Option<T> {
 }
 
 impl VehicleView {
+    /// The mean of the depth readings over the last [`DEPTH_MEAN`].
+    fn depth_mean(&self) -> Option<f64> {
+        let recent: Vec<f64> =
+            self.depths.iter().filter(|(at, _)| at.elapsed() <= DEPTH_MEAN).map(|(_, z)| *z).collect();
+        (!recent.is_empty()).then(|| recent.iter().sum::<f64>() / recent.len() as f64)
+    }
+
     pub fn to_json(&self) -> Value {
         let ekf = self
             .ekf
@@ -80,6 +95,7 @@ impl VehicleView {
             "armed": self.armed,
             "heartbeat_age_s": self.last_heartbeat.map(|t| t.elapsed().as_secs_f64()),
             "depth_m": fresh(self.depth),
+            "depth_mean_1s_m": self.depth_mean(),
             "heading_deg": fresh(self.heading).map(|h: f64| h.to_degrees().rem_euclid(360.0)),
             "position_ne_m": fresh(self.position),
             "position_source": self.ekf.as_ref().is_some_and(EkfStatus::position_measured),
@@ -220,7 +236,14 @@ impl Watcher {
             if !autopilot.sent(&r) {
                 continue;
             }
-            let fresh = assembler.update(&r, |_| {});
+            // The depth sensor's own readings, as a flight's estimator takes them (with a position
+            // source the state's depth is the autopilot's EKF's, on another density's scale).
+            let mut measured_depth = None;
+            let fresh = assembler.update(&r, |o| {
+                if let Observation::Measured(Measurement::Depth { z, .. }) = o {
+                    measured_depth = Some(z);
+                }
+            });
             let mut v = self.view.lock().expect("view");
             match &r.message {
                 MavMessage::HEARTBEAT(h) if !is_ground_station(h) => {
@@ -237,6 +260,12 @@ impl Watcher {
                 }
                 MavMessage::EKF_STATUS_REPORT(e) => v.ekf = Some(EkfStatus::new(0.0, e)),
                 _ => {}
+            }
+            if let Some(z) = measured_depth.filter(|z| z.is_finite()) {
+                v.depths.push_back((r.at, z));
+                while v.depths.front().is_some_and(|(at, _)| r.at.saturating_duration_since(*at) > DEPTH_MEAN) {
+                    v.depths.pop_front();
+                }
             }
             if let Some(state) = fresh {
                 let [n, e, z, psi, ..] = state.sim;

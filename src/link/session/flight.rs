@@ -457,12 +457,22 @@ impl<'l> Flight<'l> {
                 return Err(Trigger::Error(why));
             };
             if given.from_start && started.is_none() {
-                let held = given.started_at(state[2], state[3]);
+                // Where the pilot pressed, if told; else where control starts.
+                let (depth, heading) = o.hold_at.map_or((state[2], state[3]), |h| (h.depth, h.heading));
+                let at_press = o.hold_at.and_then(|h| h.north_east);
+                if let Some(p) = at_press {
+                    self.hold_xy = p;
+                }
+                let held = given.started_at(depth, heading);
                 let text = format!(
-                    "holding here: depth {:.2} m, heading {:.1} deg{}",
-                    state[2],
-                    state[3].to_degrees().rem_euclid(360.0),
-                    if self.plan.is_some() { ", the position where control started" } else { "" }
+                    "holding {}: depth {depth:.2} m, heading {:.1} deg{}",
+                    if o.hold_at.is_some() { "where it was pressed" } else { "here" },
+                    heading.to_degrees().rem_euclid(360.0),
+                    match (&self.plan, at_press) {
+                        (None, _) => String::new(),
+                        (Some(_), Some((n, e))) => format!(", north {n:.2} m, east {e:.2} m"),
+                        (Some(_), None) => ", the position where control started".into(),
+                    }
                 );
                 self.say(fresh.state.t, Level::Info, text);
                 started = Some(held);

@@ -123,6 +123,20 @@ pub struct SessionOptions<'a> {
     /// Fly the pilot's sticks instead of the scenario's references (pinc's MPC), or pass them
     /// to the autopilot's POSHOLD or ALT_HOLD.
     pub pilot: Option<&'a PilotOptions>,
+    /// A scenario held from where it starts holds this instead (`--hold-at`).
+    pub hold_at: Option<HoldAt>,
+}
+
+/// Where "hold here" was pressed: the depth (m), heading (rad) and, where a position was known,
+/// north and east (m, the autopilot's local frame) the vehicle had then.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HoldAt {
+    /// Depth (m).
+    pub depth: f64,
+    /// Heading (rad).
+    pub heading: f64,
+    /// North and east (m), where a position was known.
+    pub north_east: Option<(f64, f64)>,
 }
 
 /// Where the pilot's sticks come from and what full deflection asks for.
