@@ -2,10 +2,12 @@
 watches its stderr for the moment control starts ("control starts ..."), and from then writes
 the sticks as a gamepad page would, one JSON object per line at --rate Hz: each --stick
 FROM,TO,SURGE,SWAY,HEAVE,YAW (s after control starts, each axis -1..1) while it lasts, centred
-sticks between them. Every line it wrote goes to --record with the host time it went (JSON
-lines), so a test knows when each stick was let go. The client's stderr is passed on.
+sticks between them. With --burst each reading goes twice, 1 ms apart (a browser polling its
+gamepad under load, a burst passed on at once). Every line it wrote goes to --record with the
+host time it went (JSON lines), so a test knows when each stick was let go. The client's stderr
+is passed on.
 
-usage: pilot_sticks.py --record FILE [--rate HZ] [--stick F,T,U,V,W,R]... -- CLIENT [ARGS...]
+usage: pilot_sticks.py --record FILE [--rate HZ] [--burst] [--stick F,T,U,V,W,R]... -- CLIENT [ARGS...]
 Exits with the client's status.
 """
 
@@ -22,6 +24,7 @@ def main():
     p.add_argument("--record", required=True)
     p.add_argument("--rate", type=float, default=10.0)
     p.add_argument("--stick", action="append", default=[])
+    p.add_argument("--burst", action="store_true")
     p.add_argument("client", nargs=argparse.REMAINDER)
     a = p.parse_args()
     client = a.client[1:] if a.client[:1] == ["--"] else a.client
@@ -46,8 +49,10 @@ def main():
             axes = next((s[2:] for s in segments if s[0] <= t < s[1]), [0.0, 0.0, 0.0, 0.0])
             line = json.dumps(dict(zip(("surge", "sway", "heave", "yaw"), axes)))
             try:
-                child.stdin.write(line + "\n")
-                child.stdin.flush()
+                for _ in range(2 if a.burst else 1):
+                    child.stdin.write(line + "\n")
+                    child.stdin.flush()
+                    time.sleep(0.001)
             except (BrokenPipeError, ValueError):
                 break
             record.write(json.dumps({"t": t, "sticks": axes}) + "\n")

@@ -27,10 +27,16 @@ const REST_SPEED: f64 = 0.02;
 const REST_RATE: f64 = 0.017_453_292_519_943_295;
 /// While stopping, the reference lies this long of the speed behind the vehicle (s): the MPC
 /// brakes harder than for a reference where it is (on the simulated vehicle in a 0.3 m/s current,
-/// 0.3 s took the travel past the release point from 0.122 to 0.089 m at 0.5 m/s and from 0.104 to
-/// 0.077 m at 0.3 m/s sway). The speed is the vehicle's now ([`Axis::speed_now`]), so the lead is
-/// gone when the vehicle stops.
-const BRAKE_LEAD_S: f64 = 0.2;
+/// 0.3 s took the travel past the release point from 0.122 to 0.079 m at 0.5 m/s and from 0.104 to
+/// 0.072-0.077 m at 0.3 m/s sway). The speed is the vehicle's now ([`Axis::speed_now`]), and the
+/// hold is latched before the vehicle stops ([`LATCH_SHARE`]), so the lead is gone by then.
+const BRAKE_LEAD_S: f64 = 0.3;
+/// A released position is latched once its speed is down to this share of the speed at the
+/// release, where it will come to rest ([`LATCH_AHEAD_S`]): braking behind it to the end swung
+/// the vehicle back on the firmware (0.067 m within 2 s at up to 0.17 m/s after a 0.9 m/s push).
+const LATCH_SHARE: f64 = 0.5;
+/// At most this long of its speed ahead of the farthest point reached (s).
+const LATCH_AHEAD_S: f64 = 0.4;
 /// A released axis is held where it is after this long, at rest or not (s).
 pub const STOP_TIMEOUT_S: f64 = 5.0;
 /// The ground velocity is the estimate's positions' change over this window (s).
@@ -62,6 +68,7 @@ struct Axis<const N: usize> {
     /// While stopping: the speed the way it went at the last cycle and when (the window's), and
     /// the farthest point reached the way it went (where it is held).
     last_speed: Option<(f64, f64)>,
+    release_speed: f64,
     farthest: [f64; N],
 }
 
@@ -73,6 +80,7 @@ impl<const N: usize> Axis<N> {
             way: [0.0; N],
             released: f64::NEG_INFINITY,
             last_speed: None,
+            release_speed: 0.0,
             farthest: here,
         }
     }
@@ -115,6 +123,7 @@ impl<const N: usize> Axis<N> {
             (Phase::Moving, None) => {
                 (self.phase, self.released, self.farthest) = (Phase::Stopping, t, here);
                 let now = self.speed_now(t, windowed);
+                self.release_speed = now;
                 self.hold = std::array::from_fn(|i| here[i] - stop.lead * now * d[i]);
                 self.last_speed = Some((t, windowed));
             }
@@ -122,11 +131,25 @@ impl<const N: usize> Axis<N> {
                 if ahead(&here) > ahead(&self.farthest) {
                     self.farthest = here;
                 }
+                let decel = match self.last_speed {
+                    Some((t0, s0)) if t > t0 => (s0 - windowed) / (t - t0),
+                    _ => 0.0,
+                };
                 let now = self.speed_now(t, windowed);
                 self.last_speed = Some((t, windowed));
-                if now <= stop.rest || t - self.released >= STOP_TIMEOUT_S {
-                    // At rest where it went farthest: held there, it does not come back.
-                    (self.phase, self.hold) = (Phase::Holding, self.farthest);
+                // Braking behind the vehicle is for the first part of the stop: once half the
+                // speed is gone, the hold is latched where the vehicle will come to rest at the
+                // deceleration it has (at most LATCH_AHEAD_S of its speed ahead), and the MPC
+                // eases onto a point it has not passed.
+                let latch = stop.lead > 0.0 && decel > 0.0 && now <= LATCH_SHARE * self.release_speed;
+                if now <= stop.rest || latch || t - self.released >= STOP_TIMEOUT_S {
+                    let rest = if now > stop.rest && decel > 0.0 {
+                        (now * now / (2.0 * decel)).min(now * LATCH_AHEAD_S)
+                    } else {
+                        0.0
+                    };
+                    let hold = std::array::from_fn(|i| self.farthest[i] + rest * d[i]);
+                    (self.phase, self.hold) = (Phase::Holding, hold);
                 } else {
                     // Where the vehicle would have been `lead` ago at its speed now: the MPC
                     // brakes harder than for where it is, and less as the speed goes.
