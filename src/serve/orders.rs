@@ -65,7 +65,6 @@ impl DiveLimits {
     }
 }
 
-
 /// How long the hold and pilot assist run (s): until STOP, the deadman or the page closed, in
 /// practice (a day).
 pub const UNTIL_STOP_S: f64 = 86400.0;

@@ -353,9 +353,10 @@ impl App {
         if let Some(p) = view["position_ne_m"].as_array().filter(|_| view["position_source"] == true) {
             at.extend([p.first().and_then(Value::as_f64), p.get(1).and_then(Value::as_f64)]);
         }
-        let hold_at = at.into_iter().collect::<Option<Vec<f64>>>().map(|v| {
-            format!("--hold-at={}", v.iter().map(f64::to_string).collect::<Vec<_>>().join(","))
-        });
+        let hold_at = at
+            .into_iter()
+            .collect::<Option<Vec<f64>>>()
+            .map(|v| format!("--hold-at={}", v.iter().map(f64::to_string).collect::<Vec<_>>().join(",")));
         self.fly_with(FlyOrder { model, references: References::Hold, duration: orders::UNTIL_STOP_S }, hold_at)
     }
 

@@ -2,11 +2,11 @@
 //! when the autopilot goes quiet or reboots, and STOP's neutral and disarm (sent from here,
 //! whatever a flight's own process does, so that the vehicle stops even if that process hangs).
 
+use crate::estimation::Measurement;
+use crate::estimation::mavlink::Observation;
 use crate::link::cli::{LinkOptions, open};
 use crate::link::ground_station::give_back_left_place;
 use crate::link::link::{EKF_STATUS_REPORT_ID, is_ground_station};
-use crate::estimation::Measurement;
-use crate::estimation::mavlink::Observation;
 use crate::link::{Autopilot, EkfStatus, SubMode};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use serde_json::{Value, json};
