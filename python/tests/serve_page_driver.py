@@ -354,7 +354,12 @@ def main():
         cockpit_flight["held_5_s"] = last_sample()
         joystick["z"] = 500
         shot("cockpit_joystick")
+        # A joystick flight runs until STOP or resume: resume hands the vehicle back.
+        time.sleep(1.0)
+        click("resume")
         cockpit_flight["state"] = job_done(40)
+        wait("the resume's answer", lambda: text("message").startswith("handed back"), 10)
+        cockpit_flight["resume"] = text("message")
         cockpit_flight["log_tail"] = [line for line in text("job-log").splitlines() if "MAV_GCS_SYSID" in line]
         stop_joystick.set()
         result["cockpit_joystick"] = cockpit_flight

@@ -13,23 +13,14 @@ Needs target/release/pinc (`--features vehicle`) and pymavlink.
 """
 
 import json
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
+# The simulator's folder, or a skip naming why (test_ardusub_sitl.py's).
+from test_ardusub_sitl import RUN
 from test_vehicle_link import pinc_binary
-
-SITL_DIR = os.environ.get("PINC_ARDUSUB_SITL")
-if not SITL_DIR:
-    pytest.skip("PINC_ARDUSUB_SITL is not set: the firmware tests need ArduSub's simulator "
-                "(../shared/ardusub_sitl; .ci/run sets it)", allow_module_level=True)
-SITL = Path(SITL_DIR)
-RUN = SITL / "run_in_netns.sh"
-if not (SITL / "ardusub").is_file():
-    pytest.skip(f"{SITL}/ardusub is missing", allow_module_level=True)
 
 # What a DVL and a USBL need that sub.parm's defaults do not have (the simulator's values, read
 # from it), and what `--set` gives them.

@@ -51,6 +51,10 @@ def hold_at(tmp, depth):
     assert record.is_file(), f"the driver wrote nothing (exit {r.returncode}): {r.stderr[-3000:]}"
     out = json.loads(record.read_text())
     assert r.returncode == 0, f"{r.stderr[-3000:]}\n{out.get('serve_log', [])[-30:]}"
+    # The flight's own figure of the point held, in the plan's frame (it once read the distance
+    # from the EKF origin, 15 m where the truth said 0.07 m).
+    [summary] = (data / "flights").glob("*/summary.json")
+    out["summary_horizontal"] = json.loads(summary.read_text())["horizontal"]
     return out
 
 
@@ -87,6 +91,8 @@ def test_hold_here_holds_the_press_depth_heading_and_point_in_a_current(held, de
     assert heading_err <= 3.0, heading_err
     assert max(from_press) <= 0.3, max(from_press)
     assert from_stop <= 0.1, from_stop
+    figure = held[depth]["summary_horizontal"]
+    assert figure["judged"] == "station" and figure["max_m"] <= 0.3, figure
 
 
 def press_speed(truth, t):

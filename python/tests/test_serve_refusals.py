@@ -352,3 +352,60 @@ def test_a_run_the_data_folder_has_no_room_for_is_refused_before_it_starts(tmp_p
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_the_owners_limits_are_set_on_the_page_kept_in_the_data_folder_and_outlive_a_restart(tmp_path):
+    def start():
+        proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
+                                 "--data", str(tmp_path), "--port", "0", "--vehicle", str(VEHICLE)],
+                                stderr=subprocess.PIPE, text=True)
+        base = "http://" + re.search(r"http://(127\.0\.0\.1:\d+)", proc.stderr.readline()).group(1)
+        token = re.search(r'const TOKEN = "([0-9a-f]{32})"', urllib.request.urlopen(base + "/").read().decode()).group(1)
+        return proc, base, token
+
+    def post(base, token, body):
+        return call(base, "/api/limits", body, token)
+
+    def limits(base):
+        return json.loads(urllib.request.urlopen(base + "/api/state").read())["server"]["limits"]
+
+    proc, base, token = start()
+    try:
+        # The defaults suit a dive, not a pool: said as such until the owner sets their own.
+        first = limits(base)
+        assert (first["max_depth"], first["max_distance"], first["max_duration"], first["owners"]) == \
+            (50.0, 100.0, 1800.0, False), first
+        assert post(base, token, {"max_depth": 0, "max_distance": 10, "max_duration": 60}) == \
+            (400, {"error": "max_depth 0 m must be above 0 and at most 300 m"})
+        assert post(base, token, {"max_depth": 12, "max_distance": 40}) [0] == 400
+        assert post(base, token, {"max_depth": 12, "max_distance": 40, "max_duration": 900})[0] == 200
+        now = limits(base)
+        assert (now["max_depth"], now["max_distance"], now["max_duration"], now["owners"]) == (12.0, 40.0, 900.0, True)
+        # A flight past them is refused, naming the limit.
+        req = urllib.request.Request(base + "/api/fly", method="POST", headers={"X-Pinc-Token": token},
+                                     data=json.dumps({"model": "m", "duration": 30, "references": {
+                                         "kind": "steps", "depth": [1, 13], "depth_at": 10, "heading": [0, 0],
+                                         "heading_at": 20}}).encode())
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(req)
+        assert "depth to 13 m is outside the vehicle's limits: 0 to 12 m" in json.loads(e.value.read())["error"]
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert json.loads((tmp_path / "limits.json").read_text()) == {"max_depth": 12.0, "max_distance": 40.0,
+                                                                  "max_duration": 900.0}
+    proc, base, _ = start()
+    try:
+        again = limits(base)
+        assert (again["max_depth"], again["max_distance"], again["max_duration"]) == (12.0, 40.0, 900.0), again
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_a_refused_connection_names_the_addresses_blueos_serves():
+    r = subprocess.run([str(pinc_binary()), "vehicle", "status", "--connect", "tcp:127.0.0.1:9", "--timeout", "1"],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1, r
+    assert "Connection refused" in r.stderr and "udpout:192.168.2.2:14550" in r.stderr \
+        and "tcp:127.0.0.1:5777" in r.stderr, r.stderr
