@@ -27,7 +27,8 @@ def server(tmp_path_factory):
     data = tmp_path_factory.mktemp("serve_data")
     # Port 9 (discard): nothing answers there, as with an autopilot switched off.
     proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
-                             "--data", str(data), "--port", "0", "--vehicle", str(VEHICLE), "--max-depth", "3"],
+                             "--data", str(data), "--port", "0", "--vehicle", str(VEHICLE), "--max-depth", "3",
+                             "--max-distance", "30"],
                             stderr=subprocess.PIPE, text=True)
     first = proc.stderr.readline()
     m = re.search(r"http://(127\.0\.0\.1:\d+)", first)
@@ -87,7 +88,7 @@ def test_deletes_and_fits_take_only_plain_names_that_exist(server):
     assert status == 400 and reply["error"] == "recordings/none.mcap does not exist in the data folder"
     status, reply = call(base, "/api/fit", {"recording": "none.mcap"}, token=token)
     assert status == 400 and "does not exist" in reply["error"]
-    status, reply = call(base, "/api/fly", {"model": "none", "duration": 30, "references": {"kind": "station"}},
+    status, reply = call(base, "/api/fly", {"model": "none", "duration": 30, "references": {"kind": "hold"}},
                          token=token)
     assert status == 400 and reply["error"] == "models/none/model.pinc does not exist in the data folder"
     (data / "recordings" / "kept.mcap").write_bytes(b"x")
@@ -106,7 +107,7 @@ def test_deletes_and_fits_take_only_plain_names_that_exist(server):
     ("/api/fly", {"model": "m", "duration": 90, "references": {"kind": "survey", "width": 60, "length": 10,
                                                                "spacing": 2, "speed": 0.3, "depth": 2}},
      "past the vehicle's limit of 30 m"),
-    ("/api/fly", {"model": "m", "duration": 30, "references": {"kind": "station"}, "arm": False},
+    ("/api/fly", {"model": "m", "duration": 30, "references": {"kind": "hold"}, "arm": False},
      "unknown field `arm`"),
     ("/api/fit", {"recording": "x.mcap", "epochs": 0}, "epochs 0 must be 1 to 2000"),
 ])
@@ -342,8 +343,8 @@ def test_a_run_the_data_folder_has_no_room_for_is_refused_before_it_starts(tmp_p
         token = re.search(r'const TOKEN = "([0-9a-f]{32})"', urllib.request.urlopen(base + "/").read().decode()).group(1)
         (data / "models" / "m").mkdir(parents=True)
         (data / "models" / "m" / "model.pinc").write_bytes(b"x")
-        status, reply = call(base, "/api/fly", {"model": "m", "duration": 30, "references": {"kind": "station"}},
-                             token=token)
+        steps = {"kind": "steps", "depth": [1, 1], "depth_at": 5, "heading": [0, 0], "heading_at": 5}
+        status, reply = call(base, "/api/fly", {"model": "m", "duration": 30, "references": steps}, token=token)
         assert status == 507 and reply["error"].startswith(
             "refused: the data folder holds 8 MB of its 10 MB (pinc serve --max-data-mb) and a 30 s run needs about 6 MB"), reply
         state = call(base, "/api/state")[1]
@@ -359,7 +360,9 @@ def test_the_owners_limits_are_set_on_the_page_kept_in_the_data_folder_and_outli
         proc = subprocess.Popen([str(pinc_binary()), "serve", "--connect", "tcp:127.0.0.1:9", "--timeout", "1",
                                  "--data", str(tmp_path), "--port", "0", "--vehicle", str(VEHICLE)],
                                 stderr=subprocess.PIPE, text=True)
-        base = "http://" + re.search(r"http://(127\.0\.0\.1:\d+)", proc.stderr.readline()).group(1)
+        # The address is on the line that says so (a restart first says whose limits it took).
+        line = next(line for line in proc.stderr if "http://" in line)
+        base = "http://" + re.search(r"http://(127\.0\.0\.1:\d+)", line).group(1)
         token = re.search(r'const TOKEN = "([0-9a-f]{32})"', urllib.request.urlopen(base + "/").read().decode()).group(1)
         return proc, base, token
 
