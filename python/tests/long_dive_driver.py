@@ -237,7 +237,10 @@ def main():
                 # Written as it goes: an hour's figures outlive a run cut short.
                 Path(a.out).write_text(json.dumps(result, indent=1))
             time.sleep(0.25)
-        finished_flight("its duration")
+        # A pilot flight runs until STOP or resume: the dive's end is the page's resume (the
+        # vehicle handed back), at the dive's length.
+        browser.find_element(By.ID, "resume").click()
+        finished_flight("resume")
         result["page_navigation"] = text("job-nav")
     finally:
         shut_down(browser, serve, result, a.out)

@@ -73,7 +73,7 @@ def test_the_memory_is_flat_once_the_history_is_full(dive):
 
 def test_no_deadline_missed_and_every_cycle_streamed(dive):
     first, second = dive["flights"]
-    assert first["ended_by"] == "the autopilot rebooted" and second["ended_by"] == "its duration", dive["flights"]
+    assert first["ended_by"] == "the autopilot rebooted" and second["ended_by"] == "resume", dive["flights"]
     for f in dive["flights"]:
         forgotten = (f["history"] or {}).get("deadline_misses_forgotten", 0)
         assert f["deadline_misses"] == 0 and forgotten == 0, f
