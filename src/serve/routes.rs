@@ -68,6 +68,28 @@ enum Origin {
     Other(String),
 }
 
+/// This server's own origin, as a request reaches it: the scheme (BlueOS's nginx says it in
+/// `X-Forwarded-Proto`), the `Host` asked for, and whether a proxy passed it on.
+struct Own {
+    scheme: String,
+    host: Option<String>,
+    proxied: bool,
+}
+
+impl Own {
+    /// Whether `origin` is this server's own. BlueOS's nginx passes its `$host`, which has no
+    /// port: behind it (it adds `X-Forwarded-For`) a page of the vehicle's address on another port
+    /// is its own too.
+    fn is(&self, origin: &str) -> bool {
+        let Some(host) = &self.host else { return false };
+        let own = format!("{}://{host}", self.scheme);
+        let without_port = |o: &str| {
+            o.rsplit_once(':').filter(|(_, p)| p.parse::<u16>().is_ok()).map_or(o, |(h, _)| h).to_ascii_lowercase()
+        };
+        own.eq_ignore_ascii_case(origin) || (self.proxied && without_port(&own) == without_port(origin))
+    }
+}
+
 /// A browser's question before a command with the token's header (`OPTIONS`): answered yes
 /// for the page's own origin, Cockpit desktop's and those `--allow-origin` names, refused for any
 /// other (BlueOS's proxy adds `Access-Control-Allow-Origin: *` to every answer, but without the
@@ -155,9 +177,12 @@ impl App {
             request.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str().trim().to_string())
         };
         let Some(origin) = value("Origin") else { return Origin::None };
-        let scheme = value("X-Forwarded-Proto").unwrap_or_else(|| "http".into());
-        let own = value("Host").map(|host| format!("{scheme}://{host}"));
-        if own.is_some_and(|own| own.eq_ignore_ascii_case(&origin))
+        let own = Own {
+            scheme: value("X-Forwarded-Proto").unwrap_or_else(|| "http".into()),
+            host: value("Host"),
+            proxied: value("X-Forwarded-For").is_some(),
+        };
+        if own.is(&origin)
             || origin == COCKPIT_DESKTOP_ORIGIN
             || self.allowed_origins.iter().any(|a| a.eq_ignore_ascii_case(&origin))
         {
@@ -691,4 +716,24 @@ fn fit_in_thread(
 #[cfg(not(feature = "train"))]
 fn fit_in_thread(_: &Handle, _: PathBuf, _: PathBuf, _: PathBuf, _: usize, _: &str) -> Result<Value, String> {
     Err("this build has no trainer".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Own;
+
+    #[test]
+    fn the_own_origin_is_the_host_asked_for_and_behind_blueos_any_port_of_it() {
+        let direct = Own { scheme: "http".into(), host: Some("192.168.2.2:8780".into()), proxied: false };
+        assert!(direct.is("http://192.168.2.2:8780"));
+        assert!(!direct.is("http://192.168.2.2"));
+        assert!(!direct.is("http://evil.example:8780"));
+        assert!(!direct.is("null"));
+        let behind = Own { scheme: "http".into(), host: Some("192.168.2.2".into()), proxied: true };
+        assert!(behind.is("http://192.168.2.2"));
+        assert!(behind.is("http://192.168.2.2:8080"));
+        assert!(!behind.is("http://192.168.2.20"));
+        assert!(!behind.is("https://192.168.2.2"));
+        assert!(!Own { host: None, ..behind }.is("http://192.168.2.2"));
+    }
 }
