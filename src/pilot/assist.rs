@@ -4,10 +4,10 @@
 //! Each axis group (the horizontal position, the depth, the heading) is in one of three
 //! phases. Moving: the reference runs ahead of where the vehicle is at the stick's speed, so
 //! the MPC tracks the speed over the ground whatever the current. Stopping (the stick let go):
-//! the reference is where the vehicle was a moment ago at its present speed, every cycle, so
-//! the MPC brakes hard and never plans to come back further than that. Holding: once the
-//! vehicle no longer moves the way it went, the reference stays at the farthest point it
-//! reached.
+//! the reference is where the vehicle was a moment ago at its speed now, every cycle, so the
+//! MPC brakes hard and never plans to come back further than that. Holding: the position once
+//! half its speed is gone, at where it will come to rest; depth and heading once they no longer
+//! move the way they went, at the farthest point reached.
 
 use super::sticks::{StickError, StickLimits, Sticks};
 use crate::mpc::{Horizontal, Reference};
