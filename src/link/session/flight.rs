@@ -457,25 +457,7 @@ impl<'l> Flight<'l> {
                 return Err(Trigger::Error(why));
             };
             if given.from_start && started.is_none() {
-                // Where the pilot pressed, if told; else where control starts.
-                let (depth, heading) = o.hold_at.map_or((state[2], state[3]), |h| (h.depth, h.heading));
-                let at_press = o.hold_at.and_then(|h| h.north_east);
-                if let Some(p) = at_press {
-                    self.hold_xy = p;
-                }
-                let held = given.started_at(depth, heading);
-                let text = format!(
-                    "holding {}: depth {depth:.2} m, heading {:.1} deg{}",
-                    if o.hold_at.is_some() { "where it was pressed" } else { "here" },
-                    heading.to_degrees().rem_euclid(360.0),
-                    match (&self.plan, at_press) {
-                        (None, _) => String::new(),
-                        (Some(_), Some((n, e))) => format!(", north {n:.2} m, east {e:.2} m"),
-                        (Some(_), None) => ", the position where control started".into(),
-                    }
-                );
-                self.say(fresh.state.t, Level::Info, text);
-                started = Some(held);
+                started = Some(self.hold_from_press(given, &state, o, fresh.state.t));
             }
             let scenario = started.as_ref().unwrap_or(given);
             // An estimate that no longer follows what the vehicle measures steers a vehicle it
@@ -535,6 +517,28 @@ impl<'l> Flight<'l> {
                 Sample { t, state, reference, cycle, prediction, bound_violation: false },
             );
         }
+    }
+
+    /// A scenario held from where it starts, as flown: from where "hold here" was pressed
+    /// (`--hold-at`), else from the state where control starts; said in the log.
+    fn hold_from_press(&mut self, given: &Scenario, state: &SimState, o: &SessionOptions, at: f64) -> Scenario {
+        let (depth, heading) = o.hold_at.map_or((state[2], state[3]), |h| (h.depth, h.heading));
+        let at_press = o.hold_at.and_then(|h| h.north_east);
+        if let Some(p) = at_press {
+            self.hold_xy = p;
+        }
+        let text = format!(
+            "holding {}: depth {depth:.2} m, heading {:.1} deg{}",
+            if o.hold_at.is_some() { "where it was pressed" } else { "here" },
+            heading.to_degrees().rem_euclid(360.0),
+            match (&self.plan, at_press) {
+                (None, _) => String::new(),
+                (Some(_), Some((n, e))) => format!(", north {n:.2} m, east {e:.2} m"),
+                (Some(_), None) => ", the position where control started".into(),
+            }
+        );
+        self.say(at, Level::Info, text);
+        given.started_at(depth, heading)
     }
 
     /// What the autopilot measured and applied since the last cycle, into the estimator: a
