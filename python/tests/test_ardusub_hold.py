@@ -6,9 +6,8 @@ vehicle; 50 s later "resume". The same at 4 m, side by side (each on its own sim
 page's default limits. Every figure is from the simulator's truth (SIM_STATE, SIMSTATE) on
 the pilot's own link, not from pinc.
 
-The hold flies on the simulator's own vehicle file (`--oracle`, passed to every flight with
-`pinc serve --run-arg`, with the depth sensor's noise), the data folder holding a model for its
-bounds as a fitted one would.
+The hold flies the model `pinc fit` makes of a 90 s GPS recording, in the data folder as the page's
+fit leaves it: nothing of the simulator's is given to pinc.
 
 $PINC_ARDUSUB_SITL names the simulator's folder (`.ci/run` sets it); without it these skip.
 """
@@ -22,9 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from test_ardusub_position import GPS_CURRENT
-from test_ardusub_sitl import VEHICLE as SIM_VEHICLE, run_on_firmware
-from test_vehicle_link import ROOT, pinc_binary
+# `fitted`: the four-axis model `pinc fit` makes of the 90 s GPS recording (the position tests').
+from test_ardusub_position import GPS_CURRENT, fitted  # noqa: F401
+from test_ardusub_sitl import run_on_firmware
+from test_vehicle_link import pinc_binary
 
 DRIVER = Path(__file__).resolve().parent / "hold_here_driver.py"
 ALLOWANCE_S, JUDGED_S = 5.0, 40.0
@@ -34,18 +34,17 @@ def wrapped(d):
     return (d + 180.0) % 360.0 - 180.0
 
 
-def hold_at(tmp, depth):
+def hold_at(tmp, depth, model):
     """Pressed at `depth` m and 120 deg after a dive in ALT_HOLD, resumed 50 s later."""
     data = tmp / "data"
-    (data / "models" / "sim").mkdir(parents=True)
-    shutil.copy(ROOT / "models" / "mpc_pinc_thrust.pinc", data / "models" / "sim" / "model.pinc")
+    (data / "models" / "fitted").mkdir(parents=True)
+    shutil.copy(model, data / "models" / "fitted" / "model.pinc")
     record = tmp / "hold.json"
     client = [sys.executable, DRIVER, "--record", record, "--pinc", pinc_binary(), "--data", data,
               "--depth", str(depth), "--heading", "120", "--hold", "50"]
-    # The simulator's depth sensor, told to the estimator as a fitted model's sensor model would
-    # (0.12 m of noise, 0.04 s late: test_ardusub_sitl.py's measurement).
-    for arg in ("--oracle", f"--vehicle={SIM_VEHICLE}", "--sim-truth", "--wait-position=45", "--depth-std=0.12",
-                "--depth-delay=0.04"):
+    # Only what an owner has: the fitted model (its sensor model inside), and the wait for the GPS;
+    # the simulator's truth is streamed for the figures alone.
+    for arg in ("--sim-truth", "--wait-position=45"):
         client.append(f"--run-arg={arg}")
     r = run_on_firmware(tmp, GPS_CURRENT, client, timeout=400)
     assert record.is_file(), f"the driver wrote nothing (exit {r.returncode}): {r.stderr[-3000:]}"
@@ -59,11 +58,11 @@ def hold_at(tmp, depth):
 
 
 @pytest.fixture(scope="module")
-def held(tmp_path_factory):
+def held(tmp_path_factory, fitted):
     """At 2.5 m, and at 4 m (past the old 3 m pool limit: the page's default limits), side by side."""
     depths = (2.5, 4.0)
     with ThreadPoolExecutor(len(depths)) as pool:
-        runs = pool.map(lambda d: hold_at(tmp_path_factory.mktemp(f"hold_{d}"), d), depths)
+        runs = pool.map(lambda d: hold_at(tmp_path_factory.mktemp(f"hold_{d}"), d, fitted), depths)
         return dict(zip(depths, runs))
 
 
