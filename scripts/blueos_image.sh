@@ -52,6 +52,7 @@ debarch_of() {
 }
 # ELF e_machine: x86-64 62, ARM 40, AArch64 183.
 machine_of() { case "$1" in linux-amd64) echo 62 ;; linux-arm64) echo 183 ;; linux-arm-v7) echo 40 ;; esac; }
+gnu_of() { case "$1" in linux-amd64) echo x86_64-linux-gnu ;; linux-arm64) echo aarch64-linux-gnu ;; linux-arm-v7) echo arm-linux-gnueabihf ;; esac; }
 variant_of() { case "$1" in linux-arm64) echo v8 ;; linux-arm-v7) echo v7 ;; *) echo "" ;; esac; }
 
 platforms=("${ALL_PLATFORMS[@]}")
@@ -138,11 +139,12 @@ build() {
     "deb $SECURITY_MIRROR bookworm-security main"
   [ -e "$rootfs/usr/share/doc/libc6/copyright" ] || die "$p: the root file system has no libc6 (mmdebstrap's output above)"
   # What a container does not use or gets from Docker: device nodes, this machine's resolv.conf and
-  # hostname (mmdebstrap copies them in), apt's settings and lists (no apt inside), translations,
-  # manuals; the packages' copyright files stay.
+  # hostname (mmdebstrap copies them in), apt's settings and lists (no apt inside), glibc's iconv
+  # modules (20 MB; nothing in the image converts character sets), translations, manuals; the
+  # packages' copyright files stay.
   find "$rootfs/dev" -mindepth 1 -delete
   rm -rf "$rootfs/etc/resolv.conf" "$rootfs/etc/hostname" "$rootfs/etc/apt" "$rootfs/var/lib/apt" "$rootfs/var/cache/apt" \
-    "$rootfs/usr/share/locale" "$rootfs/usr/share/man" "$rootfs/usr/share/info"
+    "$rootfs/usr/lib/$(gnu_of "$p")/gconv" "$rootfs/usr/share/locale" "$rootfs/usr/share/man" "$rootfs/usr/share/info"
   find "$rootfs/usr/share/doc" -mindepth 2 ! -name copyright ! -type d -delete
   mkdir -p "$rootfs/tmp" "$rootfs/data"
   chmod 1777 "$rootfs/tmp"
