@@ -37,9 +37,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(Parser)]
 #[command(about = "Closed-loop depth and heading tracking with the LTV-MPC")]
 struct Args {
-    /// The frozen model inside the MPC (its training envelope bounds the inputs).
-    #[arg(long, default_value = "models/mpc_pinc_thrust.pinc")]
-    model: PathBuf,
+    /// The frozen model inside the MPC (its training envelope bounds the inputs) [default: the
+    /// built-in models/mpc_pinc_thrust.pinc, whose bytes are in this binary, so an installed
+    /// mpc_track finds it wherever it runs; written to OUT_DIR/built_in_mpc_pinc_thrust.pinc for
+    /// the run's log, which names and hashes that file].
+    #[arg(long, value_name = "M.pinc")]
+    model: Option<PathBuf>,
     /// Run the identical controller on the analytic vehicle model instead (bounds still from --model).
     #[arg(long)]
     oracle: bool,
@@ -202,6 +205,57 @@ struct Args {
     foxglove: Option<String>,
 }
 
+/// The model `mpc_track` flies when `--model` is not given: `models/mpc_pinc_thrust.pinc`, built
+/// into the binary so that an installed `mpc_track` finds it outside a checkout.
+const BUILT_IN_MODEL: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/models/mpc_pinc_thrust.pinc"));
+
+/// Where the built-in model is written in `--out-dir`: the library loads a model and hashes it
+/// for the log by its path, so the run names a file that holds exactly what it flew.
+const BUILT_IN_MODEL_FILE: &str = "built_in_mpc_pinc_thrust.pinc";
+
+/// Why the built-in model could not be put where the run reads it.
+#[derive(Debug, thiserror::Error)]
+enum BuiltInModelError {
+    /// The output folder could not be made.
+    #[error("{path}: cannot create the output folder for the built-in model: {source}")]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The model's bytes could not be written.
+    #[error("{path}: cannot write the built-in model (give --model M.pinc or another --out-dir): {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+/// The model the run flies: `--model`'s file, or the built-in model written to `out_dir` (left
+/// alone when it already holds the same bytes; otherwise written beside it and renamed over it,
+/// so a reader never sees half a file).
+fn model_file(given: Option<&Path>, out_dir: &Path) -> Result<(PathBuf, bool), BuiltInModelError> {
+    if let Some(path) = given {
+        return Ok((path.to_owned(), false));
+    }
+    std::fs::create_dir_all(out_dir)
+        .map_err(|source| BuiltInModelError::Folder { path: out_dir.to_owned(), source })?;
+    let path = out_dir.join(BUILT_IN_MODEL_FILE);
+    if std::fs::read(&path).is_ok_and(|bytes| bytes == BUILT_IN_MODEL) {
+        return Ok((path, true));
+    }
+    let partial = out_dir.join(format!("{BUILT_IN_MODEL_FILE}.{}.partial", std::process::id()));
+    let written = std::fs::write(&partial, BUILT_IN_MODEL).and_then(|()| std::fs::rename(&partial, &path));
+    if let Err(source) = written {
+        let _ = std::fs::remove_file(&partial);
+        return Err(BuiltInModelError::Write { path, source });
+    }
+    Ok((path, true))
+}
+
 /// A run's samples, a log write error, why it stopped early, and (on a vehicle) the live figures.
 type RunOutcome = (Vec<Sample>, Option<LogError>, Option<String>, Option<serde_json::Value>);
 
@@ -259,7 +313,7 @@ const PILOT_DURATION_S: f64 = 3600.0;
 /// The closed loop's settings from the flags: the controller and scenario come from the
 /// library's one set-up path (shared with the Python package, so a seed's run is the same
 /// everywhere).
-fn settings(a: &Args) -> Result<Settings, String> {
+fn settings(a: &Args, model: &Path) -> Result<Settings, String> {
     // The pilot's sticks fly on the station's four-axis set-up, an hour unless told.
     #[cfg(feature = "vehicle")]
     let (scenario, duration) = match a.pilot {
@@ -269,7 +323,7 @@ fn settings(a: &Args) -> Result<Settings, String> {
     #[cfg(not(feature = "vehicle"))]
     let (scenario, duration) = (a.scenario, a.duration);
     Ok(Settings {
-        model: a.model.clone(),
+        model: model.to_owned(),
         vehicle: a.vehicle.clone(),
         scenario: match scenario {
             ScenarioName::Default => "default",
@@ -330,7 +384,14 @@ fn run_name(a: &Args, scenario: &Scenario) -> String {
 }
 
 fn try_main(a: Args) -> Result<(), String> {
-    let settings = settings(&a)?;
+    let (model_path, built_in) = model_file(a.model.as_deref(), &a.out_dir).map_err(|e| e.to_string())?;
+    if built_in && !a.json {
+        eprintln!(
+            "model: the built-in models/mpc_pinc_thrust.pinc (no --model given), written to {}",
+            model_path.display()
+        );
+    }
+    let settings = settings(&a, &model_path)?;
     let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;
     let (model, vehicle, scenario, cfg, bounds) = (model, *vehicle, scenario, cfg.clone(), *bounds);
@@ -343,8 +404,15 @@ fn try_main(a: Args) -> Result<(), String> {
     let name = run_name(&a, scenario);
     let png = a.out_dir.join(format!("{name}.png"));
     let mcap = a.out_dir.join(format!("{name}.mcap"));
-    let info =
-        RunInfo { controller, model_path: &a.model, scenario, config: &cfg, bounds, dt: model.dt, vehicle: &vehicle };
+    let info = RunInfo {
+        controller,
+        model_path: &model_path,
+        scenario,
+        config: &cfg,
+        bounds,
+        dt: model.dt,
+        vehicle: &vehicle,
+    };
     #[cfg(feature = "live-view")]
     let mut log = match &a.foxglove {
         Some(address) => {
@@ -357,6 +425,14 @@ fn try_main(a: Args) -> Result<(), String> {
     };
     #[cfg(not(feature = "live-view"))]
     let mut log = McapLog::create(&mcap, &info).map_err(|e| e.to_string())?;
+    if built_in {
+        log.log(
+            0.0,
+            pinc::closed_loop::Level::Info,
+            "model: the built-in models/mpc_pinc_thrust.pinc (no --model given)",
+        )
+        .map_err(|e| format!("{}: {e}", mcap.display()))?;
+    }
     // A run watched live goes at the vehicle's pace.
     #[cfg(feature = "live-view")]
     let real_time = a.foxglove.is_some();
@@ -430,8 +506,9 @@ fn try_main(a: Args) -> Result<(), String> {
         o.insert("scenario".into(), scenario.name().into());
         o.insert(
             "controller_model".into(),
-            if a.oracle { "analytic".into() } else { a.model.display().to_string().into() },
+            if a.oracle { "analytic".into() } else { model_path.display().to_string().into() },
         );
+        o.insert("model_built_in".into(), built_in.into());
         o.insert("horizon".into(), a.horizon.into());
         o.insert("plot".into(), png.display().to_string().into());
         o.insert("log".into(), mcap.display().to_string().into());
@@ -444,6 +521,9 @@ fn try_main(a: Args) -> Result<(), String> {
         print_summary(&summary);
         if let Some(l) = &live {
             print_live(l);
+        }
+        if built_in {
+            println!("model: built in (models/mpc_pinc_thrust.pinc), as {}", model_path.display());
         }
         println!("plot: {}", png.display());
         println!("log:  {} ({log_bytes} bytes, {} messages; open it in Foxglove)", mcap.display(), stats.messages);
