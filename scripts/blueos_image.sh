@@ -34,6 +34,7 @@ DIST="${PINC_DIST:-$ROOT/dist}"
 CONFIG="$ROOT/blueos/image_config.py"
 MIRROR="${PINC_BLUEOS_MIRROR:-http://deb.debian.org/debian}"
 SECURITY_MIRROR="${MIRROR%/debian}/debian-security"
+KEYRING=/usr/share/keyrings/debian-archive-keyring.gpg
 ALL_PLATFORMS=(linux-arm-v7 linux-arm64 linux-amd64)
 # The root file system: glibc and libgcc_s (all the binaries link), a shell and the core tools for
 # an owner's `docker run --entrypoint bash`, base-files (/etc/os-release, the licences' folder).
@@ -134,9 +135,11 @@ build() {
   mkdir -p "$work/$p"
 
   log "$p: Debian bookworm's $PACKAGES for $arch"
-  run mmdebstrap --quiet --mode=root --variant=extract --architectures="$arch" --include="$PACKAGES" \
-    bookworm "$rootfs" "deb $MIRROR bookworm main" "deb $MIRROR bookworm-updates main" \
-    "deb $SECURITY_MIRROR bookworm-security main"
+  # The archive's signatures checked against Debian's keyring (apt's gpgv; no gpg needed to find it).
+  [ -f "$KEYRING" ] || die "$KEYRING missing (Debian's package debian-archive-keyring)"
+  run mmdebstrap --quiet --mode=root --variant=extract --skip=check/signed-by --architectures="$arch" \
+    --include="$PACKAGES" bookworm "$rootfs" "deb [signed-by=$KEYRING] $MIRROR bookworm main" \
+    "deb [signed-by=$KEYRING] $MIRROR bookworm-updates main" "deb [signed-by=$KEYRING] $SECURITY_MIRROR bookworm-security main"
   [ -e "$rootfs/usr/share/doc/libc6/copyright" ] || die "$p: the root file system has no libc6 (mmdebstrap's output above)"
   # What a container does not use or gets from Docker: device nodes, this machine's resolv.conf and
   # hostname (mmdebstrap copies them in), apt's settings and lists (no apt inside), glibc's iconv
