@@ -28,6 +28,20 @@ measured plus a seeded Gaussian error of --usbl-noise m (default 0.25) on north 
 leaves the deltas out (the USBL alone). Each fix sent is recorded (`{"event": "fix", ...}` only
 for the first; the count at the end).
 
+What a vehicle in water brings, each from the options (default: none of it):
+
+- `--origin site|autopilot|N,E`: the EKF origin set at the site's exact home (the default), left
+  to the autopilot (nothing sent: ArduSub's EKF takes it from the first USBL fix it uses), or
+  set by hand N metres north and E east of the home (an owner's "set origin" on a map);
+- `--first-fix-after S`: the USBL's first fix S s after arming (the acoustic lock found after
+  the dive started); `--usbl-outage A,B`: no fixes from A to B s after arming;
+- `--fix-wander STD,TAU`: the topside GPS's error in every fix, north and east each a
+  first-order Gauss-Markov process of STD m and time constant TAU s (drawn at the start, so the
+  fixes' frame is STD metres off the truth from the first);
+- `--outliers P,M`: a share P of the fixes M metres off in a random direction (multipath);
+- `--dvl-yaw-deg A`, `--dvl-scale K`: the DVL mounted A deg to starboard of the hull's axis and
+  reading K times the velocity: it sends K (c u + s v, -s u + c v, w), `c s` of A.
+
 `--stop-after S` stops the deltas S seconds after the autopilot first reports armed (the DVL's
 messages lost: a DVL that lost bottom lock or its cable); the record goes on. With
 `--resume-after R` (R > S) they come back R seconds after arming (bottom lock regained), the
@@ -36,6 +50,8 @@ the only place the truth enters: nothing else from the simulator goes to the cli
 
 usage: dvl_stand_in.py --record FILE [--port 5763] [--noise M_S] [--seed N] [--stop-after S]
                        [--resume-after R] [--usbl [--usbl-noise M] [--usbl-latency S]] [--no-dvl]
+                       [--origin site|autopilot|N,E] [--first-fix-after S] [--usbl-outage A,B]
+                       [--fix-wander STD,TAU] [--outliers P,M] [--dvl-yaw-deg A] [--dvl-scale K]
                        -- CLIENT [ARGS...]
 Exits with the client's status.
 """
@@ -95,9 +111,25 @@ def main() -> int:
     p.add_argument("--usbl-noise", type=float, default=0.25, help="USBL position noise, m (1 sigma, per axis)")
     p.add_argument("--usbl-latency", type=float, default=0.5, help="how late each USBL fix is sent, s")
     p.add_argument("--no-dvl", action="store_true", help="send no deltas (the USBL alone)")
+    p.add_argument("--origin", default="site", help="site, autopilot, or N,E metres off the site by hand")
+    p.add_argument("--first-fix-after", type=float, default=None, help="the USBL's first fix, s after arming")
+    p.add_argument("--usbl-outage", default=None, help="A,B: no fixes from A to B s after arming")
+    p.add_argument("--fix-wander", default=None, help="STD,TAU: the topside GPS's error (m, s) in the fixes")
+    p.add_argument("--outliers", default=None, help="P,M: a share P of the fixes M metres off")
+    p.add_argument("--dvl-yaw-deg", type=float, default=0.0, help="the DVL turned this far to starboard (deg)")
+    p.add_argument("--dvl-scale", type=float, default=1.0, help="the DVL reads this times the velocity")
     p.add_argument("client", nargs=argparse.REMAINDER)
     a = p.parse_args()
     client = a.client[1:] if a.client and a.client[0] == "--" else a.client
+    pair = lambda text: tuple(float(x) for x in text.split(",")) if text else None  # noqa: E731
+    if a.origin == "site":
+        origin_at = (0.0, 0.0)
+    elif a.origin == "autopilot":
+        origin_at = None
+    else:
+        origin_at = pair(a.origin)
+    outage, wander, outliers = pair(a.usbl_outage), pair(a.fix_wander), pair(a.outliers)
+    mount_c, mount_s = math.cos(math.radians(a.dvl_yaw_deg)), math.sin(math.radians(a.dvl_yaw_deg))
     proc = subprocess.Popen(client)
     rng = random.Random(a.seed)
     record = open(a.record, "w")
@@ -123,6 +155,10 @@ def main() -> int:
     sim_time = 0.0
     fixes_due = []  # (host time to send, lat_e7, lon_e7, depth m), oldest first
     fixes_sent = 0
+    wander_rng = random.Random(a.seed + 2000)
+    # The topside GPS's error now (north, east; m), drawn at its stationary spread.
+    drift = [wander_rng.gauss(0.0, wander[0]) for _ in range(2)] if wander else [0.0, 0.0]
+    outliers_sent = 0
     while proc.poll() is None and m is not None:
         now = time.monotonic()
         while fixes_due and fixes_due[0][0] <= now:
@@ -139,10 +175,11 @@ def main() -> int:
             for msg_id, hz in ((SIM_STATE, TRUTH_HZ), (ATTITUDE, TRUTH_HZ), (SYS_STATUS, 10)):
                 m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                         msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
-        if not origin_set and boot is not None and now - asked_origin > 1.0:
+        if origin_at is not None and not origin_set and boot is not None and now - asked_origin > 1.0:
             asked_origin = now
-            m.mav.set_gps_global_origin_send(1, int(HOME[0] * 1e7), int(HOME[1] * 1e7), 0,
-                                             int(boot[0] * 1e6))
+            lat = HOME[0] * 1e7 + origin_at[0] / METRES_PER_E7_DEG
+            lon = HOME[1] * 1e7 + origin_at[1] / (METRES_PER_E7_DEG * math.cos(math.radians(HOME[0])))
+            m.mav.set_gps_global_origin_send(1, round(lat), round(lon), 0, int(boot[0] * 1e6))
             m.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
                                     GPS_GLOBAL_ORIGIN, 0, 0, 0, 0, 0, 0)
             note(event="origin_sent", t=boot[0])
@@ -170,16 +207,29 @@ def main() -> int:
             t = boot[0] + (time.monotonic() - boot[1])
             note(t=round(t, 4), lat_e7=msg.lat_int, lon_e7=msg.lon_int, depth_m=-msg.alt, yaw_rad=msg.yaw)
             sim_time += 1.0 / TRUTH_HZ
+            since_arming = None if armed_at is None else time.monotonic() - armed_at
             if a.usbl and sim_time >= next_fix_sim:
                 next_fix_sim += FIX_EVERY_S
                 north, east = usbl_rng.gauss(0.0, a.usbl_noise), usbl_rng.gauss(0.0, a.usbl_noise)
-                scale = math.cos(math.radians(msg.lat_int * 1e-7))
-                lat = msg.lat_int + round(north / METRES_PER_E7_DEG)
-                lon = msg.lon_int + round(east / (METRES_PER_E7_DEG * scale))
-                fixes_due.append((time.monotonic() + a.usbl_latency, lat, lon, -msg.alt))
+                if wander:
+                    keep = math.exp(-FIX_EVERY_S / wander[1])
+                    drift = [d * keep + wander_rng.gauss(0.0, wander[0] * math.sqrt(1.0 - keep * keep))
+                             for d in drift]
+                    north, east = north + drift[0], east + drift[1]
+                if outliers and wander_rng.random() < outliers[0]:
+                    bearing = wander_rng.uniform(0.0, 2.0 * math.pi)
+                    north, east = north + outliers[1] * math.cos(bearing), east + outliers[1] * math.sin(bearing)
+                    outliers_sent += 1
+                # No acoustic lock yet, or an outage: nothing sent.
+                locked = a.first_fix_after is None or (since_arming is not None and since_arming >= a.first_fix_after)
+                out = outage is not None and since_arming is not None and outage[0] <= since_arming < outage[1]
+                if locked and not out:
+                    scale = math.cos(math.radians(msg.lat_int * 1e-7))
+                    lat = msg.lat_int + round(north / METRES_PER_E7_DEG)
+                    lon = msg.lon_int + round(east / (METRES_PER_E7_DEG * scale))
+                    fixes_due.append((time.monotonic() + a.usbl_latency, lat, lon, -msg.alt))
             if a.no_dvl:
                 continue
-            since_arming = None if armed_at is None else time.monotonic() - armed_at
             if stopped:
                 if a.resume_after is None or since_arming < a.resume_after:
                     continue
@@ -195,7 +245,11 @@ def main() -> int:
             if last_att is None:
                 last_att = att
                 continue
-            for i, vel in enumerate(body_velocity(msg)):
+            u, v, w = body_velocity(msg)
+            # As the DVL is mounted: turned to starboard, scaled.
+            read = (a.dvl_scale * (mount_c * u + mount_s * v), a.dvl_scale * (-mount_s * u + mount_c * v),
+                    a.dvl_scale * w)
+            for i, vel in enumerate(read):
                 acc[i] += vel / TRUTH_HZ
             n_acc += 1
             if n_acc < DELTA_EVERY:
@@ -211,7 +265,7 @@ def main() -> int:
     if m is not None and not stopped:
         note(event="deltas_end", sent=sent)
     if a.usbl:
-        note(event="fixes_end", sent=fixes_sent)
+        note(event="fixes_end", sent=fixes_sent, outliers=outliers_sent)
     return proc.wait()
 
 

@@ -5,6 +5,7 @@
 
 use super::health::{Health, Sensor};
 use super::measurement::{Measurement, NoiseSettings};
+use super::navigation::larger_variance;
 use crate::runtime::{HorizonLinearisation, RuntimeError};
 use crate::traits::DiscreteModel;
 use crate::types::{Input, NS, NU, SimState};
@@ -12,16 +13,43 @@ use crate::vehicle::{to_network, wrap_angle};
 use nalgebra::{SMatrix, SVector};
 
 /// Filter state size: the simulator state `x y z psi u v w r`, the disturbance `dX dY dZ dMz`
-/// added to the applied input, and the heave gain `gZ`: the fraction of the applied heave
-/// force the model misses (the applied `Z` acts as `(1 + gZ) Z`), which a model of another
-/// vehicle's mass and thrusters gets wrong in proportion to the force, not as an offset.
-pub const NE: usize = NS + NU + 1;
+/// added to the applied input, the heave gain `gZ`: the fraction of the applied heave force
+/// the model misses (the applied `Z` acts as `(1 + gZ) Z`), which a model of another vehicle's
+/// mass and thrusters gets wrong in proportion to the force, not as an offset; the offset
+/// `bN bE` of the positioning sensor's frame from the filter's (docs/MODEL.md section 15); and
+/// the DVL's mounting: its yaw misalignment `a` and scale error `k`.
+pub const NE: usize = NS + NU + 5;
 /// Index of the heave gain `gZ` in the filter state.
 pub const HEAVE_GAIN: usize = NS + NU;
+/// Index of the fixes' frame offset north (east follows): a fix reads `x + bN, y + bE`.
+pub const FIX_OFFSET: usize = NS + NU + 1;
+/// Index of the DVL's yaw misalignment (rad, its forward axis turned to starboard of the
+/// hull's); its scale error `k` follows (it reads `1 + k` times the velocity).
+pub const DVL_YAW: usize = NS + NU + 3;
+/// Index of the DVL's scale error.
+pub const DVL_SCALE: usize = NS + NU + 4;
 /// Prior spread of the heave gain, and its random walk per step (it drifts only as the
 /// vehicle's trim or thrusters change).
 const HEAVE_GAIN_STD: f64 = 1.0;
 const HEAVE_GAIN_STEP_STD: f64 = 0.004;
+/// Prior spread (m) of the fixes' frame offset until a fix fixes it: an EKF origin set from a
+/// map or a fix, a topside GPS's error, are metres; a site's surveyed origin is not assumed.
+pub const FIX_OFFSET_PRIOR_STD: f64 = 100.0;
+/// Its random walk (m per square-root second): a USBL's fixes carry the topside GPS's slow
+/// wander (a metre over minutes), which the offset follows rather than the vehicle.
+pub const FIX_OFFSET_WANDER: f64 = 0.004;
+/// Prior spread of the DVL's yaw misalignment (rad, 3 deg: a DVL fitted by eye to the hull's
+/// axis); constant, no random walk.
+pub const DVL_YAW_PRIOR_STD: f64 = 0.052;
+/// Prior spread of the DVL's scale error (3 %); constant.
+pub const DVL_SCALE_PRIOR_STD: f64 = 0.03;
+/// A fix whose two components' normalised innovation squared is beyond this is left out as an
+/// outlier (a multipath fix): 13.8 is the 99.9 % point of the chi-square with two degrees.
+pub const FIX_GATE_NIS: f64 = 13.8;
+/// After this many fixes in a row beyond the gate, the fixes' frame is taken to have moved (a
+/// USBL back after an outage on another topside fix, an origin set again): the offset opens to
+/// their innovation, and the estimate of the vehicle stays where it is.
+pub const FIX_REACQUIRE_AFTER: u32 = 8;
 
 /// The filter's state vector.
 pub type FilterState = SVector<f64, NE>;
@@ -45,6 +73,13 @@ pub struct Estimate {
     /// The heave gain `gZ` (the applied heave force acts as `(1 + gZ) Z`) and its standard
     /// deviation.
     pub heave_gain: (f64, f64),
+    /// The positioning sensor's frame offset from the estimate's (north, east, m) and the
+    /// larger axis of its standard deviation.
+    pub fix_offset: ([f64; 2], f64),
+    /// The DVL's yaw misalignment (rad, to starboard) and its standard deviation.
+    pub dvl_yaw: (f64, f64),
+    /// The DVL's scale error (it reads `1 + k` times the velocity) and its standard deviation.
+    pub dvl_scale: (f64, f64),
 }
 
 /// How one measurement was taken.
@@ -68,6 +103,10 @@ pub struct FilterCounts {
     /// Components fused after [`REACQUIRE_AFTER`] rejections in a row, their state's
     /// variance opened first.
     pub reacquired: u64,
+    /// Position fixes left out as outliers (beyond [`FIX_GATE_NIS`]).
+    pub fixes_rejected: u64,
+    /// Times the fixes' frame was taken to have moved ([`FIX_REACQUIRE_AFTER`]).
+    pub fix_frame_moves: u64,
 }
 
 /// An extended Kalman filter on a [`DiscreteModel`].
@@ -98,6 +137,10 @@ pub struct Ekf<M: DiscreteModel> {
     /// When a body velocity over the ground (a DVL) was last fused: while it comes, the
     /// horizontal disturbance is observed directly.
     ground_velocity_at: Option<f64>,
+    /// Fixes beyond the gate in a row.
+    fixes_rejected_run: u32,
+    /// Whether a fix was fused since the filter was made (until then the offset is unknown).
+    fix_offset_known: bool,
 }
 
 /// A DVL's velocity measured within this long (s) counts as observing the current directly.
@@ -172,13 +215,18 @@ impl<M: DiscreteModel> Ekf<M> {
             q[(NS + i, NS + i)] = s * s * (1.0 - decay * decay);
         }
         q[(HEAVE_GAIN, HEAVE_GAIN)] = HEAVE_GAIN_STEP_STD * HEAVE_GAIN_STEP_STD;
+        for i in [FIX_OFFSET, FIX_OFFSET + 1] {
+            q[(i, i)] = FIX_OFFSET_WANDER * FIX_OFFSET_WANDER * dt;
+        }
+        let mut p = FilterCovariance::identity();
+        Self::mounting_prior(&mut p);
         Self {
             model,
             ws,
             lin: HorizonLinearisation::new(1),
             noise,
             x: FilterState::zeros(),
-            p: FilterCovariance::identity(),
+            p,
             q,
             decay,
             t: 0.0,
@@ -189,7 +237,62 @@ impl<M: DiscreteModel> Ekf<M> {
             ground_velocity_at: None,
             health: Health::default(),
             q_scale: [1.0; NS],
+            fixes_rejected_run: 0,
+            fix_offset_known: false,
         }
+    }
+
+    /// The priors of what is kept across restarts: the fixes' frame offset unknown, the DVL's
+    /// mounting within a fitting by eye.
+    fn mounting_prior(p: &mut FilterCovariance) {
+        for (i, s) in [
+            (FIX_OFFSET, FIX_OFFSET_PRIOR_STD),
+            (FIX_OFFSET + 1, FIX_OFFSET_PRIOR_STD),
+            (DVL_YAW, DVL_YAW_PRIOR_STD),
+            (DVL_SCALE, DVL_SCALE_PRIOR_STD),
+        ] {
+            p[(i, i)] = s * s;
+        }
+    }
+
+    /// The DVL's mounting as the owner measured it: yaw misalignment `yaw` (rad, to starboard)
+    /// and scale error `scale` (it reads `1 + scale` times the velocity), each known within its
+    /// standard deviation (0: taken as exact).
+    pub fn set_dvl_mounting(&mut self, yaw: f64, yaw_std: f64, scale: f64, scale_std: f64) {
+        for (i, v, s) in [(DVL_YAW, yaw, yaw_std), (DVL_SCALE, scale, scale_std)] {
+            self.x[i] = v;
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
+            self.p[(i, i)] = s * s;
+        }
+    }
+
+    /// The estimate's frame is where it stands (a DVL carried it from an unplaced start): its
+    /// horizontal position's spread shrinks to the position noise, its correlations cut, so the
+    /// fixes that come next place their offset, not the vehicle.
+    pub fn place_here(&mut self) {
+        let s = self.noise.position_std;
+        for i in [0, 1] {
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
+            self.p[(i, i)] = s * s;
+        }
+    }
+
+    /// Whether a fix was fused yet: until then the fixes' frame offset is its prior.
+    pub fn fix_offset_known(&self) -> bool {
+        self.fix_offset_known
+    }
+
+    /// The fixes define the estimate's frame: the offset is zero and known (the filter starts
+    /// on a fix, with nothing before it to keep).
+    pub fn define_frame_by_fixes(&mut self) {
+        for i in [FIX_OFFSET, FIX_OFFSET + 1] {
+            self.x[i] = 0.0;
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
+        }
+        self.fix_offset_known = true;
     }
 
     /// The innovations' figures per sensor since the last [`Ekf::reset`].
@@ -316,10 +419,22 @@ impl<M: DiscreteModel> Ekf<M> {
     /// Restarts at time `t` from `sim` with standard deviations `std`, the disturbance zero
     /// with its stationary spread.
     pub fn reset(&mut self, t: f64, sim: &SimState, std: &[f64; NS]) {
+        // The fixes' frame and the DVL's mounting outlive a restart (a link's gap): their
+        // estimates and spreads are kept, their correlations with the motion cut.
+        let kept = [FIX_OFFSET, FIX_OFFSET + 1, DVL_YAW, DVL_SCALE];
+        let kept_x = kept.map(|i| self.x[i]);
+        let kept_p = SMatrix::<f64, 4, 4>::from_fn(|a, b| self.p[(kept[a], kept[b])]);
         self.t = t;
         self.x = FilterState::zeros();
         self.x.fixed_rows_mut::<NS>(0).copy_from(sim);
         self.p = FilterCovariance::zeros();
+        for a in 0..4 {
+            self.x[kept[a]] = kept_x[a];
+            for b in 0..4 {
+                self.p[(kept[a], kept[b])] = kept_p[(a, b)];
+            }
+        }
+        self.fixes_rejected_run = 0;
         for i in 0..NS {
             self.p[(i, i)] = std[i] * std[i];
         }
@@ -351,21 +466,6 @@ impl<M: DiscreteModel> Ekf<M> {
         }
     }
 
-    /// Opens the horizontal position's spread to `std` (m) at least, its correlations cut: a
-    /// new absolute source is taken up (a USBL's fixes after the autopilot's position), whose
-    /// frame the estimate so far need not share, and which would otherwise be weighed against
-    /// a confidence it did not earn.
-    pub fn open_horizontal_position(&mut self, std: f64) {
-        for i in [0, 1] {
-            let keep = self.p[(i, i)].max(std * std);
-            for j in 0..NE {
-                self.p[(i, j)] = 0.0;
-                self.p[(j, i)] = 0.0;
-            }
-            self.p[(i, i)] = keep;
-        }
-    }
-
     /// Time of the estimate (s).
     pub fn t(&self) -> f64 {
         self.t
@@ -392,8 +492,21 @@ impl<M: DiscreteModel> Ekf<M> {
         let std = std::array::from_fn(|i| self.p[(i, i)].max(0.0).sqrt());
         let disturbance = Input::from_fn(|i, _| self.x[NS + i]);
         let disturbance_std = std::array::from_fn(|i| self.p[(NS + i, NS + i)].max(0.0).sqrt());
-        let heave_gain = (self.x[HEAVE_GAIN], self.p[(HEAVE_GAIN, HEAVE_GAIN)].max(0.0).sqrt());
-        Estimate { t: self.t, sim, std, disturbance, disturbance_std, heave_gain }
+        let sd = |i: usize| self.p[(i, i)].max(0.0).sqrt();
+        let heave_gain = (self.x[HEAVE_GAIN], sd(HEAVE_GAIN));
+        let (o, p) = (FIX_OFFSET, &self.p);
+        let offset_std = larger_variance(p[(o, o)], p[(o, o + 1)], p[(o + 1, o + 1)]).max(0.0).sqrt();
+        Estimate {
+            t: self.t,
+            sim,
+            std,
+            disturbance,
+            disturbance_std,
+            heave_gain,
+            fix_offset: ([self.x[o], self.x[o + 1]], offset_std),
+            dvl_yaw: (self.x[DVL_YAW], sd(DVL_YAW)),
+            dvl_scale: (self.x[DVL_SCALE], sd(DVL_SCALE)),
+        }
     }
 
     /// One step of the model's sample period under the applied input `u` (plus the
@@ -456,7 +569,9 @@ impl<M: DiscreteModel> Ekf<M> {
         f.fixed_view_mut::<NS, NU>(0, NS).copy_from(&b_sim);
         // The heave gain acts through the input's heave column, scaled by the applied force.
         f.fixed_view_mut::<NS, 1>(0, HEAVE_GAIN).copy_from(&(b_sim.column(2) * u[2]));
-        f[(HEAVE_GAIN, HEAVE_GAIN)] = 1.0;
+        for i in [HEAVE_GAIN, FIX_OFFSET, FIX_OFFSET + 1, DVL_YAW, DVL_SCALE] {
+            f[(i, i)] = 1.0;
+        }
         self.adapt();
         let mut q = self.q;
         for i in 0..NS {
@@ -527,6 +642,44 @@ impl<M: DiscreteModel> Ekf<M> {
         true
     }
 
+    /// A fix `x y` (variance `r` each) of the position in the sensor's frame, `x + bN, y + bE`:
+    /// gated on both components together (a multipath fix is off in a direction, and one
+    /// component alone can pass), and after [`FIX_REACQUIRE_AFTER`] in a row beyond the gate the
+    /// frame's offset opens to the innovation: the frame moved, the vehicle did not.
+    fn fix(&mut self, x: f64, y: f64, r: f64) -> bool {
+        let o = FIX_OFFSET;
+        let hx = Self::row(&[(0, 1.0), (o, 1.0)]);
+        let hy = Self::row(&[(1, 1.0), (o + 1, 1.0)]);
+        let (ix, iy) = (x - self.x[0] - self.x[o], y - self.x[1] - self.x[o + 1]);
+        let sxx = (hx * self.p * hx.transpose())[(0, 0)] + r;
+        let syy = (hy * self.p * hy.transpose())[(0, 0)] + r;
+        let sxy = (hx * self.p * hy.transpose())[(0, 0)];
+        let det = sxx * syy - sxy * sxy;
+        let nis = (syy * ix * ix - 2.0 * sxy * ix * iy + sxx * iy * iy) / det;
+        if !(det > 0.0 && nis.is_finite()) {
+            self.counts.rejected += 2;
+            self.health.add(Sensor::Position, f64::INFINITY, true);
+            return false;
+        }
+        if nis > FIX_GATE_NIS {
+            self.fixes_rejected_run += 1;
+            if self.fixes_rejected_run < FIX_REACQUIRE_AFTER {
+                self.counts.rejected += 2;
+                self.counts.fixes_rejected += 1;
+                self.health.add(Sensor::Position, 0.5 * nis, true);
+                return false;
+            }
+            self.p[(o, o)] += ix * ix;
+            self.p[(o + 1, o + 1)] += iy * iy;
+            self.counts.fix_frame_moves += 1;
+        }
+        self.fixes_rejected_run = 0;
+        let a = self.scalar(x - self.x[0] - self.x[o], &hx, r, Sensor::Position, false);
+        let b = self.scalar(y - self.x[1] - self.x[o + 1], &hy, r, Sensor::Position, false);
+        self.fix_offset_known = true;
+        a && b
+    }
+
     fn row(entries: &[(usize, f64)]) -> SMatrix<f64, 1, NE> {
         let mut h = SMatrix::<f64, 1, NE>::zeros();
         for &(i, v) in entries {
@@ -571,9 +724,7 @@ impl<M: DiscreteModel> Ekf<M> {
             // The sensor's own word on its accuracy where it gives one.
             Measurement::Fix { x, y, std, .. } => {
                 let r = if std.is_finite() && std > 0.0 { std * std } else { sp * sp };
-                let p = Sensor::Position;
-                let a = self.scalar(x - self.x[0], &Self::row(&[(0, 1.0)]), r, p, true);
-                a & self.scalar(y - self.x[1], &Self::row(&[(1, 1.0)]), r, p, true)
+                self.fix(x, y, r)
             }
             Measurement::VelocityNed { vn, ve, vd, .. } => {
                 // vn = c u - s v, ve = s u + c v, vd = w (roll and pitch taken as zero).
@@ -594,11 +745,29 @@ impl<M: DiscreteModel> Ekf<M> {
                 let s = n.vertical_velocity_std;
                 self.scalar(vd - self.x[6], &Self::row(&[(6, 1.0)]), s * s, Sensor::Velocity, true)
             }
+            // The DVL reads the body velocity turned into its own axes and scaled:
+            // `(1 + k) (c u + s v, -s u + c v, w)`, `a` its yaw misalignment.
             Measurement::VelocityBody { u, v, w, .. } => {
                 let v_ = Sensor::Velocity;
-                let a = self.scalar(u - self.x[4], &Self::row(&[(4, 1.0)]), sb * sb, v_, true);
-                let b = self.scalar(v - self.x[5], &Self::row(&[(5, 1.0)]), sb * sb, v_, true);
-                let c = self.scalar(w - self.x[6], &Self::row(&[(6, 1.0)]), sb * sb, v_, true);
+                let row_u = |x: &FilterState| {
+                    let (s, c) = x[DVL_YAW].sin_cos();
+                    let (g, along, across) = (1.0 + x[DVL_SCALE], c * x[4] + s * x[5], -s * x[4] + c * x[5]);
+                    let h = Self::row(&[(4, g * c), (5, g * s), (DVL_YAW, g * across), (DVL_SCALE, along)]);
+                    (g * along, h)
+                };
+                let row_v = |x: &FilterState| {
+                    let (s, c) = x[DVL_YAW].sin_cos();
+                    let (g, along, across) = (1.0 + x[DVL_SCALE], c * x[4] + s * x[5], -s * x[4] + c * x[5]);
+                    let h = Self::row(&[(4, -g * s), (5, g * c), (DVL_YAW, -g * along), (DVL_SCALE, across)]);
+                    (g * across, h)
+                };
+                let (pred, h) = row_u(&self.x);
+                let a = self.scalar(u - pred, &h, sb * sb, v_, true);
+                let (pred, h) = row_v(&self.x);
+                let b = self.scalar(v - pred, &h, sb * sb, v_, true);
+                let g = 1.0 + self.x[DVL_SCALE];
+                let h = Self::row(&[(6, g), (DVL_SCALE, self.x[6])]);
+                let c = self.scalar(w - g * self.x[6], &h, sb * sb, v_, true);
                 if a && b {
                     self.ground_velocity_measured();
                 }

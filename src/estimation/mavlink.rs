@@ -14,9 +14,11 @@
 //!   body velocity over the ground;
 //! - `GPS_INPUT` (a USBL such as Water Linked's Underwater GPS through its extension, or a
 //!   GPS on MAVLink) and `GLOBAL_VISION_POSITION_ESTIMATE` (ArduPilot takes its `x y` as
-//!   metres in the local NED frame), from the sensor's own link: position fixes, once the
-//!   autopilot told its EKF origin (`GPS_GLOBAL_ORIGIN`) for the first; each stamped at its
-//!   arrival less the sensor's latency (the message's own stamp is the sender's clock);
+//!   metres in the local NED frame), from the sensor's own link: position fixes, placed from
+//!   one anchor kept for the session (the autopilot's EKF origin where `GPS_GLOBAL_ORIGIN` told
+//!   it before the first fix, else that fix: an origin set later or changed does not move
+//!   them; the filter estimates their frame's offset); each stamped at its arrival less the
+//!   sensor's latency (the message's own stamp is the sender's clock);
 //! - `SERVO_OUTPUT_RAW` through a vehicle file's thrusters: the input actually applied.
 //!
 //! Messages older than the newest of their kind are dropped (and counted).
@@ -110,6 +112,10 @@ pub struct MavlinkMeasurements {
     newest: [f64; 7],
     /// The autopilot's EKF origin (1e-7 deg), once it said it.
     origin: Option<(i32, i32)>,
+    /// Times the origin said differed from the one before.
+    origin_changes: u64,
+    /// Where fixes are placed from (1e-7 deg): the origin known at the first fix, or that fix.
+    anchor: Option<(i32, i32)>,
     /// How late (s) the positioning sensor's fixes arrive after they were measured.
     fix_latency: f64,
     /// Fixes that came before the origin was known, and so were left out.
@@ -133,6 +139,8 @@ impl MavlinkMeasurements {
             external_pressure: false,
             newest: [f64::NEG_INFINITY; 7],
             origin: None,
+            origin_changes: 0,
+            anchor: None,
             fix_latency: 0.0,
             fixes_before_origin: 0,
             dropped: 0,
@@ -147,7 +155,8 @@ impl MavlinkMeasurements {
         self.thrusters = thrusters;
     }
 
-    /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0).
+    /// Starts the time line over (the autopilot rebooted: its stamps begin again near 0); the
+    /// fixes' anchor is kept.
     pub fn restart(&mut self) {
         self.newest = [f64::NEG_INFINITY; 7];
         self.origin = None;
@@ -171,19 +180,30 @@ impl MavlinkMeasurements {
         self.origin
     }
 
-    /// Position fixes left out because the origin was not known yet.
+    /// Position fixes that came before the autopilot said its origin (placed from the anchor
+    /// all the same).
     pub fn fixes_before_origin(&self) -> u64 {
         self.fixes_before_origin
     }
 
+    /// Times the autopilot's origin changed after it was first said.
+    pub fn origin_changes(&self) -> u64 {
+        self.origin_changes
+    }
+
+    /// Where position fixes are placed from (1e-7 deg), once the first came.
+    pub fn anchor(&self) -> Option<(i32, i32)> {
+        self.anchor
+    }
+
     fn fix(&mut self, now: f64, lat_e7: i32, lon_e7: i32, std: f64, mut out: impl FnMut(Observation)) {
-        let Some(origin) = self.origin else {
+        if self.origin.is_none() {
             self.fixes_before_origin += 1;
-            return;
-        };
+        }
+        let anchor = *self.anchor.get_or_insert(self.origin.unwrap_or((lat_e7, lon_e7)));
         let t = now - self.fix_latency;
         if self.in_order(6, t) {
-            let (x, y) = north_east_of(origin, lat_e7, lon_e7);
+            let (x, y) = north_east_of(anchor, lat_e7, lon_e7);
             out(Observation::Measured(Measurement::Fix { t, x, y, std }));
         }
     }
@@ -277,7 +297,11 @@ impl MavlinkMeasurements {
                     out(Observation::Measured(Measurement::VelocityBody { t, u, v, w }));
                 }
             }
-            MavMessage::GPS_GLOBAL_ORIGIN(o) => self.origin = Some((o.latitude, o.longitude)),
+            MavMessage::GPS_GLOBAL_ORIGIN(o) => {
+                let said = (o.latitude, o.longitude);
+                self.origin_changes += u64::from(self.origin.is_some_and(|before| before != said));
+                self.origin = Some(said);
+            }
             MavMessage::GPS_INPUT(g) if g.fix_type as u8 >= FIX_2D => {
                 let stated = !g.ignore_flags.contains(GpsInputIgnoreFlags::GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY)
                     && g.horiz_accuracy > 0.0;
@@ -365,10 +389,11 @@ mod tests {
         assert_eq!(got.len(), 3, "the position's velocity holds it: {got:?}");
     }
 
-    /// A `GPS_INPUT` fix waits for the EKF origin, then is metres north and east of it on
-    /// ArduPilot's flat earth, stamped its latency before it came, with the stated accuracy.
+    /// A `GPS_INPUT` fix is metres north and east of the anchor on ArduPilot's flat earth: the
+    /// first fix where it came before the EKF origin, and an origin said later moves nothing;
+    /// stamped its latency before it came, with the stated accuracy.
     #[test]
-    fn gps_input_fixes_are_placed_from_the_origin_and_stamped_when_measured() {
+    fn gps_input_fixes_are_placed_from_the_anchor_and_stamped_when_measured() {
         use mavlink::dialects::ardupilotmega::{GPS_GLOBAL_ORIGIN_DATA, GPS_INPUT_DATA, GpsFixType};
         let mut m = MavlinkMeasurements::new(1013.25, 1000.0, None);
         m.set_fix_latency(0.5);
@@ -384,25 +409,32 @@ mod tests {
                 ..Default::default()
             })
         };
+        // Before any origin: the first fix is the anchor, at zero.
         m.observe(10.0, &fix(100, 0, 0.25, GpsInputIgnoreFlags::empty()), |o| got.push(o));
-        assert!(got.is_empty() && m.fixes_before_origin() == 1);
-        let o = GPS_GLOBAL_ORIGIN_DATA { latitude: origin.0, longitude: origin.1, altitude: 0 };
-        m.observe(10.1, &MavMessage::GPS_GLOBAL_ORIGIN(o), |o| got.push(o));
-        // 100e-7 deg north is 1.113 m; 100e-7 deg east at 33.81 deg north is 0.925 m.
-        m.observe(10.25, &fix(100, 100, 0.25, GpsInputIgnoreFlags::empty()), |o| got.push(o));
-        let Observation::Measured(Measurement::Fix { t, x, y, std }) = got[0] else { panic!("{got:?}") };
+        assert!(matches!(got[0], Observation::Measured(Measurement::Fix { x, y, .. }) if x == 0.0 && y == 0.0));
+        assert_eq!((m.fixes_before_origin(), m.anchor()), (1, Some((origin.0 + 100, origin.1))));
+        // The origin said later, and then changed: the fixes stay where the anchor puts them.
+        for dlat in [0, 300] {
+            let o = GPS_GLOBAL_ORIGIN_DATA { latitude: origin.0 + dlat, longitude: origin.1, altitude: 0 };
+            m.observe(10.1, &MavMessage::GPS_GLOBAL_ORIGIN(o), |o| got.push(o));
+        }
+        assert_eq!(m.origin_changes(), 1);
+        // 100e-7 deg east at 33.81 deg north is 0.925 m; 100e-7 deg north is 1.113 m.
+        m.observe(10.25, &fix(200, 100, 0.25, GpsInputIgnoreFlags::empty()), |o| got.push(o));
+        let Observation::Measured(Measurement::Fix { t, x, y, std }) = got[1] else { panic!("{got:?}") };
         assert!((t - 9.75).abs() < 1e-12 && (std - 0.25).abs() < 1e-7, "{t} {std}");
-        assert!((x - 1.113188).abs() < 1e-5 && (y - 1.113188 * 33.8103130_f64.to_radians().cos()).abs() < 1e-5);
+        let scale = (f64::from(origin.0 + 100) * 1e-7).to_radians().cos();
+        assert!((x - 1.113188).abs() < 1e-5 && (y - 1.113188 * scale).abs() < 1e-5, "{x} {y}");
         // No stated accuracy: NaN (the filter's own figure); no fix: nothing.
         let ignore = GpsInputIgnoreFlags::GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY;
         m.observe(10.5, &fix(0, 0, 0.25, ignore), |o| got.push(o));
-        assert!(matches!(got[1], Observation::Measured(Measurement::Fix { std, .. }) if std.is_nan()));
+        assert!(matches!(got[2], Observation::Measured(Measurement::Fix { std, .. }) if std.is_nan()));
         let mut none = fix(0, 0, 0.25, ignore);
         if let MavMessage::GPS_INPUT(g) = &mut none {
             g.fix_type = GpsFixType::GPS_FIX_TYPE_NO_FIX;
         }
         m.observe(10.75, &none, |o| got.push(o));
-        assert_eq!(got.len(), 2);
+        assert_eq!(got.len(), 3);
     }
 
     #[test]

@@ -318,6 +318,15 @@ pub struct EstimatorArgs {
     /// about 0.5.
     #[arg(long, default_value_t = 0.0, value_parser = seconds_or_zero)]
     pub fix_latency: f64,
+    /// The DVL's yaw misalignment as measured on the vehicle (deg, its forward axis turned to
+    /// starboard of the hull's): taken as known. Without it the estimator estimates it from
+    /// the positioning sensor's fixes while the vehicle moves (a prior of 3 deg).
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub dvl_yaw_deg: Option<f64>,
+    /// The DVL's scale as measured (it reads FACTOR times the velocity, e.g. 1.01): taken as
+    /// known. Without it, estimated as the misalignment is (a prior of 3 %).
+    #[arg(long, value_name = "FACTOR")]
+    pub dvl_scale: Option<f64>,
     /// Ask the autopilot for the simulator's truth (SIM_STATE, ArduPilot's SITL only) and
     /// report the estimate's errors against it.
     #[arg(long)]

@@ -40,9 +40,6 @@ const DVL_NOISE_FLOOR: f64 = 0.005;
 /// point held is where the estimate puts the vehicle then, and its error then stays in every
 /// figure after (beside a DVL: the station 0.095-0.128 m RMS after 10 s of fixes, 0.049-0.056 m after 20).
 const FIXES_SETTLE_S: f64 = 20.0;
-/// The spread (m) a USBL's position is opened to when its fixes are taken up, where it states
-/// no accuracy of its own and none was measured yet.
-const FIX_STD_UNKNOWN: f64 = 1.0;
 /// The process noise on the horizontal position (m per step) while navigating on the sensors'
 /// own messages: the position is the integral of the velocity the model and the DVL give, with
 /// little error of its own; the default (0.005) is for the autopilot's filtered position, and
@@ -92,6 +89,8 @@ pub(super) struct Flight<'l> {
     /// Since when (autopilot time, s) pinc navigates on the sensor's own fixes, and the
     /// position's process noise set before (restored when they stop).
     own_fixes_since: Option<f64>,
+    /// The autopilot's origin changes seen so far (each one relatches its position).
+    origin_changes_seen: u64,
     position_process_std: f64,
     /// Where the autopilot's integrated position (no absolute source) lies from pinc's: taken
     /// when the autopilot measures again after a loss, since it goes on from where its own
@@ -198,6 +197,7 @@ impl<'l> Flight<'l> {
             dvl_velocities: NoiseWindow::default(),
             autopilot_left_out: 0,
             own_fixes_since: None,
+            origin_changes_seen: 0,
             position_process_std: 0.0,
             autopilot_offset: [0.0, 0.0],
             relatch_until: None,
@@ -569,9 +569,20 @@ impl<'l> Flight<'l> {
         if returned && drive.position_integrated() && each!(&*estimator, tr => tr.navigation(t)).usable() {
             self.relatch_until = Some(t + RELATCH_S);
         }
-        let relatching = self.relatch_until.is_some_and(|until| t < until);
+        // The autopilot's frame moved (its origin said again elsewhere) while its position is
+        // fused: its positions set the offset again rather than move the vehicle.
+        let origin_changes = drive.assembler().reader().origin_changes();
+        if origin_changes > self.origin_changes_seen && position_measured && self.t0.is_some() {
+            self.relatch_until = Some(t + RELATCH_S);
+            self.say(t, Level::Warning, format!(
+                "the autopilot's EKF origin changed at {t:.2} s: its positions are taken from pinc's estimate on (the \
+                 point held stays over the ground)"
+            ));
+        }
+        self.origin_changes_seen = origin_changes;
         self.position_measured_before = Some(position_measured);
         let own_fixes = self.own_fixes_now(drive, estimator, t);
+        let relatching = self.relatch_until.is_some_and(|until| t < until);
         let vertical_velocity_valid = drive.assembler().reader().vertical_velocity_valid();
         let observations: Vec<Observation> = drive.drain_observations().collect();
         for mut ob in observations {
@@ -673,12 +684,11 @@ impl<'l> Flight<'l> {
         match (own_fixes, self.own_fixes_since) {
             (true, None) => {
                 self.own_fixes_since = Some(t);
-                let std = self.fix_std_stated.or(self.fixes.noise()).unwrap_or(FIX_STD_UNKNOWN);
+                // The fixes' frame need not be the estimate's (an origin set late or by hand, a
+                // topside GPS's error): the filter estimates the offset between them, and the
+                // estimate, and the point held, stay where they are (docs/MODEL.md section 15).
                 self.position_process_std = each!(&*estimator, tr => tr.position_process_std());
-                each!(&mut *estimator, tr => {
-                    tr.open_horizontal_position(std);
-                    tr.set_position_process_std(OWN_FIXES_POSITION_PROCESS_STD);
-                });
+                each!(&mut *estimator, tr => tr.set_position_process_std(OWN_FIXES_POSITION_PROCESS_STD));
                 self.notes.push(Note {
                     t,
                     level: Level::Info,
@@ -692,6 +702,9 @@ impl<'l> Flight<'l> {
             }
             (false, Some(_)) => {
                 self.own_fixes_since = None;
+                // The autopilot's position, in its own frame, is taken from pinc's estimate on:
+                // the fixes' frame and the autopilot's need not agree (its origin set elsewhere).
+                self.relatch_until = Some(t + RELATCH_S);
                 each!(&mut *estimator, tr => tr.set_position_process_std(self.position_process_std));
                 self.notes.push(Note {
                     t,

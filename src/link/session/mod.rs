@@ -257,6 +257,14 @@ pub fn run<M: DiscreteModel + Clone>(
             AnyEstimator::<M>::Vehicle(Estimator::new(v, noise).with_dead_reckoning_bound(dead_reckoning_bound))
         }
     };
+    // The DVL's mounting where the owner measured it; the rest stays estimated.
+    let (yaw, scale) = (o.estimator.dvl_yaw_deg, o.estimator.dvl_scale);
+    if yaw.is_some() || scale.is_some() {
+        let e = each!(&estimator, tr => tr.ekf().estimate());
+        let (yaw, yaw_std) = yaw.map_or(e.dvl_yaw, |d| (d.to_radians(), 0.0));
+        let (scale, scale_std) = scale.map_or(e.dvl_scale, |k| (k - 1.0, 0.0));
+        each!(&mut estimator, tr => tr.set_dvl_mounting(yaw, yaw_std, scale, scale_std));
+    }
     let outcome = flight.fly(&mut drive, &mut estimator, &mut flyer, scenario, pilot.as_mut(), o, &truths, seen);
     Ok(summary::end(flight, drive, outcome, &estimator, o))
 }

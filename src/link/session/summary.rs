@@ -116,15 +116,40 @@ fn navigation_figures<M: DiscreteModel>(f: &Flight, estimator: &AnyEstimator<M>,
     let reader = drive.assembler().reader();
     let late_fixes = each!(estimator, tr => tr.late_fixes());
     let bound = each!(estimator, tr => tr.dead_reckoning_bound());
+    // Also after the first 20 s: the estimate's own settling left out.
+    let settled_from = f.t0.unwrap_or(0.0) + 20.0;
     let error = |track: Vec<Displaced>| -> Option<Value> {
-        let errors: Vec<f64> = track.iter().map(|d| (d.own.0 - d.truth.0).hypot(d.own.1 - d.truth.1)).collect();
+        let miss = |d: &Displaced| (d.own.0 - d.truth.0).hypot(d.own.1 - d.truth.1);
+        let errors: Vec<f64> = track.iter().map(miss).collect();
+        let settled: Vec<f64> = track.iter().filter(|d| d.t >= settled_from).map(miss).collect();
         let max = errors.iter().copied().fold(0.0, f64::max);
-        (!errors.is_empty()).then(|| json!({"rms_m": rms(&errors), "max_m": max, "samples": errors.len()}))
+        (!errors.is_empty()).then(|| {
+            json!({"rms_m": rms(&errors), "max_m": max, "samples": errors.len(),
+                   "rms_after_20_s_m": (!settled.is_empty()).then(|| rms(&settled))})
+        })
     };
     let (pinc, autopilot) = (error(pinc_track(f)), error(autopilot_track(f)));
     let changes: Vec<Value> =
         f.navigation_changes.iter().map(|(t, mode, std)| json!({"t": t, "mode": mode, "added_std_m": std})).collect();
+    let (estimate, counts) = each!(estimator, tr => (tr.ekf().estimate(), tr.counts()));
+    let ((offset, offset_std), (yaw, yaw_std), (scale, scale_std)) =
+        (estimate.fix_offset, estimate.dvl_yaw, estimate.dvl_scale);
     json!({
+        "fix_frame": {
+            "offset_m": offset,
+            "offset_std_m": offset_std,
+            "known": each!(estimator, tr => tr.ekf().fix_offset_known()),
+            "outliers_left_out": counts.fixes_rejected,
+            "frame_moves": counts.fix_frame_moves,
+            "anchor_e7": reader.anchor(),
+            "origin_changes": reader.origin_changes(),
+        },
+        "dvl_mounting": {
+            "yaw_deg": yaw.to_degrees(),
+            "yaw_std_deg": yaw_std.to_degrees(),
+            "scale_error": scale,
+            "scale_error_std": scale_std,
+        },
         "dvl_seen": f.own_velocity_at.is_some(),
         "dvl_fused": f.dvl_fused,
         "dvl_left_out_beside_the_autopilots_position": f.dvl_left_out,
