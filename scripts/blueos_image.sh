@@ -137,9 +137,19 @@ build() {
   log "$p: Debian bookworm's $PACKAGES for $arch"
   # The archive's signatures checked against Debian's keyring (apt's gpgv; no gpg needed to find it).
   [ -f "$KEYRING" ] || die "$KEYRING missing (Debian's package debian-archive-keyring)"
-  run mmdebstrap --quiet --mode=root --variant=extract --skip=check/signed-by --architectures="$arch" \
-    --include="$PACKAGES" bookworm "$rootfs" "deb [signed-by=$KEYRING] $MIRROR bookworm main" \
-    "deb [signed-by=$KEYRING] $MIRROR bookworm-updates main" "deb [signed-by=$KEYRING] $SECURITY_MIRROR bookworm-security main"
+  local sources=("deb [signed-by=$KEYRING] $MIRROR bookworm main" "deb [signed-by=$KEYRING] $MIRROR bookworm-updates main")
+  local security="deb [signed-by=$KEYRING] $SECURITY_MIRROR bookworm-security main"
+  local mm=(mmdebstrap --quiet --mode=root --variant=extract --skip=check/signed-by,cleanup/apt/cache
+    --architectures="$arch" --include="$PACKAGES" bookworm "$rootfs")
+  if ! run "${mm[@]}" "${sources[@]}" "$security"; then
+    # A mirror whose security index for this architecture is out of step with its signed Release
+    # file fails apt's update; bookworm's point releases carry the security fixes some weeks later.
+    log "warning: $p: bookworm-security's $arch index could not be read (above; mirror out of step?):"
+    log "warning: $p: taking the packages from bookworm and bookworm-updates alone (its latest point release)"
+    rm -rf "$rootfs"
+    run "${mm[@]}" "${sources[@]}" || die "$p: mmdebstrap could not build the root file system (above)"
+  fi
+  log "$p: packages: $(cd "$rootfs/var/cache/apt/archives" && ls -- *.deb | sed 's/\.deb$//' | tr '\n' ' ')"
   [ -e "$rootfs/usr/share/doc/libc6/copyright" ] || die "$p: the root file system has no libc6 (mmdebstrap's output above)"
   # What a container does not use or gets from Docker: device nodes, this machine's resolv.conf and
   # hostname (mmdebstrap copies them in), apt's settings and lists (no apt inside), glibc's iconv
