@@ -1077,12 +1077,18 @@ impl Flight<'_> {
             Navigation::DeadReckoning { std, .. } => Some(std),
             _ => None,
         };
+        let (e, counts, known) =
+            each!(estimator, tr => (tr.ekf().estimate(), tr.counts(), tr.ekf().fix_offset_known()));
         json!({
             "mode": now.navigation.name(), "std_m": std.is_finite().then_some(std), "added_std_m": added,
             "gate": {"positions": position.count, "positions_rejected": position.rejected,
                      "velocities": velocity.count, "velocities_rejected": velocity.rejected},
             "dvl": {"fused": self.dvl_fused, "left_out": self.dvl_left_out, "noise_m_s": self.dvl_velocities.noise()},
-            "fixes": {"received": self.fixes.count(), "noise_m": self.fixes.noise(), "own": self.own_fixes_since.is_some()},
+            "fixes": {"received": self.fixes.count(), "noise_m": self.fixes.noise(), "own": self.own_fixes_since.is_some(),
+                      "frame_offset_m": known.then_some(e.fix_offset.0), "frame_offset_std_m": known.then_some(e.fix_offset.1),
+                      "outliers": counts.fixes_rejected, "frame_moves": counts.fix_frame_moves},
+            "dvl_mounting": {"yaw_deg": e.dvl_yaw.0.to_degrees(), "yaw_std_deg": e.dvl_yaw.1.to_degrees(),
+                             "scale": 1.0 + e.dvl_scale.0, "scale_std": e.dvl_scale.1},
             "autopilot": {"left_out": self.autopilot_left_out},
         })
     }
