@@ -385,14 +385,15 @@ fn run_name(a: &Args, scenario: &Scenario) -> String {
 
 fn try_main(a: Args) -> Result<(), String> {
     let (model_path, built_in) = model_file(a.model.as_deref(), &a.out_dir).map_err(|e| e.to_string())?;
+    let settings = settings(&a, &model_path)?;
+    let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
+    // Said once the inputs are read: bad input stays a one-line error.
     if built_in && !a.json {
         eprintln!(
             "model: the built-in models/mpc_pinc_thrust.pinc (no --model given), written to {}",
             model_path.display()
         );
     }
-    let settings = settings(&a, &model_path)?;
-    let campaign = Campaign::new(&settings).map_err(|e| e.to_string())?;
     let Campaign { model, vehicle, scenario, config: cfg, bounds } = &campaign;
     let (model, vehicle, scenario, cfg, bounds) = (model, *vehicle, scenario, cfg.clone(), *bounds);
     let predictor = Predictor::reference(model);
